@@ -1,0 +1,24 @@
+#!/usr/bin/env bash
+# Create ./.venv with everything aslexp needs (idempotent; re-running is quick).
+# torch is pinned to 2.13.0 (a local CPU wheel here); nothing else may upgrade it.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-python3.11}
+command -v "$PY" >/dev/null 2>&1 || PY=python3
+if [ ! -x .venv/bin/python ]; then
+  "$PY" -m venv .venv
+fi
+. .venv/bin/activate
+export PIP_DISABLE_PIP_VERSION_CHECK=1
+pip install -q --upgrade pip setuptools wheel 2>&1 | grep -v "is ignored" || true
+# torch first, so that every later requirement sees 2.13.0 as satisfied.
+pip install -q "torch==2.13.0" 2>&1 | grep -v "is ignored" || true
+pip install -q -e ".[dev]" 2>&1 | grep -v "is ignored" || true
+# hydra-optuna-sweeper 1.3.0 declares optuna<3 but works with optuna 4/5; optuna 2 breaks
+# SQLite storage. Installed without its dependencies so that pip keeps our optuna.
+pip install -q --no-deps "hydra-optuna-sweeper==1.3.0" 2>&1 | grep -v "is ignored" || true
+python - <<'PY'
+import torch, optuna, hydra, pybullet, torchrl  # noqa: F401
+assert torch.__version__.startswith("2.13.0"), torch.__version__
+print(f"aslexp environment ready: torch {torch.__version__}, optuna {optuna.__version__}, hydra {hydra.__version__}")
+PY

@@ -1,0 +1,7 @@
+"""aslexp: an experiment platform for sign-language research.
+
+Two wings over one foundation: phonological property recognition (WLASL x ASL-LEX)
+and imitation (simulated hands and an upper-body humanoid learning signs with PPO).
+"""
+
+__version__ = "0.1.0"

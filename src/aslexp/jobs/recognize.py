@@ -1,0 +1,90 @@
+"""`aslexp recognize`: recognise one phonological property from skeleton keypoints.
+
+Data flow: lexicon + WLASL -> WLASL-Lex table -> keypoints (pose source) -> fixed-length,
+normalised arrays -> split -> classifier -> metrics -> run directory. Returns the validation MCC
+(mean over seeds), the number an Optuna sweep maximises.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig
+
+from aslexp.data.wlasl_lex import build_or_load
+from aslexp.jobs._common import CONF_DIR, run_guarded, seed_everything, to_dict
+from aslexp.recognition.experiment import run_recognition
+from aslexp.runs.loggers import make_logger
+from aslexp.tuning.context import trial_reporter
+
+log = logging.getLogger("aslexp.recognize")
+
+
+def recognize(cfg: DictConfig, run) -> float:
+    seed_everything(int(cfg.seed))
+    dataset = build_or_load(
+        root=cfg.data.root,
+        lexicon=cfg.data.lexicon,
+        pose=to_dict(cfg.pose),
+        property_name=cfg.property.name,
+        split=to_dict(cfg.split),
+        num_frames=int(cfg.data.num_frames),
+        padding=cfg.data.padding,
+        cache_dir=Path(cfg.cache_dir),
+    )
+    log.info(
+        "dataset %s/%s/%s: %d clips, %d classes, shape %s, splits %s",
+        cfg.property.name, cfg.pose.name, cfg.split.name, len(dataset.y), dataset.num_classes,
+        tuple(dataset.X.shape),
+        {k: len(v) for k, v in dataset.splits.items() if k != "folds"},
+    )
+    metric_logger = make_logger(to_dict(cfg.logger), run.dir, to_dict(cfg))
+    reporter = trial_reporter(cfg)
+
+    def on_epoch_end(epoch: int, val_mcc: float, metrics: dict | None = None) -> None:
+        metric_logger.log({"val_mcc": val_mcc, **(metrics or {})}, step=epoch)
+        reporter.report(val_mcc, epoch)
+
+    seeds = [int(cfg.seed) + i for i in range(int(cfg.n_seeds))]
+    try:
+        result = run_recognition(
+            dataset,
+            classifier=to_dict(cfg.classifier),
+            trainer=to_dict(cfg.trainer),
+            seeds=seeds,
+            out_dir=run.dir,
+            on_epoch_end=on_epoch_end,
+        )
+    finally:
+        metric_logger.close()
+    result["context"] = {
+        "property": cfg.property.name,
+        "split": cfg.split.name,
+        "pose": cfg.pose.name,
+        "lexicon": cfg.data.lexicon,
+        "classifier": cfg.classifier.name,
+        "seeds": seeds,
+        "num_clips": int(len(dataset.y)),
+        "num_classes": int(dataset.num_classes),
+        "skipped": dataset.skipped,
+    }
+    run.save_metrics(result)
+    run.set_main_metric("val_mcc", float(result["val_mcc"]), "maximize")
+    test = result.get("test", {})
+    log.info(
+        "%s on %s (%s split): val MCC %.3f | test MCC %s, balanced acc %s",
+        cfg.classifier.name, cfg.property.name, cfg.split.name, result["val_mcc"],
+        test.get("mcc"), test.get("balanced_accuracy"),
+    )
+    return float(result["val_mcc"])
+
+
+@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="recognize")
+def main(cfg: DictConfig) -> float:
+    return run_guarded("recognize", cfg, lambda run: recognize(cfg, run))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,194 @@
+"""A run is a folder: what every job writes about itself, and nothing Hydra-specific.
+
+Layout of a run directory (the jobs fill it; tools under ``aslexp.runs`` only read it):
+
+    .hydra/            resolved config, hydra config, overrides (written by Hydra)
+    run.json           job, command line, git commit and dirty flag, seed, host, versions,
+                       start/end time, status (running|completed|failed), error, main metric
+    metrics.json       the job's numbers (the main metric among them)
+    <job>.log          the log
+    ...                plots (PNG), tables (CSV), checkpoints
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import platform
+import shlex
+import socket
+import subprocess
+import sys
+import traceback
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+RUN_FILE = "run.json"
+METRICS_FILE = "metrics.json"
+
+_TRACKED_PACKAGES = (
+    "aslexp", "torch", "numpy", "hydra-core", "omegaconf", "optuna", "scikit-learn",
+    "pybullet", "gymnasium", "torchrl", "tensordict",
+)
+
+
+class RunExistsError(RuntimeError):
+    """Raised when a job would overwrite a finished run."""
+
+
+def _now() -> str:
+    return _dt.datetime.now().astimezone().isoformat(timespec="seconds")
+
+
+def git_state(cwd: str | os.PathLike | None = None) -> dict[str, Any]:
+    """Commit and dirty flag of the checkout the code runs from (None outside git)."""
+    where = Path(cwd) if cwd else Path(__file__).resolve().parent
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True, timeout=10
+        )
+        if commit.returncode != 0:
+            return {"commit": None, "dirty": None}
+        status = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=where, capture_output=True, text=True, timeout=10,
+        )
+        return {"commit": commit.stdout.strip(), "dirty": bool(status.stdout.strip())}
+    except (OSError, subprocess.SubprocessError):
+        return {"commit": None, "dirty": None}
+
+
+def library_versions() -> dict[str, str | None]:
+    versions: dict[str, str | None] = {"python": platform.python_version()}
+    for name in _TRACKED_PACKAGES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
+    return versions
+
+
+def command_line(argv: list[str] | None = None) -> str:
+    argv = list(sys.argv if argv is None else argv)
+    if argv and argv[0].endswith(("aslexp", "__main__.py")):
+        argv[0] = "aslexp"
+    return shlex.join(argv)
+
+
+def _json_default(obj: Any) -> Any:
+    if hasattr(obj, "item"):
+        return obj.item()
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def write_json(path: str | os.PathLike, payload: Any) -> None:
+    """Write JSON atomically (a crash never leaves half a file)."""
+    path = Path(path)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    with open(tmp, "w", encoding="utf-8") as fh:
+        json.dump(payload, fh, indent=2, default=_json_default, allow_nan=True)
+        fh.write("\n")
+    os.replace(tmp, path)
+
+
+def read_json(path: str | os.PathLike) -> Any:
+    with open(path, encoding="utf-8") as fh:
+        return json.load(fh)
+
+
+@dataclass
+class Run:
+    """Handle on a run directory; created by :func:`start_run`."""
+
+    dir: Path
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def path(self, name: str) -> Path:
+        return self.dir / name
+
+    def _save(self) -> None:
+        write_json(self.dir / RUN_FILE, self.info)
+
+    def set_main_metric(self, name: str, value: float, goal: str = "maximize") -> None:
+        self.info["main_metric"] = {"name": name, "value": value, "goal": goal}
+        self._save()
+
+    def save_metrics(self, metrics: dict[str, Any]) -> None:
+        write_json(self.dir / METRICS_FILE, metrics)
+
+    def finish(self, status: str = "completed", error: str | None = None) -> None:
+        self.info["status"] = status
+        self.info["finished"] = _now()
+        if error is not None:
+            self.info["error"] = error
+        self._save()
+
+    def __enter__(self) -> "Run":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        if exc is None:
+            self.finish("completed")
+        elif isinstance(exc, KeyboardInterrupt):
+            self.finish("interrupted", "KeyboardInterrupt")
+        else:
+            self.finish("failed", "".join(traceback.format_exception_only(exc_type, exc)).strip())
+        return False
+
+
+def start_run(
+    run_dir: str | os.PathLike,
+    job: str,
+    seed: int | None = None,
+    overwrite: bool = False,
+    extra: dict[str, Any] | None = None,
+) -> Run:
+    """Record the start of a run in ``run_dir``; refuse to overwrite a finished run."""
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    existing = run_dir / RUN_FILE
+    if existing.exists() and not overwrite:
+        try:
+            previous = read_json(existing)
+        except (OSError, json.JSONDecodeError):
+            previous = {}
+        if previous.get("status") == "completed":
+            raise RunExistsError(
+                f"{run_dir} holds a finished run ({previous.get('job')}, "
+                f"{previous.get('finished')}); choose another hydra.run.dir or pass +overwrite=true"
+            )
+    info: dict[str, Any] = {
+        "job": job,
+        "command": command_line(),
+        "cwd": os.getcwd(),
+        "git": git_state(),
+        "seed": seed,
+        "host": socket.gethostname(),
+        "platform": platform.platform(),
+        "versions": library_versions(),
+        "started": _now(),
+        "finished": None,
+        "status": "running",
+        "error": None,
+        "main_metric": None,
+    }
+    if extra:
+        info.update(extra)
+    run = Run(run_dir, info)
+    run._save()
+    return run
+
+
+def is_finite(value: Any) -> bool:
+    try:
+        return math.isfinite(float(value))
+    except (TypeError, ValueError):
+        return False
