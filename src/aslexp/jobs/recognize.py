@@ -13,7 +13,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 
-from aslexp.data.wlasl_lex import build_or_load
+from aslexp.data.wlasl_lex import WlaslLexParams, build_or_load
 from aslexp.jobs._common import CONF_DIR, run_guarded, seed_everything, to_dict
 from aslexp.recognition.experiment import run_recognition
 from aslexp.runs.loggers import make_logger
@@ -22,18 +22,28 @@ from aslexp.tuning.context import trial_reporter
 log = logging.getLogger("aslexp.recognize")
 
 
+def dataset_params(cfg: DictConfig) -> WlaslLexParams:
+    """The WLASL-Lex build parameters, gathered from the data/pose/property/split groups."""
+    return WlaslLexParams(
+        lexicon=cfg.data.lexicon,
+        property=cfg.property.name,
+        source=cfg.pose.source,
+        source_path=cfg.pose.get("path"),
+        source_options=to_dict(cfg.pose.get("options")) or {},
+        subset=cfg.pose.subset,
+        channels=to_dict(cfg.pose.get("channels")),
+        split=cfg.split.name,
+        length=int(cfg.data.num_frames),
+        padding=cfg.data.padding,
+        seed=int(cfg.split.seed),
+        rare_classes=cfg.split.rare_classes,
+        movement_none_as_missing=bool(cfg.data.get("movement_none_as_missing", False)),
+    )
+
+
 def recognize(cfg: DictConfig, run) -> float:
     seed_everything(int(cfg.seed))
-    dataset = build_or_load(
-        root=cfg.data.root,
-        lexicon=cfg.data.lexicon,
-        pose=to_dict(cfg.pose),
-        property_name=cfg.property.name,
-        split=to_dict(cfg.split),
-        num_frames=int(cfg.data.num_frames),
-        padding=cfg.data.padding,
-        cache_dir=Path(cfg.cache_dir),
-    )
+    dataset, dataset_dir = build_or_load(Path(cfg.cache_dir), dataset_params(cfg), root=cfg.data.root)
     log.info(
         "dataset %s/%s/%s: %d clips, %d classes, shape %s, splits %s",
         cfg.property.name, cfg.pose.name, cfg.split.name, len(dataset.y), dataset.num_classes,
@@ -69,6 +79,7 @@ def recognize(cfg: DictConfig, run) -> float:
         "num_clips": int(len(dataset.y)),
         "num_classes": int(dataset.num_classes),
         "skipped": dataset.skipped,
+        "dataset_dir": str(dataset_dir),
     }
     run.save_metrics(result)
     run.set_main_metric("val_mcc", float(result["val_mcc"]), "maximize")

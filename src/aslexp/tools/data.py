@@ -32,5 +32,5 @@ def data_main(argv: list[str]) -> int:
         return 0
     root = resolve_data_root(args.root)
     report = fetch_module.check_data(root)
-    print(report.summary() if hasattr(report, "summary") else report)
-    return 0 if report.ok else 1
+    print(report.summary())
+    return 0 if report.all_ok else 1

@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# Set up everything the test suite needs, then run it. `.ci/run` calls exactly this.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh
+# Optional services and worker environments used by some tests (each script is idempotent).
+[ -f scripts/setup_mediapipe.sh ] && bash scripts/setup_mediapipe.sh
+[ -f scripts/ci_postgres.sh ] && bash scripts/ci_postgres.sh
+export MPLBACKEND=Agg
+exec .venv/bin/python -m pytest -q "$@"

@@ -1,0 +1,361 @@
+"""WLASL-Lex: WLASL clips labelled with ASL-LEX phonological properties, ready for a model.
+
+Pipeline (``build_wlasl_lex``): lexicon + WLASL -> gloss matching -> keep the clips that have
+keypoints, a matched gloss and a value for the property -> load keypoints (subset of the layout,
+chosen channels) -> fixed length + normalisation -> stratified split -> artefacts on disk (the
+thesis' WLASL-Lex layout) and a :class:`RecognitionDataset`. Every skipped clip is counted under
+its reason in ``dataset.skipped`` and ``manifest.json``.
+
+Artefacts in the output folder:
+  file2gloss.json, gloss2file.json, file_list.txt (dataset order), label2id.json, split.json
+  (video ids per split; 'folds' for cv5), clips.json (video_id, gloss, entry_id, signer_id,
+  label per clip), layout.json, {train,val,train+val,test}_data_joint_<pose>.npy (N, C, T, V, 1)
+  float32, {split}_label.npy (N,) int64, {split}_mask.npy (N, T, V) bool, manifest.json
+  (parameters, counts, skip reasons; written last).
+``<pose>`` is the layout name, e.g. ``mediapipe_pose_thesis``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import os
+import shutil
+import tempfile
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from aslexp.data.dataset import DataError, KeypointLayout, RecognitionDataset
+from aslexp.data.keypoints import open_keypoint_source, read_layout, write_layout
+from aslexp.data.lexicon import check_property, lexicon_spec, load_lexicon
+from aslexp.data.matching import match_glosses
+from aslexp.data.preprocess import PADDINGS, preprocess_clips
+from aslexp.data.root import resolve_data_root
+from aslexp.data.splits import RARE_RULES, SPLIT_KINDS, make_splits
+from aslexp.data.wlasl import load_wlasl
+from aslexp.pose.base import SubsetSource
+
+log = logging.getLogger(__name__)
+
+FORMAT_VERSION = 1
+SPLIT_FILES = ("train", "val", "train+val", "test")
+MANIFEST = "manifest.json"
+SKIP_REASONS = ("no_keypoints", "keypoints_not_in_wlasl", "gloss_not_in_lexicon",
+                "missing_property_value", "bad_keypoint_file", "no_valid_frame", "rare_class")  # fmt: skip
+
+
+@dataclass(frozen=True)
+class WlaslLexParams:
+    """Everything that determines a WLASL-Lex build (and its cache key)."""
+
+    lexicon: str = "asllex2"  # asllex1 | asllex2
+    property: str = "sign_type"  # one of lexicon.PROPERTIES
+    source: str = "mediapipe_pose_npy"  # mediapipe_pose_npy | directory | published
+    source_path: str | None = None  # folder or array; None = the default of the source
+    source_options: dict = field(default_factory=dict)  # e.g. {"ids": ..., "layout": ...}
+    subset: str = "all"  # keypoint subset of the layout (pose.layouts.SUBSETS)
+    channels: tuple[str, ...] | None = None  # None = all channels of the source
+    split: str = "phoneme"  # phoneme | gloss | cv5
+    length: int = 150
+    padding: str = "loop"  # loop | zero
+    seed: int = 0
+    rare_classes: str = "drop"  # drop | merge | train_only
+    movement_none_as_missing: bool = False
+
+    def __post_init__(self):
+        lexicon_spec(self.lexicon)
+        check_property(self.property)
+        for name, value, allowed in (("split", self.split, SPLIT_KINDS),
+                                     ("padding", self.padding, PADDINGS),
+                                     ("rare_classes", self.rare_classes, RARE_RULES)):  # fmt: skip
+            if value not in allowed:
+                raise DataError(f"WLASL-Lex parameter {name}={value!r}; expected one of {allowed}")
+        if self.channels is not None:
+            object.__setattr__(self, "channels", tuple(self.channels))
+
+    @classmethod
+    def from_dict(cls, values: dict) -> WlaslLexParams:
+        """Build from a plain mapping (e.g. a config section); unknown keys are an error."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise DataError(f"unknown WLASL-Lex parameter(s) {unknown}; expected some of {sorted(known)}")
+        return cls(**dict(values))
+
+    def to_dict(self) -> dict:
+        values = dataclasses.asdict(self)
+        values["channels"] = list(self.channels) if self.channels is not None else None
+        return values
+
+
+def build_wlasl_lex(
+    out_dir: str | Path | None,
+    params: WlaslLexParams | None = None,
+    *,
+    root: str | Path | None = None,
+    strict: bool = False,
+) -> RecognitionDataset:
+    """Build WLASL-Lex for ``params`` and, when ``out_dir`` is given, write its artefacts there.
+
+    ``strict=True`` raises on an unreadable keypoint file instead of skipping it (counted as
+    ``bad_keypoint_file``). Returns the :class:`RecognitionDataset`.
+    """
+    params = params or WlaslLexParams()
+    data_root = resolve_data_root(root)
+    started = time.perf_counter()
+    lexicon = load_lexicon(params.lexicon, data_root,
+                           movement_none_as_missing=params.movement_none_as_missing)  # fmt: skip
+    wlasl = load_wlasl(data_root)
+    matched = match_glosses(wlasl, lexicon)
+    source = SubsetSource(
+        open_keypoint_source(params.source, data_root, params.source_path, **params.source_options),
+        params.subset,
+    )
+    layout = source.layout
+    channel_index = _channel_index(layout, params.channels)
+    channels = [layout.channels[i] for i in channel_index]
+
+    skipped: Counter = Counter({reason: 0 for reason in SKIP_REASONS})
+    available = source.available()
+    wlasl_ids = {instance.video_id for instance in wlasl.instances}
+    skipped["no_keypoints"] = len(wlasl_ids - available)
+    skipped["keypoints_not_in_wlasl"] = len(available - wlasl_ids)
+    candidates = []
+    for instance in wlasl.instances:
+        if instance.video_id not in available:
+            continue
+        match = matched.matches.get(instance.gloss)
+        if match is None:
+            skipped["gloss_not_in_lexicon"] += 1
+        elif match.entry.properties[params.property] is None:
+            skipped["missing_property_value"] += 1
+        else:
+            candidates.append((instance, match.entry))
+
+    clips, loaded = [], []
+    for instance, entry in tqdm(candidates, desc="keypoints", unit="clip", mininterval=2,
+                                leave=False, disable=len(candidates) < 500):  # fmt: skip
+        try:
+            clip = source.load(instance.video_id)
+        except (DataError, OSError) as error:
+            if strict:
+                raise
+            log.warning("skipping video %s: %s", instance.video_id, error)
+            skipped["bad_keypoint_file"] += 1
+            continue
+        clips.append(clip[..., channel_index])
+        loaded.append((instance, entry))
+    zero_frames = getattr(source.source, "zero_frames", {})
+    if zero_frames:
+        total = sum(zero_frames.get(i.video_id, 0) for i, _ in loaded)
+        log.info("%d all-zero frames (no detection) in %d clips marked missing", total, len(loaded))
+
+    prepared = preprocess_clips(clips, channels, params.length, params.padding)
+    skipped["no_valid_frame"] = len(prepared.skipped_no_valid_frame)
+    kept = [loaded[i] for i in prepared.kept]
+    labels = [entry.properties[params.property] for _, entry in kept]
+    glosses = [instance.gloss for instance, _ in kept]
+    split = make_splits(labels, params.split, groups=glosses, seed=params.seed,
+                        rare_classes=params.rare_classes)  # fmt: skip
+    skipped["rare_class"] = split.dropped
+    rows = split.keep
+    kept = [kept[i] for i in rows]
+    skipped = {reason: int(n) for reason, n in skipped.items()}
+    log.info("WLASL-Lex %s/%s: %d clips, %d classes, %d glosses; skipped %s (%.1f s)",
+             params.lexicon, params.property, len(kept), len(split.label_names),
+             len({i.gloss for i, _ in kept}), skipped, time.perf_counter() - started)  # fmt: skip
+
+    dataset = RecognitionDataset(
+        property=params.property,
+        label_names=split.label_names,
+        X=prepared.X[rows],
+        mask=prepared.mask[rows],
+        y=split.y,
+        video_ids=[instance.video_id for instance, _ in kept],
+        glosses=[instance.gloss for instance, _ in kept],
+        signer_ids=[instance.signer_id for instance, _ in kept],
+        layout=layout,
+        channels=channels,
+        splits=split.splits,
+        skipped=skipped,
+    )
+    if out_dir is not None:
+        info = {
+            "data_root": str(data_root),
+            "entry_ids": [entry.entry_id for _, entry in kept],
+            "counts": {
+                "wlasl_instances": len(wlasl.instances),
+                "keypoint_files": len(available),
+                "matched_glosses": matched.num_glosses,
+                "matched_videos": matched.num_videos,
+                "ambiguous_glosses": len(matched.ambiguous),
+                "clips": len(kept),
+                "glosses": len(set(dataset.glosses)),
+                "classes": dataset.num_classes,
+                "all_zero_frames": int(sum(zero_frames.get(i.video_id, 0) for i, _ in loaded)),
+                **{f"preprocess_{k}": v for k, v in prepared.stats.items()},
+            },
+            "rare_classes": {"rule": params.rare_classes, "classes": split.rare},
+        }
+        write_wlasl_lex(out_dir, dataset, params, info)
+    return dataset
+
+
+def _channel_index(layout: KeypointLayout, wanted) -> list[int]:
+    if wanted is None:
+        return list(range(len(layout.channels)))
+    unknown = [c for c in wanted if c not in layout.channels]
+    if unknown:
+        raise DataError(f"channel(s) {unknown} not in layout {layout.name!r} channels {layout.channels}")
+    return [layout.channels.index(c) for c in wanted]
+
+
+def _write_json(path: Path, payload) -> None:
+    path.write_text(json.dumps(payload, indent=1, sort_keys=False), encoding="utf-8")
+
+
+def write_wlasl_lex(out_dir: str | Path, dataset: RecognitionDataset, params: WlaslLexParams,
+                    info: dict) -> Path:  # fmt: skip
+    """Write the artefacts of ``dataset`` (see the module docstring); manifest.json last."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    ids = dataset.video_ids
+    gloss2file: dict[str, list[str]] = {}
+    for video_id, gloss in zip(ids, dataset.glosses):
+        gloss2file.setdefault(gloss, []).append(video_id)
+    _write_json(out / "file2gloss.json", dict(zip(ids, dataset.glosses)))
+    _write_json(out / "gloss2file.json", gloss2file)
+    (out / "file_list.txt").write_text("".join(f"{i}\n" for i in ids), encoding="utf-8")
+    _write_json(out / "label2id.json", {name: i for i, name in enumerate(dataset.label_names)})
+    clips = [{"video_id": v, "gloss": g, "entry_id": e, "signer_id": s, "label": int(y)}
+             for v, g, e, s, y in zip(ids, dataset.glosses, info["entry_ids"],
+                                      dataset.signer_ids, dataset.y)]  # fmt: skip
+    _write_json(out / "clips.json", clips)
+    write_layout(out, dataset.layout)
+    split_ids: dict[str, object] = {name: [ids[i] for i in dataset.splits[name]] for name in SPLIT_FILES}
+    if "folds" in dataset.splits:
+        split_ids["folds"] = [{"train": [ids[i] for i in tr], "val": [ids[i] for i in va]}
+                              for tr, va in dataset.splits["folds"]]  # fmt: skip
+    _write_json(out / "split.json", split_ids)
+    pose = dataset.layout.name
+    files = {}
+    for name in SPLIT_FILES:
+        idx = np.asarray(dataset.splits[name], dtype=np.int64)
+        for kind, array in (("data", dataset.X[idx]), ("label", dataset.y[idx]), ("mask", dataset.mask[idx])):
+            filename = f"{name}_data_joint_{pose}.npy" if kind == "data" else f"{name}_{kind}.npy"
+            np.save(out / filename, array)
+            files[f"{name}_{kind}"] = filename
+    label_counts = {name: {dataset.label_names[k]: int(n) for k, n in
+                           zip(*np.unique(dataset.y[np.asarray(dataset.splits[name], dtype=np.int64)],
+                                          return_counts=True))}
+                    for name in SPLIT_FILES}  # fmt: skip
+    manifest = {
+        "format_version": FORMAT_VERSION,
+        "params": params.to_dict(),
+        "data_root": info["data_root"],
+        "layout": dataset.layout.name,
+        "channels": dataset.channels,
+        "shape": {"N": int(dataset.X.shape[0]), "C": int(dataset.X.shape[1]),
+                  "T": int(dataset.X.shape[2]), "V": int(dataset.X.shape[3])},  # fmt: skip
+        "label_names": dataset.label_names,
+        "counts": info["counts"],
+        "split_sizes": {name: len(split_ids[name]) for name in SPLIT_FILES},
+        "label_counts": label_counts,
+        "skipped": dataset.skipped,
+        "rare_classes": info["rare_classes"],
+        "files": files,
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+    }
+    _write_json(out / MANIFEST, manifest)
+    return out
+
+
+def load_wlasl_lex(out_dir: str | Path) -> RecognitionDataset:
+    """Read a finished build (``manifest.json`` present) back into a RecognitionDataset."""
+    out = Path(out_dir)
+    manifest_path = out / MANIFEST
+    if not manifest_path.is_file():
+        raise DataError(f"{out}: no {MANIFEST}; not a finished WLASL-Lex build")
+    manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
+    clips = json.loads((out / "clips.json").read_text(encoding="utf-8"))
+    split_ids = json.loads((out / "split.json").read_text(encoding="utf-8"))
+    ids = [clip["video_id"] for clip in clips]
+    row = {video_id: i for i, video_id in enumerate(ids)}
+    shape = manifest["shape"]
+    X = np.zeros((shape["N"], shape["C"], shape["T"], shape["V"], 1), dtype=np.float32)
+    mask = np.zeros((shape["N"], shape["T"], shape["V"]), dtype=bool)
+    for name in ("train+val", "test"):  # together they hold every clip
+        idx = np.array([row[v] for v in split_ids[name]], dtype=np.int64)
+        X[idx] = np.load(out / manifest["files"][f"{name}_data"])
+        mask[idx] = np.load(out / manifest["files"][f"{name}_mask"])
+    splits: dict[str, object] = {name: np.array([row[v] for v in split_ids[name]], dtype=np.int64)
+                                 for name in SPLIT_FILES}  # fmt: skip
+    if "folds" in split_ids:
+        splits["folds"] = [(np.array([row[v] for v in f["train"]], dtype=np.int64),
+                            np.array([row[v] for v in f["val"]], dtype=np.int64))
+                           for f in split_ids["folds"]]  # fmt: skip
+    return RecognitionDataset(
+        property=manifest["params"]["property"],
+        label_names=list(manifest["label_names"]),
+        X=X,
+        mask=mask,
+        y=np.array([clip["label"] for clip in clips], dtype=np.int64),
+        video_ids=ids,
+        glosses=[clip["gloss"] for clip in clips],
+        signer_ids=[clip["signer_id"] for clip in clips],
+        layout=read_layout(out / "layout.json"),
+        channels=list(manifest["channels"]),
+        splits=splits,
+        skipped=dict(manifest["skipped"]),
+    )
+
+
+def cache_key(params: WlaslLexParams, root: str | Path | None = None) -> str:
+    """A short hash of the parameters, the data root and the format version."""
+    payload = {"format_version": FORMAT_VERSION, "params": params.to_dict(),
+               "data_root": str(resolve_data_root(root))}  # fmt: skip
+    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def build_or_load(
+    cache_dir: str | Path,
+    params: WlaslLexParams | None = None,
+    *,
+    root: str | Path | None = None,
+    strict: bool = False,
+) -> tuple[RecognitionDataset, Path]:
+    """Reuse the finished build for these parameters under ``cache_dir``, or build it.
+
+    A build goes to a temporary folder that is renamed into place only once complete (manifest
+    written last), so an interrupted build is never read: it is rebuilt. Returns the dataset and
+    its folder.
+    """
+    params = params or WlaslLexParams()
+    cache_dir = Path(cache_dir)
+    key = cache_key(params, root)
+    final = cache_dir / f"wlasl_lex-{params.lexicon}-{params.property}-{params.split}-{key}"
+    manifest_path = final / MANIFEST
+    if manifest_path.is_file():
+        manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
+        if manifest.get("format_version") == FORMAT_VERSION and manifest.get("params") == params.to_dict():
+            log.info("reusing WLASL-Lex build %s", final)
+            return load_wlasl_lex(final), final
+        log.warning("%s: manifest parameters differ from the request; rebuilding", final)
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.", dir=cache_dir))
+    try:
+        dataset = build_wlasl_lex(staging, params, root=root, strict=strict)
+        if final.exists():
+            shutil.rmtree(final)
+        os.replace(staging, final)
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging, ignore_errors=True)
+    return dataset, final

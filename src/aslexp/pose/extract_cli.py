@@ -1,0 +1,122 @@
+"""`aslexp extract VIDEO_OR_DIR... --out DIR`: videos -> keypoints (+ overlays, motion files).
+
+Examples::
+
+    aslexp extract ../shared/data/videos/wlasl --out outputs/keypoints/wlasl6 --overlay --motions
+    aslexp extract ../shared/data/wlasl/WLASL_v0.3.json --videos ../shared/data/videos/wlasl \\
+        --out outputs/keypoints/wlasl6            # cut each video to frame_start..frame_end
+
+Exit code: 0 when every video succeeded, 2 when some failed (listed in the summary), 1 when
+nothing could start (bad arguments, no MediaPipe environment).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections import Counter
+from pathlib import Path
+
+from aslexp.pose.extract import (
+    ExtractionError,
+    ExtractOptions,
+    collect_jobs,
+    extract_videos,
+    render_overlays,
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="aslexp extract",
+        description="Extract MediaPipe Holistic keypoints from sign videos (cached per video), "
+        "optionally with skeleton overlays and DeepMimic reference motions.",
+    )
+    p.add_argument("inputs", nargs="+", help="video files, folders of videos, or a WLASL json")
+    p.add_argument("--out", required=True, help="output folder (a 'directory' keypoint source)")
+    p.add_argument("--wlasl", help="WLASL json: cut each video to its instance's frame range")
+    p.add_argument("--videos", help="folder of <video_id>.mp4 for a WLASL json")
+    p.add_argument("--ids", nargs="*", help="only these video ids")
+    p.add_argument("--face", action="store_true", help="also store the 468 face landmarks")
+    p.add_argument("--no-hands-model", action="store_true",
+                   help="Holistic only (no metric 3D hands from MediaPipe Hands; faster)")
+    p.add_argument("--cpus", type=int, default=1,
+                   help="cores for the MediaPipe worker (default 1; 0 = all)")
+    p.add_argument("--force", action="store_true", help="redo videos that are already extracted")
+    p.add_argument("--overlay", action="store_true", help="draw the skeleton on each video")
+    p.add_argument("--overlay-format", choices=("mp4", "gif"), default="mp4")
+    p.add_argument("--motions", action="store_true",
+                   help="write hand (23-column) and upper-body (76-column) motion files")
+    p.add_argument("--hand", choices=("dominant", "right", "left"), default="dominant",
+                   help="which signer hand drives the 15-DoF hand motion")
+    p.add_argument("--torso", choices=("vertical", "hips"), default="vertical",
+                   help="chest pitch: upright (default; waist-framed videos) or from the hips")
+    p.add_argument("--sigma", type=float, default=1.0, help="temporal smoothing of angles (frames)")
+    p.add_argument("--data-root", help="data root with models/ (default: ../shared/data)")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    return p
+
+
+def extract_main(argv: list[str]) -> int:
+    """Entry point for `aslexp extract`; returns the exit code."""
+    args = build_parser().parse_args(argv)
+    skipped: Counter = Counter()
+    try:
+        jobs = collect_jobs(args.inputs, wlasl_json=args.wlasl, video_dir=args.videos,
+                            ids=args.ids, skipped=skipped)  # fmt: skip
+    except ExtractionError as err:
+        print(f"aslexp extract: {err}", file=sys.stderr)
+        return 1
+    if not jobs:
+        print("aslexp extract: no videos found in the inputs "
+              f"({', '.join(args.inputs)}); skipped: {dict(skipped) or 'nothing'}", file=sys.stderr)  # fmt: skip
+        return 1
+    options = ExtractOptions(face=args.face, hands_model=not args.no_hands_model,
+                             cpus=args.cpus or None)  # fmt: skip
+    try:
+        summary = extract_videos(jobs, args.out, options, force=args.force, progress=not args.quiet)
+    except ExtractionError as err:
+        print(f"aslexp extract: {err}", file=sys.stderr)
+        return 1
+    summary.skipped_inputs = dict(skipped)
+    print(summary.report())
+    failed = bool(summary.failed)
+    done = sorted(summary.ok)
+    if args.overlay and done:
+        results = render_overlays(done, args.out, fmt=args.overlay_format, cpus=args.cpus or None)
+        bad = {v: r for v, r in results.items() if r.get("status") != "ok"}
+        print(f"overlays: {len(results) - len(bad)} written to {Path(args.out) / 'overlay'}")
+        for vid, r in sorted(bad.items()):
+            print(f"  overlay FAILED {vid}: {r.get('error')}")
+        failed |= bool(bad)
+    if args.motions and done:
+        failed |= _write_motions(done, args)
+    summary_path = Path(args.out) / "summary.json"
+    data = json.loads(summary_path.read_text())
+    data["skipped_inputs"] = dict(skipped)
+    summary_path.write_text(json.dumps(data, indent=1))
+    return 2 if failed else 0
+
+
+def _write_motions(video_ids: list[str], args) -> bool:
+    from aslexp.pose.retarget import retarget_video
+
+    counts: Counter = Counter()
+    problems = []
+    for vid in video_ids:
+        result = retarget_video(args.out, vid, hand=args.hand, sigma=args.sigma,
+                                data_root=args.data_root, torso=args.torso)
+        for part in ("hand", "upper_body"):
+            r = result[part]
+            counts[f"{part} {r['status']}"] += 1
+            if r["status"] != "ok":
+                problems.append(f"  motion FAILED {vid} {part}: {r['error']}")
+    print(f"motions in {Path(args.out) / 'motions'}: " + ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())))
+    for line in problems:
+        print(line)
+    return bool(problems)
+
+
+if __name__ == "__main__":
+    sys.exit(extract_main(sys.argv[1:]))

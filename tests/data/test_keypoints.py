@@ -1,0 +1,100 @@
+import json
+import pickle
+
+import numpy as np
+import pytest
+
+from aslexp.data.dataset import DataError
+from aslexp.data.keypoints import (DirectoryKeypointSource, MediaPipePoseNpySource,
+                                   open_keypoint_source, write_layout)
+from aslexp.pose.base import KeypointSource, SubsetSource
+from aslexp.pose.importers import PublishedArraySource, write_published_arrays
+from aslexp.pose.layouts import MEDIAPIPE_POSE, SIGN27, induced_edges, subset_layout
+
+KEYPOINT_DIR = "keypoints/wlasl-mediapipe-pose"
+
+
+@pytest.fixture(scope="module")
+def mediapipe(data_root):
+    return open_keypoint_source("mediapipe_pose_npy", data_root)
+
+
+def test_mediapipe_source_marks_no_detection_frames(mediapipe):
+    assert isinstance(mediapipe, KeypointSource)
+    ids = sorted(mediapipe.available())
+    assert len(ids) == 291
+    frames = 0
+    for video_id in ids:
+        clip = mediapipe.load(video_id)
+        assert clip.dtype == np.float32 and clip.shape[1:] == (33, 4)
+        frames += int(np.isnan(clip).all(axis=(1, 2)).sum())
+        assert not np.any(np.all(clip == 0, axis=(1, 2)))  # no all-zero frame survives
+    assert frames == 753 == sum(mediapipe.zero_frames.values())
+
+
+def test_mediapipe_bad_shapes(tmp_path, data_root):
+    np.save(tmp_path / "wrong.npy", np.zeros((10, 99)))
+    np.save(tmp_path / "empty.npy", np.zeros((0, 132)))
+    source = MediaPipePoseNpySource(tmp_path)
+    with pytest.raises(DataError) as error:
+        source.load("wrong")
+    assert "wrong.npy" in str(error.value) and "(T, 132)" in str(error.value)
+    assert source.load("empty").shape == (0, 33, 4)
+    with pytest.raises(FileNotFoundError, match="absent.npy"):
+        source.load("absent")
+
+
+def test_subsets_and_edges():
+    layout, keep = subset_layout(MEDIAPIPE_POSE, "thesis")
+    assert keep == (0, 2, 5, *range(11, 23)) and layout.num_nodes == 15
+    assert (0, 1) in layout.edges and (0, 2) in layout.edges  # nose-eyes through dropped corners
+    assert all(0 <= i < 15 and 0 <= j < 15 for i, j in layout.edges)
+    upper, keep = subset_layout(MEDIAPIPE_POSE, "upper_body")
+    assert upper.num_nodes == 23 and max(max(e) for e in upper.edges) < 23
+    assert len(SIGN27.names) == 27 and len(SIGN27.edges) == 26
+    assert induced_edges(((0, 1), (1, 2)), (0, 2)) == ((0, 1),)
+    with pytest.raises(DataError, match="hands"):
+        subset_layout(MEDIAPIPE_POSE, "hands")
+
+
+def test_directory_source_roundtrip(tmp_path, mediapipe):
+    video_id = sorted(mediapipe.available())[0]
+    clip = mediapipe.load(video_id)
+    subset = SubsetSource(mediapipe, "thesis")
+    write_layout(tmp_path, subset.layout)
+    np.save(tmp_path / f"{video_id}.npy", subset.load(video_id))
+    source = DirectoryKeypointSource(tmp_path)
+    assert source.layout == subset.layout and source.available() == {video_id}
+    np.testing.assert_array_equal(source.load(video_id), clip[:, list(subset.indices)])
+    np.save(tmp_path / "bad.npy", np.zeros((5, 14, 4), np.float32))
+    with pytest.raises(DataError, match="bad.npy"):
+        source.load("bad")
+    (tmp_path / "layout.json").write_text(json.dumps({"name": "x"}))
+    with pytest.raises(DataError, match="layout.json"):
+        DirectoryKeypointSource(tmp_path)
+
+
+@pytest.mark.parametrize("ids_format", ["txt", "json", "pkl"])
+def test_published_importer_roundtrip(tmp_path, mediapipe, ids_format):
+    ids = sorted(mediapipe.available())[:6]
+    clips = [mediapipe.load(i)[:, :27, :3] for i in ids]  # 27 nodes x 3 channels, like HRNet
+    length = max(len(c) for c in clips)
+    array = write_published_arrays(tmp_path / "data.npy", clips, ids, length)
+    ids_path = tmp_path / f"ids.{ids_format}"
+    if ids_format == "txt":
+        ids_path = tmp_path / "file_list.txt"
+    elif ids_format == "json":
+        ids_path.write_text(json.dumps(ids))
+    else:
+        ids_path.write_bytes(pickle.dumps((ids, list(range(len(ids))))))  # SL-GCN label pickle
+    source = PublishedArraySource(array, ids_path)
+    assert source.layout is SIGN27 and source.available() == set(ids)
+    for video_id, clip in zip(ids, clips):
+        loaded = source.load(video_id)
+        assert loaded.shape == (length, 27, 3)
+        np.testing.assert_array_equal(loaded[: len(clip)], clip)  # NaN where missing, both sides
+        assert np.isnan(loaded[len(clip):]).all()  # zero padding -> missing
+    frankmocap = PublishedArraySource(array, ids, layout=None)
+    assert frankmocap.layout.name == "sign27"
+    with pytest.raises(DataError, match="rows"):
+        PublishedArraySource(array, ids[:3])

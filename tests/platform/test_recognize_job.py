@@ -1,0 +1,106 @@
+"""`aslexp recognize` end to end on the real 291-clip keypoint set (tiny budgets)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import yaml
+
+FAST = ["experiment=debug", "classifier=logreg", "classifier.params.max_iter=200"]
+
+
+def test_single_run_writes_its_whole_directory(aslexp, tmp_path):
+    run_dir = tmp_path / "run"
+    aslexp("recognize", *FAST, "seed=3", f"hydra.run.dir={run_dir}")
+
+    for name in ("run.json", "metrics.json", "per_class.csv", "predictions.csv",
+                 "confusion_matrix.png", "learning_curves.png", "recognize.log",
+                 ".hydra/config.yaml", ".hydra/overrides.yaml", ".hydra/hydra.yaml"):
+        assert (run_dir / name).is_file(), name
+    assert any(run_dir.glob("model.*")), "model checkpoint"
+
+    info = json.loads((run_dir / "run.json").read_text())
+    assert info["status"] == "completed" and info["job"] == "recognize"
+    assert info["seed"] == 3 and "seed=3" in info["command"]
+    assert set(info["git"]) == {"commit", "dirty"}
+    assert info["versions"]["torch"].startswith("2.13.0")
+    assert info["main_metric"]["name"] == "val_mcc"
+
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    test = metrics["test"]
+    for key in ("accuracy", "accuracy_ci_low", "accuracy_ci_high", "balanced_accuracy",
+                "precision_micro", "recall_micro", "f1_micro", "precision_macro",
+                "recall_macro", "f1_macro", "mcc"):
+        assert math.isfinite(test[key]), key
+    assert test["accuracy_ci_low"] <= test["accuracy"] <= test["accuracy_ci_high"]
+    assert metrics["context"]["property"] == "sign_type"
+    assert metrics["context"]["num_clips"] == 283  # 285 clips in ASL-LEX 2.0, 2 in a rare class
+    assert metrics["baseline"]["name"] in ("majority", "stratified")
+    overrides = yaml.safe_load((run_dir / ".hydra/overrides.yaml").read_text())
+    assert "seed=3" in overrides
+
+
+def test_a_finished_run_is_never_overwritten(aslexp, tmp_path):
+    run_dir = tmp_path / "run"
+    aslexp("recognize", *FAST, f"hydra.run.dir={run_dir}")
+    before = (run_dir / "metrics.json").read_bytes()
+    again = aslexp("recognize", *FAST, "seed=1", f"hydra.run.dir={run_dir}", check=False)
+    assert again.returncode != 0
+    assert "holds a finished run" in again.stderr
+    assert (run_dir / "metrics.json").read_bytes() == before
+
+
+def test_multirun_goes_on_past_a_failing_job_and_reports(aslexp, tmp_path):
+    sweep_dir = tmp_path / "sweep"
+    # mlp does not accept C: that job fails, is recorded as failed, and the others complete.
+    aslexp("recognize", "-m", "experiment=debug", "classifier=logreg,mlp",
+           "++classifier.params.C=0.5", "property=sign_type,movement", "trainer.max_epochs=1",
+           f"hydra.sweep.dir={sweep_dir}")
+    states = {}
+    for run_file in sweep_dir.rglob("run.json"):
+        info = json.loads(run_file.read_text())
+        cfg = yaml.safe_load((run_file.parent / ".hydra/config.yaml").read_text())
+        states[(cfg["classifier"]["name"], cfg["property"]["name"])] = info
+    assert {k: v["status"] for k, v in states.items()} == {
+        ("logreg", "sign_type"): "completed", ("logreg", "movement"): "completed",
+        ("mlp", "sign_type"): "failed", ("mlp", "movement"): "failed",
+    }
+    assert "unknown params ['C']" in states[("mlp", "movement")]["error"]
+
+    out = aslexp("report", str(sweep_dir))
+    assert "| phoneme | logreg |" in out.stdout and "| phoneme | baseline |" in out.stdout
+    for name in ("table.md", "table.csv", "best_vs_baseline.md", "best_vs_baseline.png", "agreement.json"):
+        assert (sweep_dir / name).is_file(), name
+    agreement = json.loads((sweep_dir / "agreement.json").read_text())
+    rates = agreement["mutual_misclassification"]["phoneme/logreg"]["rate"]
+    assert set(rates) == {"sign_type", "movement"}
+
+
+def test_optuna_sweep_keeps_its_study_and_trial_directories(aslexp, tmp_path):
+    sweep_dir = tmp_path / "optuna"
+    aslexp("recognize", "-m", "+sweeps=classifier_logreg", "experiment=debug",
+           "classifier.params.max_iter=200", "hydra.sweeper.n_trials=3",
+           f"hydra.sweep.dir={sweep_dir}")
+    storage = [p for p in sweep_dir.iterdir() if p.suffix in (".journal", ".db")]
+    assert storage, f"no study storage in {sorted(p.name for p in sweep_dir.iterdir())}"
+    trial_runs = [json.loads(p.read_text()) for p in sweep_dir.rglob("run.json")]
+    assert len(trial_runs) == 3
+    assert all(r["status"] == "completed" for r in trial_runs)
+
+    import optuna
+
+    journal = sweep_dir / "optuna.journal"
+    if journal.exists():
+        from optuna.storages.journal import JournalFileBackend, JournalStorage
+
+        storage_obj = JournalStorage(JournalFileBackend(str(journal)))
+    else:
+        storage_obj = f"sqlite:///{sweep_dir / 'optuna.db'}"
+    summaries = optuna.get_all_study_summaries(storage_obj)
+    assert len(summaries) == 1
+    study = optuna.load_study(study_name=summaries[0].study_name, storage=storage_obj)
+    finished = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    assert len(finished) == 3
+    assert all(-1.0 <= t.value <= 1.0 for t in finished)
+    assert {"classifier.params.C", "classifier.params.pooling"} <= set(finished[0].params)
