@@ -14,9 +14,9 @@ pip install -q --upgrade pip setuptools wheel 2>&1 | grep -v "is ignored" || tru
 # torch first, so that every later requirement sees 2.13.0 as satisfied.
 pip install -q "torch==2.13.0" 2>&1 | grep -v "is ignored" || true
 pip install -q -e ".[dev]" 2>&1 | grep -v "is ignored" || true
-# hydra-optuna-sweeper 1.3.0 declares optuna<3 but works with optuna 4/5; optuna 2 breaks
-# SQLite storage. Installed without its dependencies so that pip keeps our optuna.
-pip install -q --no-deps "hydra-optuna-sweeper==1.3.0" 2>&1 | grep -v "is ignored" || true
+# Sweeps use aslexp's own Optuna sweeper (src/hydra_plugins/aslexp_optuna_sweeper), not the stock
+# hydra-optuna-sweeper 1.3.0: that one pins optuna<3 and cannot resume to a total budget, prune or
+# run asynchronous workers. Nothing here installs it (if present, our plugin hides its configs).
 python - <<'PY'
 import torch, optuna, hydra, pybullet, torchrl  # noqa: F401
 assert torch.__version__.startswith("2.13.0"), torch.__version__

@@ -44,8 +44,18 @@ def seed_everything(seed: int) -> None:
 
 def begin(job: str, cfg: DictConfig) -> Run:
     """Start the run record in the Hydra output dir (refuses to overwrite a finished run)."""
+    import shlex
+    import sys
+
+    overrides = list(HydraConfig.get().overrides.task)
+    extra = {
+        # The command that re-runs exactly this job (in a multirun: this one job, not the sweep).
+        "command": shlex.join(["aslexp", job, *overrides]),
+        "argv": list(sys.argv),
+        "overrides": overrides,
+    }
     seed = cfg.get("seed")
-    return start_run(run_dir(), job, seed=seed, overwrite=bool(cfg.get("overwrite", False)))
+    return start_run(run_dir(), job, seed=seed, overwrite=bool(cfg.get("overwrite", False)), extra=extra)
 
 
 def in_multirun() -> bool:

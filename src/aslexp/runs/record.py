@@ -13,6 +13,7 @@ Layout of a run directory (the jobs fill it; tools under ``aslexp.runs`` only re
 from __future__ import annotations
 
 import datetime as _dt
+import functools
 import json
 import math
 import os
@@ -62,6 +63,7 @@ def git_state(cwd: str | os.PathLike | None = None) -> dict[str, Any]:
         return {"commit": None, "dirty": None}
 
 
+@functools.lru_cache(maxsize=1)
 def library_versions() -> dict[str, str | None]:
     versions: dict[str, str | None] = {"python": platform.python_version()}
     for name in _TRACKED_PACKAGES:
@@ -139,6 +141,8 @@ class Run:
             self.finish("completed")
         elif isinstance(exc, KeyboardInterrupt):
             self.finish("interrupted", "KeyboardInterrupt")
+        elif type(exc).__name__ == "TrialPruned":  # optuna's: a sweep stopped it early, by design
+            self.finish("pruned", str(exc))
         else:
             self.finish("failed", "".join(traceback.format_exception_only(exc_type, exc)).strip())
         return False
@@ -173,7 +177,7 @@ def start_run(
         "seed": seed,
         "host": socket.gethostname(),
         "platform": platform.platform(),
-        "versions": library_versions(),
+        "versions": dict(library_versions()),
         "started": _now(),
         "finished": None,
         "status": "running",

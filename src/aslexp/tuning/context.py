@@ -4,23 +4,120 @@ Jobs call ``reporter = trial_reporter(cfg)`` once and ``reporter.report(value, s
 epoch or evaluation. Outside an Optuna sweep the reporter records nothing and never prunes.
 Inside one, the sweeper tells the job which trial it runs; ``report`` forwards the value to
 the study and raises ``optuna.TrialPruned`` when the pruner says stop.
+
+The sweeper passes the trial as JSON in the environment variable ``ASLEXP_TRIAL`` (set through
+``hydra.job.env_set``, so it reaches the job in-process, in a submitit subprocess or on a Slurm
+node alike, and stays out of the job's config):
+``{"storage": SPEC, "study_name": ..., "trial_id": ..., "number": ..., "pruner": {...}}``.
+A job in the sweeper's own process uses the sweeper's live trial object; any other process
+loads the study from the storage.
 """
 
 from __future__ import annotations
 
+import json
+import logging
+import math
+import os
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
+
+log = logging.getLogger(__name__)
+
+ENV_VAR = "ASLEXP_TRIAL"
+
+# Trials run by a sweeper in this very process, by (study name, trial number).
+_LIVE_TRIALS: dict[tuple[str, int], Any] = {}
+
+
+@dataclass(frozen=True)
+class TrialContext:
+    """What a job needs to find its trial: storage, study, trial and the study's pruner."""
+
+    storage: str
+    study_name: str
+    trial_id: int
+    number: int
+    pruner: Mapping[str, Any] | None = None
+
+    def to_json(self) -> str:
+        return json.dumps({"storage": self.storage, "study_name": self.study_name,
+                           "trial_id": self.trial_id, "number": self.number,
+                           "pruner": dict(self.pruner or {})},
+                          sort_keys=True, separators=(",", ":"))
+
+    @classmethod
+    def from_json(cls, text: str) -> "TrialContext":
+        try:
+            data = json.loads(text)
+            return cls(storage=str(data["storage"]), study_name=str(data["study_name"]),
+                       trial_id=int(data["trial_id"]), number=int(data["number"]),
+                       pruner=data.get("pruner") or None)
+        except (ValueError, KeyError, TypeError) as err:
+            raise ValueError(f"{ENV_VAR} is not a trial description ({err}): {text[:200]!r}") from err
+
+
+def register_live_trial(study_name: str, trial: Any) -> None:
+    _LIVE_TRIALS[(study_name, trial.number)] = trial
+
+
+def unregister_live_trial(study_name: str, number: int) -> None:
+    _LIVE_TRIALS.pop((study_name, number), None)
 
 
 class NullReporter:
     """Reporter used when the job does not run as an Optuna trial."""
 
     active = False
+    number: int | None = None
 
     def report(self, value: float, step: int) -> None:
         return None
 
 
-def trial_reporter(cfg: Mapping[str, Any] | None = None) -> NullReporter:
-    """The reporter for this job: a real trial reporter inside a sweep, else a NullReporter."""
-    return NullReporter()
+class TrialReporter:
+    """Reports intermediate values of one Optuna trial and raises TrialPruned when told to."""
+
+    active = True
+
+    def __init__(self, trial: Any) -> None:
+        self.trial = trial
+        self.number: int = trial.number
+
+    def report(self, value: float, step: int) -> None:
+        import optuna
+
+        value = float(value)
+        if not math.isfinite(value):
+            log.warning("trial %d: intermediate value at step %d is %s", self.number, step, value)
+        self.trial.report(value, int(step))
+        if self.trial.should_prune():
+            raise optuna.TrialPruned(f"trial {self.number} pruned at step {step} (value {value:.6g})")
+
+
+def current_trial_context() -> TrialContext | None:
+    text = os.environ.get(ENV_VAR)
+    return TrialContext.from_json(text) if text else None
+
+
+def trial_reporter(cfg: Mapping[str, Any] | None = None) -> NullReporter | TrialReporter:
+    """The reporter for this job: a real trial reporter inside a sweep, else a NullReporter.
+
+    ``cfg`` is accepted for symmetry with the jobs (and future per-job options); the trial is
+    identified by the ``ASLEXP_TRIAL`` environment variable the sweeper sets for the job.
+    """
+    context = current_trial_context()
+    if context is None:
+        return NullReporter()
+    live = _LIVE_TRIALS.get((context.study_name, context.number))
+    if live is not None:
+        return TrialReporter(live)
+    import optuna
+
+    from aslexp.tuning.algorithms import make_pruner
+    from aslexp.tuning.storage import open_storage
+
+    study = optuna.load_study(study_name=context.study_name, storage=open_storage(context.storage),
+                              pruner=make_pruner(context.pruner))
+    return TrialReporter(optuna.trial.Trial(study, context.trial_id))

@@ -1,0 +1,130 @@
+"""What a sweep did: ``aslexp sweep status|best|report|dashboard SWEEP_DIR``.
+
+status: trial counts by state against the budget; best: the best trial and a command line
+that re-runs exactly it; report: Optuna's matplotlib plots as PNG plus a CSV of all trials;
+dashboard: the study in optuna-dashboard (a web UI) on loopback.
+"""
+
+from __future__ import annotations
+
+import logging
+import warnings
+from pathlib import Path
+from typing import Any
+
+import optuna
+from optuna.trial import TrialState
+
+from aslexp.tuning.study import best_summary, status_summary
+
+log = logging.getLogger(__name__)
+
+REPORT_DIR = "report"
+
+
+def format_status(summary: dict[str, Any], sweep_dir: Path) -> str:
+    counts = summary["counts"]
+    budget = summary.get("n_trials_budget")
+    used = summary["trials"] - counts.get("interrupted", 0)
+    lines = [
+        f"sweep {sweep_dir}",
+        f"study {summary['study_name']!r} ({summary['direction']})",
+        f"trials: {summary['trials']}" + (f"  (budget {budget}, {used} counted, "
+                                          f"{max(0, budget - used)} to go)" if budget else ""),
+    ]
+    order = ["complete", "pruned", "fail", "interrupted", "running", "waiting"]
+    shown = [f"{state} {counts[state]}" for state in order if counts.get(state)]
+    lines.append("  " + ("  ".join(shown) if shown else "no trials yet"))
+    if counts.get("interrupted"):
+        lines.append("  (interrupted: lost to a stopped or dead worker; not counted, re-run on resume)")
+    best = summary.get("best")
+    if best:
+        lines.append(f"best: trial {best['number']} value {best['value']:.6g} params {best['params']}")
+    return "\n".join(lines)
+
+
+def format_best(best: dict[str, Any]) -> str:
+    lines = [
+        f"best trial {best['number']}: value {best['value']!r} ({best['direction']})",
+        "params:",
+        *[f"  {k} = {v!r}" for k, v in best["params"].items()],
+        f"run dir: {best.get('run_dir') or '-'}",
+        "re-run exactly this trial:",
+        f"  {best['command']}",
+    ]
+    if best.get("python_command"):
+        lines.append(f"  {best['python_command']}")
+    return "\n".join(lines)
+
+
+def failed_trials(study: optuna.Study) -> list[dict[str, Any]]:
+    from aslexp.tuning.study import trial_summary
+
+    return [trial_summary(t) for t in study.get_trials(deepcopy=False, states=(TrialState.FAIL,))]
+
+
+def write_report(study: optuna.Study, sweep_dir: Path, out_dir: Path | None = None) -> list[Path]:
+    """Save the study's plots as PNG (and trials.csv); returns the files written.
+
+    Plots that need more than the study has (e.g. importances with fewer than two completed
+    trials) are skipped with a log line saying why.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from optuna.visualization import matplotlib as ovm
+
+    out_dir = Path(out_dir) if out_dir else Path(sweep_dir) / REPORT_DIR
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    frame = study.trials_dataframe()
+    csv_path = out_dir / "trials.csv"
+    frame.to_csv(csv_path, index=False)
+    written.append(csv_path)
+
+    completed = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    with_steps = [t for t in study.get_trials(deepcopy=False) if t.intermediate_values]
+    plots = {
+        "optimization_history": (ovm.plot_optimization_history, 1),
+        "param_importances": (ovm.plot_param_importances, 2),
+        "parallel_coordinate": (ovm.plot_parallel_coordinate, 1),
+        "slice": (ovm.plot_slice, 1),
+    }
+    if with_steps:
+        plots["intermediate_values"] = (ovm.plot_intermediate_values, 0)
+    for name, (plot, needed) in plots.items():
+        if len(completed) < needed:
+            log.info("report: %s skipped (needs %d completed trials, has %d)", name, needed,
+                     len(completed))
+            continue
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # Optuna marks these plots experimental
+                result = plot(study)
+        except (ValueError, RuntimeError, ZeroDivisionError) as err:
+            log.info("report: %s skipped: %s", name, err)
+            continue
+        axes = result.flatten()[0] if hasattr(result, "flatten") else result
+        figure = axes.get_figure()
+        figure.set_size_inches(max(figure.get_size_inches()[0], 8), max(figure.get_size_inches()[1], 5))
+        path = out_dir / f"{name}.png"
+        figure.savefig(path, dpi=100, bbox_inches="tight")
+        plt.close(figure)
+        written.append(path)
+    return written
+
+
+def serve_dashboard(study: optuna.Study, host: str = "127.0.0.1", port: int = 8080) -> None:
+    """Serve the study's storage in optuna-dashboard until interrupted (blocks)."""
+    try:
+        from optuna_dashboard import run_server
+    except ImportError as err:
+        raise RuntimeError("optuna-dashboard is not installed: pip install optuna-dashboard") from err
+    print(f"optuna-dashboard for study {study.study_name!r}: http://{host}:{port}/dashboard/ "
+          "(Ctrl-C stops it)", flush=True)
+    run_server(study._storage, host=host, port=port)
+
+
+__all__ = ["best_summary", "status_summary", "format_status", "format_best", "write_report",
+           "serve_dashboard", "failed_trials"]

@@ -1,0 +1,229 @@
+"""Studies of a sweep: create or resume one, describe it in sweep.json, and find it again.
+
+A sweep directory holds ``sweep.json`` (written by the sweeper: job, study name, storage without
+password, direction, budget, search space, fixed overrides), the default journal storage
+``optuna.journal``, and one run directory per trial, named by trial number.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import shlex
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import optuna
+from optuna.trial import FrozenTrial, TrialState
+
+from aslexp.runs.record import read_json, write_json
+from aslexp.tuning.storage import (
+    default_storage,
+    is_database_url,
+    open_storage,
+    redact,
+    resolve_spec,
+    study_names,
+)
+from aslexp.tuning.worker import ATTR_ERROR, ATTR_OVERRIDES, ATTR_RUN_DIR, state_counts
+
+SWEEP_FILE = "sweep.json"
+
+
+class StudyError(RuntimeError):
+    """A study that cannot be created, resumed or found, with what to do about it."""
+
+
+@dataclass
+class SweepInfo:
+    """What sweep.json records about a sweep."""
+
+    job: str
+    study_name: str
+    storage: str                      # redacted: no password
+    direction: str
+    n_trials: int
+    params: dict[str, str] = field(default_factory=dict)
+    fixed_overrides: list[str] = field(default_factory=list)
+    sampler: dict[str, Any] = field(default_factory=dict)
+    pruner: dict[str, Any] = field(default_factory=dict)
+    task_module: str | None = None    # e.g. aslexp.jobs.recognize (python -m form of the job)
+    command: str | None = None
+    created: str | None = None
+    updated: str | None = None
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "SweepInfo":
+        known = set(cls.__dataclass_fields__)
+        return cls(**{k: v for k, v in data.items() if k in known})
+
+
+def _now() -> str:
+    return _dt.datetime.now().astimezone().isoformat(timespec="seconds")
+
+
+def write_sweep_info(sweep_dir: str | os.PathLike, info: SweepInfo) -> None:
+    path = Path(sweep_dir) / SWEEP_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if path.exists():
+        try:
+            info.created = read_json(path).get("created") or info.created
+        except (OSError, ValueError):
+            pass
+    info.created = info.created or _now()
+    info.updated = _now()
+    write_json(path, asdict(info))
+
+
+def read_sweep_info(sweep_dir: str | os.PathLike) -> SweepInfo | None:
+    path = Path(sweep_dir) / SWEEP_FILE
+    if not path.exists():
+        return None
+    return SweepInfo.from_dict(read_json(path))
+
+
+def resolve_study_name(spec: str, requested: str | None, default: str) -> str:
+    """The study to use: as requested; in a journal file, its only study or ``default``.
+
+    A database is shared by many sweeps, so there the name must be given explicitly.
+    """
+    if requested:
+        return str(requested)
+    if is_database_url(spec):
+        raise StudyError(
+            f"storage {redact(spec)} is a database that many sweeps can share: name this sweep's "
+            "study with hydra.sweeper.study_name=NAME (the same name in every worker)"
+        )
+    if not Path(spec).exists() or Path(spec).stat().st_size == 0:
+        return default
+    names = study_names(open_storage(spec))
+    if len(names) == 1:
+        return names[0]
+    if not names:
+        return default
+    if default in names:
+        return default
+    raise StudyError(f"{spec} holds several studies {names}: pick one with hydra.sweeper.study_name")
+
+
+def create_or_resume_study(spec: str, study_name: str, direction: str,
+                           sampler: optuna.samplers.BaseSampler | None = None,
+                           pruner: optuna.pruners.BasePruner | None = None) -> optuna.Study:
+    """Create the study, or load it if it exists (checking it optimises the same direction)."""
+    direction = str(direction).lower()
+    if direction not in ("maximize", "minimize"):
+        raise StudyError(f"hydra.sweeper.direction must be maximize or minimize, got {direction!r}")
+    study = optuna.create_study(storage=open_storage(spec), study_name=study_name,
+                                direction=direction, sampler=sampler, pruner=pruner,
+                                load_if_exists=True)
+    if len(study.directions) != 1 or study.direction.name.lower() != direction:
+        stored = [d.name.lower() for d in study.directions]
+        raise StudyError(
+            f"study {study_name!r} in {redact(spec)} optimises {stored}, but this sweep asks to "
+            f"{direction}: use another hydra.sweep.dir / study_name, or the stored direction"
+        )
+    return study
+
+
+def open_sweep(sweep_dir: str | os.PathLike, storage: str | None = None,
+               study_name: str | None = None) -> tuple[optuna.Study, SweepInfo | None]:
+    """Load the study of a sweep directory (for status, best, report, dashboard)."""
+    sweep_dir = Path(sweep_dir)
+    info = read_sweep_info(sweep_dir)
+    if storage is None:
+        storage = os.environ.get("ASLEXP_OPTUNA_STORAGE") or (info.storage if info else None)
+    if storage is None:
+        if not (sweep_dir / "optuna.journal").exists():
+            raise StudyError(f"{sweep_dir} is not a sweep directory: no {SWEEP_FILE} and no "
+                             "optuna.journal (pass --storage to read a study elsewhere)")
+        storage = default_storage(sweep_dir)
+    spec = resolve_spec(storage, sweep_dir)
+    if not is_database_url(spec) and not Path(spec).exists():
+        raise StudyError(f"journal file {spec} of sweep {sweep_dir} does not exist")
+    backend = open_storage(spec)
+    names = study_names(backend)
+    name = study_name or (info.study_name if info else None)
+    if name is None:
+        if len(names) != 1:
+            raise StudyError(f"{redact(spec)} holds studies {names}: pass --study NAME")
+        name = names[0]
+    if name not in names:
+        raise StudyError(f"no study {name!r} in {redact(spec)} (it holds {names})")
+    return optuna.load_study(study_name=name, storage=backend), info
+
+
+# --------------------------------------------------------------------------- summaries
+
+
+def trial_summary(trial: FrozenTrial) -> dict[str, Any]:
+    return {
+        "number": trial.number,
+        "state": trial.state.name.lower(),
+        "value": trial.value,
+        "params": dict(trial.params),
+        "error": trial.user_attrs.get(ATTR_ERROR),
+        "run_dir": trial.user_attrs.get(ATTR_RUN_DIR),
+        "overrides": list(trial.user_attrs.get(ATTR_OVERRIDES) or []),
+        "started": trial.datetime_start.isoformat(timespec="seconds") if trial.datetime_start else None,
+        "finished": trial.datetime_complete.isoformat(timespec="seconds") if trial.datetime_complete else None,
+        "last_step": trial.last_step,
+    }
+
+
+def status_summary(study: optuna.Study, info: SweepInfo | None) -> dict[str, Any]:
+    trials = study.get_trials(deepcopy=False)
+    counts = state_counts(trials)
+    summary: dict[str, Any] = {
+        "study_name": study.study_name,
+        "direction": study.direction.name.lower(),
+        "n_trials_budget": info.n_trials if info else None,
+        "trials": len(trials),
+        "counts": dict(sorted(counts.items())),
+        "best": None,
+    }
+    completed = [t for t in trials if t.state == TrialState.COMPLETE]
+    if completed:
+        summary["best"] = trial_summary(study.best_trial)
+    return summary
+
+
+def rerun_command(job: str, overrides: list[str], python_module: str | None = None) -> str:
+    """The command line that runs one trial's configuration again as a single run."""
+    head = ["python", "-m", python_module] if python_module else ["aslexp", job]
+    return shlex.join([*head, *overrides])
+
+
+def trial_overrides(trial: FrozenTrial) -> list[str]:
+    """The task overrides a trial's job got: from its run directory, else from the study."""
+    run_dir = trial.user_attrs.get(ATTR_RUN_DIR)
+    if run_dir:
+        path = Path(run_dir) / ".hydra" / "overrides.yaml"
+        if path.exists():
+            import yaml
+
+            with open(path, encoding="utf-8") as fh:
+                loaded = yaml.safe_load(fh)
+            if isinstance(loaded, list):
+                return [str(x) for x in loaded]
+    return [str(x) for x in trial.user_attrs.get(ATTR_OVERRIDES) or []]
+
+
+def best_summary(study: optuna.Study, info: SweepInfo | None) -> dict[str, Any]:
+    completed = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    if not completed:
+        raise StudyError(f"study {study.study_name!r} has no completed trial yet")
+    best = study.best_trial
+    overrides = trial_overrides(best)
+    job = info.job if info else "JOB"
+    result = trial_summary(best)
+    result.update({
+        "job": job,
+        "direction": study.direction.name.lower(),
+        "overrides": overrides,
+        "command": rerun_command(job, overrides),
+        "python_command": rerun_command(job, overrides, info.task_module if info else None)
+        if info and info.task_module else None,
+    })
+    return result

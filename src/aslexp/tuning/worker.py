@@ -1,0 +1,342 @@
+"""One sweep worker: ask -> run -> tell, until the study's trial budget is spent.
+
+Any number of workers (processes on one machine, or jobs on many) run this loop against one
+study. Guarantees, for journal-file, SQLite and PostgreSQL storages:
+
+* **Budget.** ``n_trials`` is the study's total budget, not a per-process count. Every trial
+  counts except those *interrupted* (their worker died or was stopped). "Count, then ask" runs
+  under :func:`aslexp.tuning.storage.budget_lock`, so all workers together never start more than
+  ``n_trials`` counted trials, and a resumed sweep runs exactly the missing ones.
+* **No trial twice.** Each trial is created by ``study.ask()`` in the storage (atomic in the
+  journal file and in the database) and run by the worker that created it only.
+* **Dead workers.** A RUNNING trial whose worker is gone is marked FAIL with
+  ``aslexp_state = "interrupted"`` before anyone counts: at once when the worker ran on this host
+  and its process no longer exists, otherwise when its heartbeat is older than ``grace_period``.
+  Interrupted trials do not count, so the sweep runs a replacement.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import signal
+import socket
+import threading
+import time
+import traceback
+from collections import Counter
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import optuna
+from optuna.distributions import BaseDistribution
+from optuna.trial import FrozenTrial, Trial, TrialState
+
+from aslexp.tuning.storage import budget_lock
+
+log = logging.getLogger(__name__)
+
+ATTR_STATE = "aslexp_state"          # "interrupted" for trials lost to a dead or stopped worker
+ATTR_ERROR = "aslexp_error"          # why a trial failed (exception text, NaN, ...)
+ATTR_WORKER = "aslexp_worker"        # {"host", "boot", "pid", "start"} of the worker running it
+ATTR_HEARTBEAT = "aslexp_heartbeat"  # unix time of the worker's last sign of life
+ATTR_OVERRIDES = "aslexp_overrides"  # the trial's Hydra task overrides, as passed to the job
+ATTR_RUN_DIR = "aslexp_run_dir"      # the trial's run directory
+INTERRUPTED = "interrupted"
+
+_ERROR_CHARS = 4000
+
+
+class DirectionMismatchError(RuntimeError):
+    """The job says its main metric goes the other way than the study optimises."""
+
+
+@dataclass
+class Outcome:
+    """What became of one trial's job."""
+
+    state: str                    # "complete" | "pruned" | "failed" | "interrupted"
+    value: float | None = None
+    error: str | None = None
+    run_dir: str | None = None
+    goal: str | None = None       # the job's own main-metric goal, if it recorded one
+    metric: str | None = None
+
+
+@dataclass
+class WorkerSummary:
+    trials: list[int] = field(default_factory=list)
+    states: Counter = field(default_factory=Counter)
+    stale_failed: list[int] = field(default_factory=list)
+
+
+# --------------------------------------------------------------------------- worker identity
+
+
+def _boot_id() -> str:
+    try:
+        with open("/proc/sys/kernel/random/boot_id", encoding="ascii") as fh:
+            return fh.read().strip()
+    except OSError:
+        return ""
+
+
+def _process_start(pid: int) -> str | None:
+    """Start time of a process in clock ticks since boot (Linux), to tell a reused pid apart."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
+            text = fh.read()
+        return text.rsplit(")", 1)[1].split()[19]
+    except (OSError, IndexError):
+        return None
+
+
+def worker_identity() -> dict[str, Any]:
+    pid = os.getpid()
+    return {"host": socket.gethostname(), "boot": _boot_id(), "pid": pid,
+            "start": _process_start(pid)}
+
+
+def worker_is_dead(identity: Mapping[str, Any]) -> bool:
+    """True only when ``identity`` ran on this very machine and its process is gone."""
+    me = worker_identity()
+    if identity.get("host") != me["host"] or identity.get("boot") != me["boot"]:
+        return False
+    pid = int(identity.get("pid", -1))
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:
+        return False
+    start = _process_start(pid)
+    return identity.get("start") is not None and start is not None and start != identity["start"]
+
+
+# --------------------------------------------------------------------------- trial bookkeeping
+
+
+def is_interrupted(trial: FrozenTrial) -> bool:
+    return trial.state == TrialState.FAIL and trial.user_attrs.get(ATTR_STATE) == INTERRUPTED
+
+
+def counts_toward_budget(trial: FrozenTrial) -> bool:
+    return not is_interrupted(trial)
+
+
+def budget_used(trials: Iterable[FrozenTrial]) -> int:
+    return sum(1 for t in trials if counts_toward_budget(t))
+
+
+def state_counts(trials: Iterable[FrozenTrial]) -> Counter:
+    """Trials by state, with interrupted failures counted apart from the trials' own failures."""
+    counts: Counter = Counter()
+    for t in trials:
+        counts[INTERRUPTED if is_interrupted(t) else t.state.name.lower()] += 1
+    return counts
+
+
+def _mark_failed(study: optuna.Study, trial_id: int, error: str, interrupted: bool) -> bool:
+    """FAIL a trial with its reason; False when someone else finished it first."""
+    storage = study._storage
+    try:
+        if interrupted:
+            storage.set_trial_user_attr(trial_id, ATTR_STATE, INTERRUPTED)
+        storage.set_trial_user_attr(trial_id, ATTR_ERROR, error[:_ERROR_CHARS])
+        return storage.set_trial_state_values(trial_id, TrialState.FAIL)
+    except (RuntimeError, ValueError):  # UpdateFinishedTrialError and friends
+        return False
+
+
+def fail_stale_trials(study: optuna.Study, grace_period: float, now: float | None = None,
+                      trials: Iterable[FrozenTrial] | None = None) -> list[int]:
+    """Mark trials of dead workers FAIL (interrupted); returns their numbers.
+
+    ``trials``: the study's trials if the caller has just read them (saves a storage read).
+    """
+    now = time.time() if now is None else now
+    failed = []
+    if trials is None:
+        trials = study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))
+    for t in trials:
+        if t.state != TrialState.RUNNING:
+            continue
+        identity = t.user_attrs.get(ATTR_WORKER)
+        if not identity:
+            continue  # not started by an aslexp worker: not ours to judge
+        beat = t.user_attrs.get(ATTR_HEARTBEAT)
+        if beat is None and t.datetime_start is not None:
+            beat = t.datetime_start.timestamp()
+        if worker_is_dead(identity):
+            reason = (f"worker pid {identity.get('pid')} on {identity.get('host')} died while "
+                      "running this trial")
+        elif beat is not None and now - float(beat) > grace_period:
+            reason = (f"no heartbeat from worker pid {identity.get('pid')} on "
+                      f"{identity.get('host')} for {now - float(beat):.0f} s "
+                      f"(grace period {grace_period:.0f} s)")
+        else:
+            continue
+        if _mark_failed(study, t._trial_id, reason, interrupted=True):
+            log.warning("trial %d marked failed (interrupted): %s", t.number, reason)
+            failed.append(t.number)
+    return failed
+
+
+class Heartbeat:
+    """Refreshes a running trial's heartbeat from a background thread."""
+
+    def __init__(self, study: optuna.Study, trial_id: int, interval: float) -> None:
+        self._storage = study._storage
+        self._trial_id = trial_id
+        self._interval = interval
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="aslexp-heartbeat", daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self._interval):
+            try:
+                self._storage.set_trial_user_attr(self._trial_id, ATTR_HEARTBEAT, time.time())
+            except Exception as err:  # noqa: BLE001 - finished trial, storage hiccup: stop quietly
+                log.debug("heartbeat of trial id %d stopped: %s", self._trial_id, err)
+                return
+
+    def __enter__(self) -> "Heartbeat":
+        if self._interval > 0:
+            self._thread.start()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5)
+
+
+def record_outcome(study: optuna.Study, trial: Trial, outcome: Outcome) -> str:
+    """Tell the study what happened; returns the state actually recorded."""
+    trial_id = trial._trial_id
+    storage = study._storage
+    try:
+        if outcome.run_dir:
+            storage.set_trial_user_attr(trial_id, ATTR_RUN_DIR, outcome.run_dir)
+        if outcome.state == "complete":
+            value = outcome.value
+            if value is None or not math.isfinite(value):
+                outcome.error = f"objective returned {value} (not a finite number)"
+                return _fail(study, trial, outcome.error)
+            study.tell(trial, values=[value])
+            return "complete"
+        if outcome.state == "pruned":
+            study.tell(trial, state=TrialState.PRUNED)
+            return "pruned"
+        if outcome.state == INTERRUPTED:
+            _mark_failed(study, trial_id, outcome.error or "interrupted", interrupted=True)
+            return INTERRUPTED
+        return _fail(study, trial, outcome.error or "failed")
+    except (RuntimeError, ValueError) as err:  # finished meanwhile (e.g. failed as stale)
+        log.warning("trial %d: could not record %s: %s", trial.number, outcome.state, err)
+        return "unrecorded"
+
+
+def _fail(study: optuna.Study, trial: Trial, error: str) -> str:
+    _mark_failed(study, trial._trial_id, error, interrupted=False)
+    return "failed"
+
+
+# --------------------------------------------------------------------------- the loop
+
+
+class _Stop(KeyboardInterrupt):
+    """SIGTERM turned into an exception, so that a stopped worker records its trial."""
+
+
+def _raise_on_sigterm(signum: int, frame: Any) -> None:
+    raise _Stop(f"signal {signum}")
+
+
+@dataclass
+class WorkerSettings:
+    storage_spec: str
+    study_name: str
+    n_trials: int
+    grace_period: float = 120.0
+    heartbeat_interval: float = 30.0
+    worker_label: str = "worker 0"
+
+
+def run_worker(
+    study: optuna.Study,
+    distributions: Mapping[str, BaseDistribution],
+    settings: WorkerSettings,
+    launch: Callable[[Trial], Outcome],
+    on_asked: Callable[[Trial], None] | None = None,
+) -> WorkerSummary:
+    """Run trials until the study's budget is spent; ``launch`` runs one trial's job."""
+    summary = WorkerSummary()
+    identity = worker_identity()
+    previous_handler = None
+    if threading.current_thread() is threading.main_thread():
+        previous_handler = signal.signal(signal.SIGTERM, _raise_on_sigterm)
+    trial: Trial | None = None
+    try:
+        while True:
+            trial = None
+            with budget_lock(settings.storage_spec, settings.study_name):
+                trials = study.get_trials(deepcopy=False)
+                stale = fail_stale_trials(study, settings.grace_period, trials=trials)
+                summary.stale_failed += stale
+                used = budget_used(study.get_trials(deepcopy=False) if stale else trials)
+                if used >= settings.n_trials:
+                    log.info("%s: budget spent (%d/%d trials); stopping",
+                             settings.worker_label, used, settings.n_trials)
+                    break
+                trial = study.ask(dict(distributions))
+                # No heartbeat yet: until the first one, the trial's start time stands for it.
+                study._storage.set_trial_user_attr(trial._trial_id, ATTR_WORKER, identity)
+                if on_asked is not None:
+                    on_asked(trial)
+            log.info("%s: trial %d (%d/%d) %s", settings.worker_label, trial.number, used + 1,
+                     settings.n_trials, trial.params)
+            started = time.monotonic()
+            try:
+                with Heartbeat(study, trial._trial_id, settings.heartbeat_interval):
+                    outcome = launch(trial)
+            except Exception as err:  # noqa: BLE001 - a launcher error fails this trial only
+                log.error("trial %d could not be launched:\n%s", trial.number,
+                          "".join(traceback.format_exception(err)))
+                outcome = Outcome("failed", error=f"launch failed: {type(err).__name__}: {err}")
+            recorded = record_outcome(study, trial, outcome)
+            summary.trials.append(trial.number)
+            summary.states[recorded] += 1
+            shown = f"{outcome.value:.6g}" if outcome.value is not None else "-"
+            log.info("%s: trial %d %s (value %s, %.1f s)%s", settings.worker_label, trial.number,
+                     recorded, shown, time.monotonic() - started,
+                     f": {outcome.error}" if recorded == "failed" else "")
+            trial = None
+            _check_direction(study, outcome)
+    except KeyboardInterrupt as err:
+        if trial is not None:  # asked but not yet told: give it back for a resume to re-run
+            reason = f"interrupted by {str(err) or type(err).__name__} in {settings.worker_label}"
+            record_outcome(study, trial, Outcome(INTERRUPTED, error=reason))
+            log.warning("trial %d %s; it will be run again on resume", trial.number, reason)
+        raise
+    finally:
+        if previous_handler is not None:
+            signal.signal(signal.SIGTERM, previous_handler)
+    return summary
+
+
+def _check_direction(study: optuna.Study, outcome: Outcome) -> None:
+    if outcome.goal is None:
+        return
+    goal = str(outcome.goal).lower()
+    direction = study.direction.name.lower()
+    if goal in ("maximize", "minimize") and goal != direction:
+        raise DirectionMismatchError(
+            f"the job records its main metric {outcome.metric!r} with goal {goal!r}, but the "
+            f"study {study.study_name!r} is set to {direction}: set "
+            f"hydra.sweeper.direction={goal} (in the sweep overlay) and start a new sweep"
+        )

@@ -1,0 +1,305 @@
+"""The Hydra side of aslexp's Optuna sweeper: config in, one job per trial out.
+
+Everything Hydra-specific lives here (search-space parsing with Hydra's override grammar, the
+launcher, spawning worker processes); the loop and its guarantees live in
+:mod:`aslexp.tuning.worker`, which knows nothing of Hydra.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+import optuna
+from hydra.core.plugins import Plugins
+from hydra.core.utils import JobReturn, JobStatus
+from hydra.plugins.sweeper import Sweeper
+from hydra.types import HydraContext, TaskFunction
+from omegaconf import DictConfig, OmegaConf
+
+from aslexp.runs.record import RUN_FILE, read_json
+from aslexp.tuning.algorithms import AlgorithmSpecError, make_pruner, make_sampler
+from aslexp.tuning.context import (
+    ENV_VAR,
+    TrialContext,
+    register_live_trial,
+    unregister_live_trial,
+)
+from aslexp.tuning.storage import StorageError, redact, resolve_spec, silence_optuna
+from aslexp.tuning.study import (
+    StudyError,
+    SweepInfo,
+    create_or_resume_study,
+    resolve_study_name,
+    write_sweep_info,
+)
+from aslexp.tuning.worker import (
+    ATTR_OVERRIDES,
+    DirectionMismatchError,
+    Outcome,
+    WorkerSettings,
+    run_worker,
+    state_counts,
+)
+from hydra_plugins.aslexp_optuna_sweeper._space import (
+    SearchSpace,
+    SearchSpaceError,
+    parse_search_space,
+    quote,
+)
+
+log = logging.getLogger(__name__)
+
+# Overrides the sweeper sets itself on the worker processes it spawns.
+_SPAWN_KEYS = ("hydra.sweep.dir", "hydra.sweeper.n_workers", "hydra.sweeper.worker_index",
+               "hydra.job.name", "hydra.sweeper.check_search_space")
+# Seed shift between workers (a prime, so that worker and resume shifts rarely coincide).
+_WORKER_SEED_STRIDE = 7919
+
+
+class SweeperImpl(Sweeper):
+    """Optuna sweeper with a persistent study, resume, pruning and asynchronous workers."""
+
+    def __init__(
+        self,
+        direction: str = "maximize",
+        n_trials: int = 20,
+        n_workers: int = 1,
+        storage: str | None = None,
+        study_name: str | None = None,
+        params: DictConfig | dict | None = None,
+        sampler: DictConfig | dict | None = None,
+        pruner: DictConfig | dict | None = None,
+        heartbeat_interval: float = 30.0,
+        grace_period: float = 600.0,
+        check_search_space: bool = True,
+        worker_index: int = 0,
+    ) -> None:
+        self.direction = str(direction).lower()
+        self.n_trials = int(n_trials)
+        self.n_workers = int(n_workers)
+        self.storage = storage
+        self.study_name = study_name
+        self.params = _plain(params) or {}
+        self.sampler_spec = _plain(sampler) or {"name": "tpe"}
+        self.pruner_spec = _plain(pruner) or {"name": "none"}
+        self.heartbeat_interval = float(heartbeat_interval)
+        self.grace_period = float(grace_period)
+        self.check_search_space = bool(check_search_space)
+        self.worker_index = int(worker_index)
+        if self.direction not in ("maximize", "minimize"):
+            raise ValueError(f"hydra.sweeper.direction must be maximize or minimize, got {direction!r}")
+        if self.n_trials < 1:
+            raise ValueError(f"hydra.sweeper.n_trials must be >= 1, got {n_trials}")
+        if self.n_workers < 1:
+            raise ValueError(f"hydra.sweeper.n_workers must be >= 1, got {n_workers}")
+
+    def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction,
+              config: DictConfig) -> None:
+        self.config = config
+        self.hydra_context = hydra_context
+        self.task_function = task_function
+        self.launcher = Plugins.instance().instantiate_launcher(
+            config=config, hydra_context=hydra_context, task_function=task_function
+        )
+
+    # ------------------------------------------------------------------ the sweep
+
+    def sweep(self, arguments: list[str]) -> None:
+        try:
+            self._sweep(arguments)
+        except (SearchSpaceError, StudyError, StorageError, AlgorithmSpecError,
+                DirectionMismatchError) as err:
+            # Bad input, not a bug: say what is wrong without a traceback.
+            print(f"Error: {err}", file=sys.stderr, flush=True)
+            raise SystemExit(2) from err
+
+    def _sweep(self, arguments: list[str]) -> None:
+        silence_optuna()
+        space = parse_search_space(self.params, list(arguments))
+        sweep_dir = Path(str(self.config.hydra.sweep.dir)).resolve()
+        spec = resolve_spec(self.storage, sweep_dir)
+        job_name = str(self.config.hydra.job.name)
+        study_name = resolve_study_name(spec, self.study_name, job_name)
+        if self.worker_index == 0 and self.check_search_space:
+            self._check_search_space(space)
+
+        study = create_or_resume_study(spec, study_name, self.direction,
+                                       pruner=make_pruner(self.pruner_spec))
+        existing = len(study.get_trials(deepcopy=False))
+        study.sampler = make_sampler(
+            self.sampler_spec, seed_offset=_WORKER_SEED_STRIDE * self.worker_index + existing
+        )
+        label = f"worker {self.worker_index}"
+        if self.worker_index == 0:
+            sweep_dir.mkdir(parents=True, exist_ok=True)
+            write_sweep_info(sweep_dir, SweepInfo(
+                job=job_name, study_name=study_name, storage=redact(spec),
+                direction=self.direction, n_trials=self.n_trials, params=space.sources,
+                fixed_overrides=space.fixed, sampler=self.sampler_spec, pruner=self.pruner_spec,
+                task_module=_task_module(self.task_function, strict=False),
+                command=" ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+            ))
+            log.info("study %r in %s: %s, budget %d trials (%d exist), %d worker(s), "
+                     "sampler %s, pruner %s", study_name, redact(spec), self.direction,
+                     self.n_trials, existing, self.n_workers, self.sampler_spec.get("name"),
+                     self.pruner_spec.get("name"))
+
+        children = self._spawn_workers(sweep_dir) if self.n_workers > 1 else []
+        settings = WorkerSettings(storage_spec=spec, study_name=study_name,
+                                  n_trials=self.n_trials, grace_period=self.grace_period,
+                                  heartbeat_interval=self.heartbeat_interval, worker_label=label)
+        try:
+            summary = run_worker(
+                study, space.distributions, settings,
+                launch=lambda trial: self._launch(trial, space, spec, study_name),
+                on_asked=lambda trial: study._storage.set_trial_user_attr(
+                    trial._trial_id, ATTR_OVERRIDES, space.overrides_for(trial.params)),
+            )
+        except BaseException:
+            _stop_children(children)
+            raise
+        failed_children = _wait_children(children)
+        log.info("%s ran %d trial(s): %s", label, len(summary.trials), dict(summary.states))
+        if self.worker_index == 0:
+            counts = state_counts(study.get_trials(deepcopy=False))
+            log.info("study %r now: %s", study_name, dict(sorted(counts.items())))
+            if counts.get("complete"):
+                best = study.best_trial
+                log.info("best trial %d: value %.6g, params %s", best.number, best.value, best.params)
+        if failed_children:
+            raise RuntimeError(f"sweep worker process(es) failed: {failed_children}")
+
+    # ------------------------------------------------------------------ one trial
+
+    def _launch(self, trial: optuna.trial.Trial, space: SearchSpace, spec: str,
+                study_name: str) -> Outcome:
+        context = TrialContext(storage=spec, study_name=study_name, trial_id=trial._trial_id,
+                               number=trial.number, pruner=self.pruner_spec)
+        overrides = [*space.overrides_for(trial.params),
+                     f"++hydra.job.env_set.{ENV_VAR}={quote(context.to_json())}"]
+        register_live_trial(study_name, trial)
+        try:
+            returns = self.launcher.launch([overrides], initial_job_idx=trial.number)
+        finally:
+            unregister_live_trial(study_name, trial.number)
+        return outcome_of(returns[0], trial.number)
+
+    def _check_search_space(self, space: SearchSpace) -> None:
+        """Compose the job's config at sample points: a typo fails here, before any trial."""
+        points = [space.sample_point()]
+        for name, dist in space.distributions.items():
+            if isinstance(dist, optuna.distributions.CategoricalDistribution):
+                points += [{**points[0], name: choice} for choice in dist.choices[1:]]
+        for point in points[:64]:
+            overrides = space.overrides_for(point)
+            try:
+                self.hydra_context.config_loader.load_sweep_config(self.config, overrides)
+            except Exception as err:  # noqa: BLE001 - Hydra raises several exception types
+                raise SearchSpaceError(
+                    f"the search space does not fit the job's config (no trial was started): "
+                    f"composing with {overrides} failed: {type(err).__name__}: {err}"
+                ) from err
+
+    # ------------------------------------------------------------------ parallel workers
+
+    def _spawn_workers(self, sweep_dir: Path) -> list[subprocess.Popen]:
+        """Start workers 1..n-1 as processes running this same sweep (each with n_workers=1)."""
+        module = _task_module(self.task_function)
+        name = self.task_function.__name__
+        code = f"import importlib; importlib.import_module({module!r}).{name}()"
+        hydra_cfg = self.config.hydra
+        inherited = [o for o in [*hydra_cfg.overrides.hydra, *hydra_cfg.overrides.task]
+                     if o.split("=", 1)[0].lstrip("+~") not in _SPAWN_KEYS]
+        config_dirs = [s.path for s in hydra_cfg.runtime.config_sources
+                       if s.provider == "command-line"]
+        head = [sys.executable, "-c", code, "--multirun",
+                "--config-name", str(hydra_cfg.job.config_name)]
+        for path in config_dirs:
+            head += ["--config-dir", str(path)]
+        children = []
+        for index in range(1, self.n_workers):
+            argv = [*head, *inherited, f"hydra.sweep.dir={quote(str(sweep_dir))}",
+                    "hydra.sweeper.n_workers=1", f"hydra.sweeper.worker_index={index}",
+                    f"hydra.job.name={quote(str(hydra_cfg.job.name))}",
+                    "hydra.sweeper.check_search_space=false"]
+            children.append(subprocess.Popen(argv, env={**os.environ}))
+            log.info("started sweep worker %d (pid %d)", index, children[-1].pid)
+        return children
+
+
+def outcome_of(ret: JobReturn, number: int) -> Outcome:
+    """Turn a Hydra JobReturn into an Outcome (value, pruned, or failure with its error)."""
+    run_dir = None
+    if ret.hydra_cfg is not None:
+        run_dir = str(ret.hydra_cfg.hydra.runtime.output_dir)
+    goal = metric = None
+    if run_dir and (Path(run_dir) / RUN_FILE).exists():
+        try:
+            main = read_json(Path(run_dir) / RUN_FILE).get("main_metric") or {}
+            goal, metric = main.get("goal"), main.get("name")
+        except (OSError, ValueError):
+            pass
+    result = ret._return_value
+    if ret.status == JobStatus.COMPLETED:
+        try:
+            value = float(result)
+        except (TypeError, ValueError):
+            return Outcome("failed", error=f"the job returned {result!r}; a sweep needs the job "
+                           "to return its main metric as a number", run_dir=run_dir)
+        return Outcome("complete", value=value, run_dir=run_dir, goal=goal, metric=metric)
+    if isinstance(result, optuna.TrialPruned):
+        return Outcome("pruned", error=str(result), run_dir=run_dir)
+    if isinstance(result, BaseException):
+        log.error("trial %d failed:\n%s", number, "".join(traceback.format_exception(result)))
+        text = "".join(traceback.format_exception_only(type(result), result)).strip()
+        return Outcome("failed", error=text, run_dir=run_dir)
+    return Outcome("failed", error=f"job ended with status {ret.status}", run_dir=run_dir)
+
+
+def _plain(node: Any) -> Any:
+    if isinstance(node, DictConfig):
+        return OmegaConf.to_container(node, resolve=True)
+    return dict(node) if isinstance(node, dict) else node
+
+
+def _task_module(task_function: TaskFunction, strict: bool = True) -> str | None:
+    """The importable module of the task function (``python -m X`` runs it as __main__)."""
+    module = task_function.__module__
+    if module == "__main__":
+        spec = getattr(sys.modules["__main__"], "__spec__", None)
+        if spec is None or not spec.name:
+            if not strict:
+                return None
+            raise RuntimeError("n_workers > 1 needs the job started as a module "
+                               "(aslexp JOB ... or python -m aslexp.jobs.JOB ...)")
+        module = spec.name
+    return module
+
+
+def _stop_children(children: list[subprocess.Popen], timeout: float = 30.0) -> None:
+    """Ask workers to stop (they record their running trial as interrupted), then wait."""
+    for child in children:
+        if child.poll() is None:
+            child.terminate()
+    deadline = time.monotonic() + timeout
+    for child in children:
+        try:
+            child.wait(timeout=max(0.1, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            child.kill()
+
+
+def _wait_children(children: list[subprocess.Popen]) -> dict[int, int]:
+    failed = {}
+    for child in children:
+        code = child.wait()
+        if code != 0:
+            failed[child.pid] = code
+    return failed

@@ -1,0 +1,130 @@
+"""The worker's bookkeeping on a real journal storage: budget, dead workers, heartbeats, reporter."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import optuna
+import pytest
+from optuna.distributions import FloatDistribution
+from optuna.trial import TrialState
+
+from aslexp.tuning.algorithms import AlgorithmSpecError, make_pruner, make_sampler
+from aslexp.tuning.context import ENV_VAR, NullReporter, TrialContext, trial_reporter
+from aslexp.tuning.storage import open_storage, redact
+from aslexp.tuning.study import StudyError, create_or_resume_study, resolve_study_name
+from aslexp.tuning.worker import (
+    ATTR_HEARTBEAT,
+    ATTR_STATE,
+    ATTR_WORKER,
+    INTERRUPTED,
+    Outcome,
+    WorkerSettings,
+    budget_used,
+    fail_stale_trials,
+    run_worker,
+    worker_identity,
+)
+
+SPACE = {"x": FloatDistribution(-1, 1)}
+
+
+@pytest.fixture
+def journal(tmp_path: Path) -> str:
+    return str(tmp_path / "optuna.journal")
+
+
+def _study(spec: str) -> optuna.Study:
+    return create_or_resume_study(spec, "unit", "maximize", pruner=make_pruner({"name": "none"}))
+
+
+def test_threads_sharing_a_study_respect_the_budget_exactly(journal: str) -> None:
+    """Four workers race for the last trials; the lock keeps the total at n_trials."""
+    settings = WorkerSettings(storage_spec=journal, study_name="unit", n_trials=9,
+                              heartbeat_interval=0)
+    ran: list[int] = []
+
+    def launch(trial):
+        ran.append(trial.number)
+        time.sleep(0.02)
+        return Outcome("complete", value=-trial.params["x"] ** 2)
+
+    def worker() -> None:
+        study = optuna.load_study(study_name="unit", storage=open_storage(journal))
+        run_worker(study, SPACE, settings, launch)
+
+    _study(journal)
+    threads = [threading.Thread(target=worker) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    study = _study(journal)
+    assert len(study.trials) == 9 and sorted(ran) == list(range(9))
+    assert all(t.state == TrialState.COMPLETE for t in study.trials)
+
+
+def test_a_dead_local_worker_s_trial_is_failed_as_interrupted_and_not_counted(journal: str) -> None:
+    study = _study(journal)
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    trial = study.ask(SPACE)
+    identity = {**worker_identity(), "pid": int(dead.stdout), "start": "0"}
+    study._storage.set_trial_user_attr(trial._trial_id, ATTR_WORKER, identity)
+    live = study.ask(SPACE)
+    study._storage.set_trial_user_attr(live._trial_id, ATTR_WORKER, worker_identity())
+    assert budget_used(study.trials) == 2
+
+    assert fail_stale_trials(study, grace_period=3600) == [trial.number]
+    frozen = study.trials[trial.number]
+    assert frozen.state == TrialState.FAIL and frozen.user_attrs[ATTR_STATE] == INTERRUPTED
+    assert study.trials[live.number].state == TrialState.RUNNING  # our own process is alive
+    assert budget_used(study.trials) == 1
+
+
+def test_a_remote_worker_is_judged_by_its_heartbeat(journal: str) -> None:
+    study = _study(journal)
+    trial = study.ask(SPACE)
+    remote = {"host": "elsewhere", "boot": "b", "pid": 1, "start": "1"}
+    study._storage.set_trial_user_attr(trial._trial_id, ATTR_WORKER, remote)
+    study._storage.set_trial_user_attr(trial._trial_id, ATTR_HEARTBEAT, time.time())
+    assert fail_stale_trials(study, grace_period=60) == []  # fresh heartbeat: alive
+    assert fail_stale_trials(study, grace_period=60, now=time.time() + 120) == [trial.number]
+    assert "no heartbeat" in study.trials[0].user_attrs["aslexp_error"]
+
+
+def test_trial_reporter_loads_the_trial_from_storage_and_prunes(journal: str, monkeypatch) -> None:
+    assert isinstance(trial_reporter({}), NullReporter)
+    pruner = {"name": "threshold", "lower": 0.0}
+    study = create_or_resume_study(journal, "unit", "maximize", pruner=make_pruner(pruner))
+    trial = study.ask(SPACE)
+    context = TrialContext(storage=journal, study_name="unit", trial_id=trial._trial_id,
+                           number=trial.number, pruner=pruner)
+    monkeypatch.setenv(ENV_VAR, context.to_json())
+    reporter = trial_reporter({})
+    reporter.report(0.5, 0)
+    with pytest.raises(optuna.TrialPruned):
+        reporter.report(-1.0, 1)
+    assert study.trials[0].intermediate_values == {0: 0.5, 1: -1.0}
+
+
+def test_specs_and_names_fail_clearly(journal: str) -> None:
+    with pytest.raises(AlgorithmSpecError, match="unknown pruner 'medain'"):
+        make_pruner({"name": "medain"})
+    with pytest.raises(AlgorithmSpecError, match="hydra.sweeper.sampler"):
+        make_sampler({"name": "tpe", "no_such_option": 1})
+    assert make_sampler({"name": "random", "seed": 1}, seed_offset=5)._rng.rng.random() == \
+        make_sampler({"name": "random", "seed": 6})._rng.rng.random()
+    with pytest.raises(StudyError, match="study_name=NAME"):
+        resolve_study_name("postgresql://u@127.0.0.1/db", None, "quadratic")
+    _study(journal)
+    assert resolve_study_name(journal, None, "other") == "unit"  # a journal's only study
+    with pytest.raises(StudyError, match="optimises"):
+        create_or_resume_study(journal, "unit", "minimize")
+    assert redact("postgresql://u:secret@h:5432/db") == "postgresql://u@h:5432/db"
+    assert json.loads(TrialContext("s", "n", 1, 2).to_json())["number"] == 2
