@@ -5,3 +5,4 @@ and imitation (simulated hands and an upper-body humanoid learning signs with PP
 """
 
 __version__ = "0.1.0"
+from aslexp import envs as _envs  # noqa: E402,F401  (registers the gymnasium environments)

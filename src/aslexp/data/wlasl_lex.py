@@ -44,7 +44,8 @@ from aslexp.pose.base import SubsetSource
 
 log = logging.getLogger(__name__)
 
-FORMAT_VERSION = 1
+# Bump when the artefacts or the built-in layouts (pose/layouts.py) change: cached builds are keyed on it.
+FORMAT_VERSION = 2
 SPLIT_FILES = ("train", "val", "train+val", "test")
 MANIFEST = "manifest.json"
 SKIP_REASONS = ("no_keypoints", "keypoints_not_in_wlasl", "gloss_not_in_lexicon",

@@ -2,7 +2,9 @@
 
 Layouts
 - ``mediapipe_pose``: the 33 MediaPipe Pose landmarks, channels (x, y, z, visibility); edges are
-  MediaPipe's ``POSE_CONNECTIONS`` (the mouth pair 9-10 is its own component there).
+  MediaPipe's ``POSE_CONNECTIONS`` plus nose-shoulders and nose-mouth corners: in
+  POSE_CONNECTIONS the face and the mouth pair are separate components, which would leave the body
+  unreachable from the centre node (the nose) in ST-GCN's spatial partition.
 - ``sign27``: SL-GCN's 27-point subset of COCO-WholeBody (HRNet), channels (x, y, score), the
   thesis' published HRNet arrays. Node order = COCO-WholeBody indices
   [0, 5, 6, 7, 8, 9, 10, 91, 95, 96, 99, 100, 103, 104, 107, 108, 111,
@@ -44,6 +46,7 @@ MEDIAPIPE_POSE = KeypointLayout(
         (12, 14), (14, 16), (16, 18), (16, 20), (16, 22), (18, 20),
         (11, 23), (12, 24), (23, 24), (23, 25), (24, 26), (25, 27), (26, 28),
         (27, 29), (28, 30), (29, 31), (30, 32), (27, 31), (28, 32),
+        (0, 11), (0, 12), (0, 9), (0, 10),  # connect face, mouth and body (not in MediaPipe's list)
     ),
     center=0,
     channels=("x", "y", "z", "visibility"),

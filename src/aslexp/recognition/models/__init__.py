@@ -1,0 +1,179 @@
+"""The classifier registry: ``build_classifier(name, params, ...)``.
+
+``DEFAULT_PARAMS[name]`` lists every key a classifier accepts and its default; ``params`` may
+override any of them and nothing else (an unknown key is an error, so a typo in a config or a
+sweep space cannot go unnoticed).
+
+Defaults fit a 2-core CPU and a few hundred clips: ST-GCN with 5 blocks of [32, 32, 64, 64, 128]
+channels (0.32 M parameters with the 33-node pose, vs 1.2 M for [64, 64, 128, 128, 256] and 3.1 M
+for the classic 10-block ST-GCN: far too many for ~200 training clips, and ~4x / ~10x the
+compute per epoch), and ``frame_stride`` 2 for the sequence models (25 fps -> 12.5 fps halves
+the cost; the stride-2 blocks of ST-GCN subsample time anyway).
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import torch
+
+from aslexp.data.dataset import KeypointLayout
+from aslexp.recognition.models.base import Classifier, ClassifierSpec, TorchClassifier, to_tensors
+from aslexp.recognition.models.classical import (
+    DummyBaseline,
+    LogisticRegressionClassifier,
+    SklearnClassifier,
+    SVMClassifier,
+    clip_features,
+)
+from aslexp.recognition.models.cnn3d import HeatmapCNN3D, HeatmapRenderer
+from aslexp.recognition.models.graph import PARTITIONS, spatial_partition_adjacency
+from aslexp.recognition.models.sequence import MLP, RecurrentClassifier
+from aslexp.recognition.models.stgcn import STGCN
+
+_RNN_DEFAULTS = {"hidden_size": 128, "num_layers": 2, "bidirectional": True, "dropout": 0.3, "frame_stride": 2}
+
+DEFAULT_PARAMS: dict[str, dict[str, Any]] = {
+    "majority": {},
+    "stratified": {},
+    "logreg": {"C": 1.0, "max_iter": 2000, "pooling": "none", "standardize": True},
+    "svm": {"C": 1.0, "kernel": "rbf", "gamma": "scale", "pooling": "none", "standardize": True},
+    "mlp": {"hidden_sizes": [256, 128], "dropout": 0.3},
+    "lstm": dict(_RNN_DEFAULTS),
+    "gru": dict(_RNN_DEFAULTS),
+    "stgcn": {
+        "channels": [32, 32, 64, 64, 128],
+        "temporal_kernel": 9,
+        "dropout": 0.3,
+        "residual": True,
+        "edge_importance": True,
+        "adaptive": False,
+        "mask_channel": True,
+        "frame_stride": 2,
+    },
+    "cnn3d": {
+        "channels": [16, 32, 64],
+        "dropout": 0.3,
+        "heatmap_size": 32,
+        "sigma": 0.08,
+        "sum_joints": False,
+        "xy_channels": [0, 1],
+        "frame_stride": 2,
+    },
+}
+
+CLASSIFIER_NAMES = tuple(DEFAULT_PARAMS)
+BASELINE_NAMES = ("majority", "stratified")
+
+
+def resolve_params(name: str, params: dict[str, Any] | None) -> dict[str, Any]:
+    """Defaults of ``name`` updated with ``params``; unknown names or keys raise ValueError."""
+    if name not in DEFAULT_PARAMS:
+        raise ValueError(f"unknown classifier {name!r}; known: {', '.join(CLASSIFIER_NAMES)}")
+    params = dict(params or {})
+    unknown = sorted(set(params) - set(DEFAULT_PARAMS[name]))
+    if unknown:
+        raise ValueError(
+            f"classifier '{name}': unknown params {unknown}; accepted: {sorted(DEFAULT_PARAMS[name]) or 'none'}"
+        )
+    resolved = copy.deepcopy(DEFAULT_PARAMS[name])
+    resolved.update(params)
+    return resolved
+
+
+def _stride(name: str, params: dict[str, Any]) -> int:
+    stride = int(params["frame_stride"])
+    if stride < 1:
+        raise ValueError(f"classifier '{name}': frame_stride must be >= 1, got {params['frame_stride']}")
+    return stride
+
+
+def build_classifier(
+    name: str,
+    params: dict[str, Any] | None,
+    num_channels: int,
+    num_frames: int,
+    num_nodes: int,
+    num_classes: int,
+    layout: KeypointLayout | None = None,
+) -> Classifier:
+    """A fresh, untrained classifier for clips of shape (C, T, V, 1) and ``num_classes`` classes.
+
+    ``layout`` is required by ``stgcn`` (the skeleton graph) and checked against ``num_nodes``.
+    Torch weights are initialised from torch's global RNG: seed before building.
+    """
+    resolved = resolve_params(name, params)
+    if num_classes < 2:
+        raise ValueError(f"classifier '{name}': need at least 2 classes, got {num_classes}")
+    if layout is not None and layout.num_nodes != num_nodes:
+        raise ValueError(f"classifier '{name}': layout '{layout.name}' has {layout.num_nodes} nodes, data has {num_nodes}")
+    spec = ClassifierSpec(name, resolved, num_channels, num_frames, num_nodes, num_classes, layout)
+    p = resolved
+
+    if name in BASELINE_NAMES:
+        return DummyBaseline(spec, strategy="most_frequent" if name == "majority" else "stratified")
+    if name == "logreg":
+        return LogisticRegressionClassifier(spec, C=p["C"], max_iter=p["max_iter"], pooling=p["pooling"], standardize=p["standardize"])
+    if name == "svm":
+        return SVMClassifier(
+            spec, C=p["C"], kernel=p["kernel"], gamma=p["gamma"], pooling=p["pooling"],
+            standardize=p["standardize"],
+        )
+
+    module: torch.nn.Module
+    if name == "mlp":
+        module = MLP(num_channels * num_frames * num_nodes, num_classes, hidden_sizes=list(p["hidden_sizes"]), dropout=p["dropout"])
+    elif name in ("lstm", "gru"):
+        module = RecurrentClassifier(
+            name, num_channels * num_nodes + num_nodes, num_classes,
+            hidden_size=int(p["hidden_size"]), num_layers=int(p["num_layers"]),
+            bidirectional=bool(p["bidirectional"]), dropout=float(p["dropout"]), frame_stride=_stride(name, p),
+        )
+    elif name == "stgcn":
+        if layout is None:
+            raise ValueError("classifier 'stgcn' needs the keypoint layout (its edges and center)")
+        module = STGCN(
+            num_channels, num_classes, torch.from_numpy(spatial_partition_adjacency(layout)),
+            channels=[int(c) for c in p["channels"]], temporal_kernel=int(p["temporal_kernel"]),
+            dropout=float(p["dropout"]), residual=bool(p["residual"]), edge_importance=bool(p["edge_importance"]),
+            adaptive=bool(p["adaptive"]), mask_channel=bool(p["mask_channel"]), frame_stride=_stride(name, p),
+        )
+    elif name == "cnn3d":
+        xy = tuple(int(c) for c in p["xy_channels"])
+        if len(xy) != 2 or not all(0 <= c < num_channels for c in xy):
+            raise ValueError(f"classifier 'cnn3d': xy_channels must be two channel indices < {num_channels}, got {p['xy_channels']}")
+        module = HeatmapCNN3D(
+            num_nodes, num_classes, channels=[int(c) for c in p["channels"]], dropout=float(p["dropout"]),
+            heatmap_size=int(p["heatmap_size"]), sigma=float(p["sigma"]), sum_joints=bool(p["sum_joints"]),
+            xy_channels=xy, frame_stride=_stride(name, p),
+        )
+    else:  # pragma: no cover - DEFAULT_PARAMS and this dispatch list the same names
+        raise AssertionError(name)
+    return TorchClassifier(spec, module)
+
+
+def rebuild_classifier(spec: ClassifierSpec) -> Classifier:
+    """A fresh classifier with the same architecture as ``spec`` (used to load checkpoints)."""
+    return build_classifier(
+        spec.name, spec.params, spec.num_channels, spec.num_frames, spec.num_nodes, spec.num_classes, spec.layout
+    )
+
+
+__all__ = [
+    "BASELINE_NAMES",
+    "CLASSIFIER_NAMES",
+    "DEFAULT_PARAMS",
+    "PARTITIONS",
+    "Classifier",
+    "ClassifierSpec",
+    "HeatmapRenderer",
+    "SklearnClassifier",
+    "TorchClassifier",
+    "build_classifier",
+    "clip_features",
+    "rebuild_classifier",
+    "resolve_params",
+    "spatial_partition_adjacency",
+    "to_tensors",
+]

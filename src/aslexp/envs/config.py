@@ -1,0 +1,62 @@
+"""Config groups without Hydra: ``gym.make`` and tests name a group file or pass a dict.
+
+A name (``"hand15"``) reads ``conf/<group>/<name>.yaml`` (following a group file's own
+``defaults`` list of same-group names, as Hydra would); a dict is merged over the group's
+default file, so a partial dict changes only what it names. The jobs pass fully composed
+dicts from Hydra, so both paths read the same YAML: the configuration lives in one place.
+"""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+PROJECT_ROOT = Path(__file__).resolve().parents[3]
+CONF_DIR = PROJECT_ROOT / "conf"
+
+DEFAULTS = {"body": "hand15", "controller": "thesis", "reward": "deepmimic", "env": "default",
+            "ppo": "thesis"}
+
+
+def deep_merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    """``override`` over ``base`` (nested dicts merged, everything else replaced)."""
+    out = copy.deepcopy(base)
+    for key, value in override.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict) and value:
+            out[key] = deep_merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def load_group_file(group: str, name: str) -> dict[str, Any]:
+    """Read ``conf/<group>/<name>.yaml`` with its same-group ``defaults`` list applied."""
+    path = CONF_DIR / group / f"{name}.yaml"
+    if not path.is_file():
+        available = sorted(p.stem for p in (CONF_DIR / group).glob("*.yaml"))
+        raise FileNotFoundError(f"no {group} config {name!r} ({path}); available: {available}")
+    with open(path, encoding="utf-8") as fh:
+        values = yaml.safe_load(fh) or {}
+    defaults = values.pop("defaults", None)
+    if not defaults:
+        return values
+    merged: dict[str, Any] = {}
+    for entry in defaults:
+        merged = deep_merge(merged, values if entry == "_self_" else load_group_file(group, entry))
+    if "_self_" not in defaults:
+        merged = deep_merge(merged, values)
+    return merged
+
+
+def resolve_group(group: str, value: str | dict[str, Any] | None) -> dict[str, Any]:
+    """A group's config from a name, a (partial) dict or None (the group default)."""
+    if value is None:
+        return load_group_file(group, DEFAULTS[group])
+    if isinstance(value, str):
+        return load_group_file(group, value)
+    if isinstance(value, dict):
+        return deep_merge(load_group_file(group, DEFAULTS[group]), value)
+    raise TypeError(f"{group} config must be a name, a dict or None, got {type(value).__name__}")

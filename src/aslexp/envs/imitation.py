@@ -1,0 +1,335 @@
+"""The imitation environment: a body tracks a reference motion under PD control (gymnasium).
+
+One control step (``1 / control_hz`` seconds):
+  1. the action becomes PD targets: absolute joint positions, or (``action_mode: residual``)
+     corrections added to the reference ``reference_lookahead`` control steps ahead;
+  2. the world steps ``physics_hz / control_hz`` times;
+  3. the reward compares the simulated character with the reference at the new time;
+  4. the observation: phase, then each link's position, orientation, linear and angular velocity
+     in the root frame, then (``observe_future``) upcoming reference joint positions, then
+     (``observe_joints``) the joint positions and velocities.
+
+Episodes end when ``episode_steps`` have passed (truncated), and are terminated on a NaN action,
+a diverging simulation (non-finite state or joint speed above ``max_joint_velocity``) or, if
+configured, a step reward below ``early_termination.min_reward``. Every such end is flagged in
+``info`` and counted in :attr:`ImitationEnv.counters`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import defaultdict
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from aslexp.envs.config import resolve_group
+from aslexp.envs.reward import TERMS, ImitationReward, PoseSnapshot, RewardSpec
+from aslexp.sim.body import BodySpec, load_layout
+from aslexp.sim.motion import Motion, load_motion
+from aslexp.sim.pd import ControllerSpec, PDController
+from aslexp.sim.reference import ReferenceMotion
+from aslexp.sim.world import Character, PhysicsConfig, World, quat_conjugate, quat_multiply
+
+
+@dataclass(frozen=True)
+class EnvSpec:
+    """``conf/env/*.yaml`` as plain values."""
+
+    physics_hz: float = 240.0
+    control_hz: float = 30.0
+    gravity: tuple[float, float, float] = (0.0, -9.8, 0.0)
+    solver_iterations: int = 10
+    episode_steps: int = 300
+    reference_state_init: bool = True
+    early_termination: dict[str, Any] = field(default_factory=lambda: {"min_reward": None})
+    max_joint_velocity: float = 100.0
+    action_mode: str = "absolute"
+    residual_range: float = 0.5
+    reference_lookahead: int = 1
+    observe_future: tuple[int, ...] = ()
+    observe_joints: bool = False
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> "EnvSpec":
+        unknown = set(values) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"env config: unknown keys {sorted(unknown)}")
+        values = dict(values)
+        values["gravity"] = tuple(values.get("gravity", (0.0, -9.8, 0.0)))
+        values["observe_future"] = tuple(int(k) for k in values.get("observe_future") or ())
+        spec = cls(**values)
+        if spec.action_mode not in ("absolute", "residual"):
+            raise ValueError(f"env config: action_mode must be absolute or residual, got {spec.action_mode!r}")
+        ratio = spec.physics_hz / spec.control_hz
+        if abs(ratio - round(ratio)) > 1e-6 or ratio < 1:
+            raise ValueError(f"env config: physics_hz ({spec.physics_hz}) must be a multiple of "
+                             f"control_hz ({spec.control_hz})")
+        return spec
+
+    @property
+    def substeps(self) -> int:
+        return int(round(self.physics_hz / self.control_hz))
+
+
+def resolve_motion_path(motion: str | os.PathLike, data_root: str | os.PathLike | None) -> Path:
+    """A motion file given absolutely, relative to the current directory, or to the data root."""
+    path = Path(motion).expanduser()
+    if path.is_absolute() or path.is_file():
+        return path
+    if data_root is None:
+        from aslexp.data.root import resolve_data_root
+
+        data_root = resolve_data_root(None, must_exist=False)
+    return Path(data_root) / path
+
+
+def _rotation_matrix(q_wxyz: np.ndarray) -> np.ndarray:
+    w, x, y, z = q_wxyz
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+class ImitationEnv(gym.Env):
+    """Imitation of one reference motion by one body (see the module docstring)."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+
+    def __init__(
+        self,
+        motion: str | os.PathLike | Motion,
+        body: str | dict | None = None,
+        controller: str | dict | None = None,
+        reward: str | dict | None = None,
+        env: str | dict | None = None,
+        data_root: str | os.PathLike | None = None,
+        render_mode: str | None = None,
+        render_size: tuple[int, int] = (320, 320),
+    ) -> None:
+        super().__init__()
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.render_mode = render_mode
+        self.render_size = tuple(render_size)
+        if data_root is None:
+            from aslexp.data.root import resolve_data_root
+
+            data_root = resolve_data_root(None, must_exist=False)
+        self.data_root = Path(data_root)
+
+        # -- configuration ----------------------------------------------------------------
+        self.body_spec = BodySpec.from_dict(resolve_group("body", body))
+        self.controller_spec = ControllerSpec.from_dict(resolve_group("controller", controller))
+        self.reward_spec = RewardSpec.from_dict(resolve_group("reward", reward))
+        self.spec_env = EnvSpec.from_dict(resolve_group("env", env))
+        self.urdf, self.layout = load_layout(self.body_spec, self.data_root)
+
+        if isinstance(motion, Motion):
+            if motion.num_columns != self.layout.motion_columns:
+                raise ValueError(
+                    f"{motion.source or 'motion'}: the model expects {self.layout.motion_columns} values "
+                    f"per frame but the motion has {motion.num_columns}"
+                )
+            self.motion = motion
+        else:
+            self.motion = load_motion(resolve_motion_path(motion, self.data_root),
+                                      expected_columns=self.layout.motion_columns,
+                                      quaternions=self.layout.quaternion_columns)
+        self.reference = ReferenceMotion(self.motion, self.layout)
+        self.control_dt = 1.0 / self.spec_env.control_hz
+
+        # -- engine: a simulated character and a kinematic reference in separate worlds ----
+        physics = PhysicsConfig(self.spec_env.physics_hz, self.spec_env.gravity, self.spec_env.solver_iterations)
+        root_pos, root_rot, _, _ = self.reference.root(0.0)
+        self.sim_world = World(physics)
+        self.ref_world = World(physics)
+        self.sim = Character(self.sim_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot)
+        self.ref = Character(self.ref_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot,
+                             kinematic=True)
+        if render_mode == "rgb_array":
+            _colour(self.ref, (0.25, 0.45, 0.85))  # reference: blue
+            _colour(self.sim, (0.95, 0.55, 0.15))  # simulation: orange
+        self.controller = PDController(self.controller_spec, self.layout)
+        self.reward_fn = ImitationReward(self.reward_spec, self.layout)
+
+        # -- spaces ---------------------------------------------------------------------------
+        lower, upper = [], []
+        for joint in self.layout.joints:
+            if joint.dof == 1:
+                lower.append(joint.lower if joint.lower is not None else -np.pi)
+                upper.append(joint.upper if joint.upper is not None else np.pi)
+            else:
+                lower.extend([-1.0] * 4)
+                upper.extend([1.0] * 4)
+        self.joint_lower = np.asarray(lower)
+        self.joint_upper = np.asarray(upper)
+        if self.spec_env.action_mode == "absolute":
+            self.action_space = gym.spaces.Box(self.joint_lower.astype(np.float32),
+                                               self.joint_upper.astype(np.float32), dtype=np.float32)
+        else:
+            r = float(self.spec_env.residual_range)
+            self.action_space = gym.spaces.Box(-r, r, shape=(self.layout.action_size,), dtype=np.float32)
+        obs_size = 1 + 13 * self.sim.num_links + len(self.spec_env.observe_future) * self.layout.action_size
+        if self.spec_env.observe_joints:
+            obs_size += self.layout.action_size + sum(
+                1 if j.dof == 1 else 3 for j in self.layout.joints)
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(obs_size,), dtype=np.float32)
+
+        # -- episode state and counters --------------------------------------------------
+        self.time = 0.0
+        self.steps = 0
+        self.counters: dict[str, int] = defaultdict(int)
+        self._term_sums: dict[str, float] = defaultdict(float)
+
+    # ------------------------------------------------------------------------------------
+    # Reference helpers
+    def reference_targets(self, lookahead: int = 0) -> np.ndarray:
+        """Reference joint positions ``lookahead`` control steps after the current time."""
+        return self.reference.joints(self.time + lookahead * self.control_dt)
+
+    def reference_action(self, lookahead: int = 0) -> np.ndarray:
+        """The action that drives the PD targets with the reference (the no-learning baseline)."""
+        target = self.reference_targets(lookahead)
+        if self.spec_env.action_mode == "residual":
+            target = target - self.reference_targets(self.spec_env.reference_lookahead)
+        return target.astype(np.float32)
+
+    def _reference_snapshot(self, t: float) -> PoseSnapshot:
+        q = self.reference.joints(t)
+        qd = self.reference.joint_velocities(t)
+        self.ref.set_state(q, qd)
+        root_pos, root_rot, root_vel, root_ang = self.reference.root(t)
+        return PoseSnapshot(q, qd, self.ref.end_effector_positions(), root_pos, root_rot, root_vel, root_ang)
+
+    def _sim_snapshot(self, links: np.ndarray) -> PoseSnapshot:
+        q, qd = self.sim.joint_state()
+        root_pos, root_rot, root_vel, root_ang = self.sim.base_state()
+        return PoseSnapshot(q, qd, self.sim.end_effector_positions(links), root_pos, root_rot, root_vel, root_ang)
+
+    # ------------------------------------------------------------------------------------
+    def _observation(self, links: np.ndarray) -> np.ndarray:
+        root_pos, root_rot, _, _ = self.sim.base_state()
+        to_root = _rotation_matrix(root_rot).T
+        local = np.empty_like(links)
+        local[:, 0:3] = (links[:, 0:3] - root_pos) @ to_root.T
+        rot = quat_multiply(quat_conjugate(root_rot), links[:, 3:7])
+        local[:, 3:7] = np.where(rot[:, :1] < 0, -rot, rot)  # one sign per rotation
+        local[:, 7:10] = links[:, 7:10] @ to_root.T
+        local[:, 10:13] = links[:, 10:13] @ to_root.T
+        parts = [np.asarray([self.reference.phase(self.time)]), local.ravel()]
+        for k in self.spec_env.observe_future:
+            parts.append(self.reference.joints(self.time + k * self.control_dt))
+        if self.spec_env.observe_joints:
+            parts.extend(self.sim.joint_state())
+        return np.concatenate(parts).astype(np.float32)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        """Start an episode at ``options["time"]`` (seconds), ``options["phase"]``, a random phase
+        (reference state initialisation) or 0."""
+        super().reset(seed=seed)
+        options = options or {}
+        if "time" in options:
+            self.time = float(options["time"])
+        elif "phase" in options:
+            self.time = float(options["phase"]) * self.reference.duration
+        elif self.spec_env.reference_state_init:
+            self.time = float(self.np_random.uniform(0.0, self.reference.duration))
+        else:
+            self.time = 0.0
+        self.steps = 0
+        q = self.reference.joints(self.time)
+        qd = self.reference.joint_velocities(self.time)
+        self.sim.set_state(q, qd)
+        self._reference_snapshot(self.time)
+        links = self.sim.link_states()
+        self.counters["episodes"] += 1
+        return self._observation(links), {"time": self.time}
+
+    def step(self, action):
+        action = np.asarray(action, dtype=np.float64).reshape(-1)
+        if action.shape[0] != self.layout.action_size or not np.all(np.isfinite(action)):
+            if action.shape[0] != self.layout.action_size:
+                raise ValueError(f"action has {action.shape[0]} values, expected {self.layout.action_size}")
+            # A NaN action ends the episode (flagged, counted); the physics is never fed it.
+            self.counters["nan_actions"] += 1
+            links = self.sim.link_states()
+            return self._observation(links), 0.0, True, False, {"nan_action": True, "diverged": False}
+
+        if self.spec_env.action_mode == "residual":
+            targets = self.reference_targets(self.spec_env.reference_lookahead) + action
+        else:
+            targets = action
+        targets = np.clip(targets, self.joint_lower, self.joint_upper)
+        self.controller.apply(self.sim, targets)
+        self.sim_world.step(self.spec_env.substeps)
+        self.time += self.control_dt
+        self.steps += 1
+
+        links = self.sim.link_states()
+        sim_state = self._sim_snapshot(links)
+        if (not np.all(np.isfinite(links)) or not np.all(np.isfinite(sim_state.qd))
+                or np.max(np.abs(sim_state.qd)) > self.spec_env.max_joint_velocity):
+            self.counters["diverged"] += 1
+            obs = np.nan_to_num(self._observation(links), nan=0.0, posinf=0.0, neginf=0.0)
+            return obs, 0.0, True, False, {"nan_action": False, "diverged": True}
+
+        reward, terms, errors = self.reward_fn(sim_state, self._reference_snapshot(self.time))
+        for name, value in terms.items():
+            self._term_sums[name] += value
+        self._term_sums["reward"] += reward
+        self._term_sums["steps"] += 1
+
+        min_reward = (self.spec_env.early_termination or {}).get("min_reward")
+        early = min_reward is not None and reward < float(min_reward)
+        if early:
+            self.counters["early_terminations"] += 1
+        truncated = self.steps >= self.spec_env.episode_steps and not early
+        info = {"nan_action": False, "diverged": False, "early_termination": early,
+                **{f"r_{k}": v for k, v in terms.items()}, **{f"e_{k}": v for k, v in errors.items()}}
+        return self._observation(links), reward, early, truncated, info
+
+    def pop_term_means(self) -> dict[str, float]:
+        """Mean reward and per-term rewards since the last call (for training logs)."""
+        steps = self._term_sums.pop("steps", 0)
+        out = {k: v / steps for k, v in self._term_sums.items()} if steps else {}
+        self._term_sums.clear()
+        return out
+
+    # ------------------------------------------------------------------------------------
+    def render(self) -> np.ndarray | None:
+        """Reference (left) and simulation (right) side by side, PyBullet's TinyRenderer."""
+        if self.render_mode != "rgb_array":
+            return None
+        return np.concatenate([_snapshot(self.ref_world, self.ref, self.render_size),
+                               _snapshot(self.sim_world, self.sim, self.render_size)], axis=1)
+
+    def close(self) -> None:
+        self.sim_world.close()
+        self.ref_world.close()
+
+
+def _colour(character: Character, rgb: tuple[float, float, float]) -> None:
+    """Colour a character for rendering; distal links lighter so finger tips stand out."""
+    pb = character.world.client
+    for link in range(-1, character.num_links):
+        shade = 1.0 if link < 0 or not character.link_names[link].endswith("dist") else 1.25
+        pb.changeVisualShape(character.id, link, rgbaColor=[min(c * shade, 1.0) for c in rgb] + [1.0])
+
+
+def _snapshot(world: World, character: Character, size: tuple[int, int]) -> np.ndarray:
+    pb = world.client
+    base, _ = pb.getBasePositionAndOrientation(character.id)
+    links = character.link_states(velocities=False)
+    target = links[:, 0:3].mean(axis=0) if len(links) else np.asarray(base)
+    width, height = size
+    view = pb.computeViewMatrixFromYawPitchRoll(cameraTargetPosition=list(target), distance=0.5,
+                                                yaw=90, pitch=-10, roll=0, upAxisIndex=1)
+    proj = pb.computeProjectionMatrixFOV(fov=60, aspect=width / height, nearVal=0.01, farVal=10.0)
+    _, _, rgba, _, _ = pb.getCameraImage(width, height, view, proj, renderer=pb.ER_TINY_RENDERER)
+    return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]

@@ -1,0 +1,160 @@
+"""``aslexp imitate``: learn to imitate one reference motion with PPO.
+
+    aslexp imitate motion=A                                   # thesis settings (long)
+    aslexp imitate motion=A env=residual ppo=fast seed=1      # fast settings for this hardware
+    aslexp imitate motion=A ppo.total_steps=0                 # baselines and plots only
+    aslexp imitate hydra.run.dir=outputs/imitate/X +resume=outputs/imitate/X   # continue a run
+    aslexp imitate -m +experiment=letters                     # letters x seeds (figure 5.9)
+
+The run folder gets: metrics.json (baselines, best/last evaluation, steps, seconds, steps per
+second, counts of NaN actions / divergences / early ends, steps and seconds to pass the
+lookahead baseline), progress.csv, checkpoints/{last,best}.pt, reward_curve.png,
+tracking.png (reference vs simulation per joint) and imitation.gif (reference | simulation).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import hydra
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig
+
+from aslexp.data.root import resolve_data_root
+from aslexp.jobs._common import CONF_DIR, begin, run_dir, seed_everything, to_dict
+from aslexp.tuning.context import trial_reporter
+
+log = logging.getLogger("aslexp.imitate")
+
+
+def build_envs(cfg: dict[str, Any], data_root: Path):
+    """Training env and evaluation env (no early termination: evaluations score whole episodes)."""
+    from aslexp.envs.config import deep_merge
+    from aslexp.envs.imitation import ImitationEnv
+
+    common = dict(body=cfg["body"], controller=cfg["controller"], reward=cfg["reward"], data_root=data_root)
+    train_env = ImitationEnv(cfg["motion"]["file"], env=cfg["env"], **common)
+    eval_cfg = deep_merge(cfg["env"], {"early_termination": {"min_reward": None}})
+    render = cfg.get("render") or {}
+    eval_env = ImitationEnv(train_env.motion, env=eval_cfg, render_mode="rgb_array",
+                            render_size=tuple(render.get("size", (240, 240))), **common)
+    return train_env, eval_env
+
+
+def _resume_path(resume: str | None) -> Path | None:
+    if not resume:
+        return None
+    path = Path(resume)
+    return path / "checkpoints" / "last.pt" if path.is_dir() else path
+
+
+def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None) -> dict[str, Any]:
+    """The job without Hydra: train, evaluate, draw; returns the metrics."""
+    import numpy as np
+
+    from aslexp.rl.evaluate import baselines, evaluate
+    from aslexp.rl.ppo import PPOConfig, PPOTrainer
+    from aslexp.rl import report
+
+    data_root = resolve_data_root(cfg.get("data_root"))
+    ppo = PPOConfig.from_dict(cfg["ppo"])
+    train_env, eval_env = build_envs(cfg, data_root)
+    base = baselines(eval_env, ppo.eval_steps)
+    log.info("motion %s: baselines %s", cfg["motion"]["name"], {k: round(v, 4) for k, v in base.items()})
+
+    def on_eval(step: int, value: float, row: dict[str, Any]) -> None:
+        if reporter is not None:
+            reporter.report(value, step)
+
+    trainer = PPOTrainer(train_env, eval_env, ppo, out_dir, seed=int(cfg.get("seed") or 0), on_eval=on_eval)
+    resume = _resume_path(cfg.get("resume"))
+    if resume is not None:
+        trainer.restore(resume)  # a corrupt or mismatched checkpoint stops here, before any training
+    started = time.perf_counter()
+    result = trainer.train() if ppo.total_steps > trainer.steps else None
+    if result is None:
+        result_eval, _ = trainer.evaluate()
+        best_eval, last_eval, stopped = result_eval, result_eval, "no_training"
+    else:
+        best_eval, last_eval, stopped = result.best_eval, result.last_eval, result.stopped
+
+    # When did the evaluation first pass each baseline?
+    passed: dict[str, Any] = {}
+    for name in ("lookahead", "reference"):
+        first = next((h for h in trainer.history if h.get("eval_reward", -1) > base[name]), None)
+        passed[f"steps_to_{name}"] = None if first is None else int(first["step"])
+        passed[f"seconds_to_{name}"] = None if first is None else float(first["seconds"])
+
+    # Figures with the best policy: tracking plots and a side-by-side GIF.
+    best_path = out_dir / "checkpoints" / "best.pt"
+    if best_path.is_file():
+        from aslexp.rl.checkpoint import load_checkpoint
+
+        trainer.agent.load_state_dict(load_checkpoint(best_path)["agent"])
+    render = cfg.get("render") or {}
+    frames_every = int(render.get("frames_every", 2)) if render.get("gif", True) else 0
+    final = evaluate(eval_env, lambda obs, env: trainer.agent.act(obs), ppo.eval_steps, record=True,
+                     frames_every=frames_every)
+    look = evaluate(eval_env, lambda obs, env: env.reference_action(1), ppo.eval_steps, record=True)
+    joint_names = [j.name for j in eval_env.layout.joints]
+    if cfg.get("plots", True):
+        report.plot_tracking(final.trajectory, joint_names, out_dir / "tracking.png",
+                             f"{cfg['motion']['name']}: learned policy (reward {final.mean_reward:.3f})")
+        report.plot_tracking(look.trajectory, joint_names, out_dir / "tracking_baseline.png",
+                             f"{cfg['motion']['name']}: one-step-lookahead baseline (reward {look.mean_reward:.3f})")
+        report.plot_reward_curve(trainer.history, base, out_dir / "reward_curve.png",
+                                 f"{cfg['motion']['name']} (seed {cfg.get('seed')})")
+    if frames_every and "frames" in final.trajectory:
+        report.save_gif(final.trajectory["frames"], out_dir / "imitation.gif",
+                        fps=eval_env.spec_env.control_hz / frames_every)
+    rows = [h for h in trainer.history if "steps_per_s" in h]
+    counters = dict(train_env.counters)
+    metrics = {
+        "motion": cfg["motion"]["name"], "seed": cfg.get("seed"), "baselines": base,
+        "best_eval": best_eval, "last_eval": last_eval, "final_eval_terms": final.terms,
+        "steps": trainer.steps, "seconds": trainer.elapsed, "stopped": stopped,
+        "steps_per_s": float(np.mean([h["steps_per_s"] for h in rows])) if rows else None,
+        "env_steps_per_s": float(np.mean([h["env_steps_per_s"] for h in rows])) if rows else None,
+        "wall_seconds_this_process": time.perf_counter() - started,
+        "counters": counters, **passed,
+    }
+    train_env.close()
+    eval_env.close()
+    return metrics
+
+
+@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="imitate")
+def main(cfg: DictConfig) -> float:
+    """Hydra entry point; returns the best evaluation reward (the sweep objective)."""
+    import torch
+
+    torch.set_num_threads(int(cfg.ppo.get("torch_threads", 1)))
+    with begin("imitate", cfg) as run:
+        seed_everything(int(cfg.seed))
+        metrics = imitate(to_dict(cfg), run_dir(), trial_reporter(cfg))
+        run.save_metrics(metrics)
+        run.set_main_metric("eval_reward", metrics["best_eval"], "maximize")
+        log.info("best eval %.4f (lookahead baseline %.4f) after %d steps, %.0f s",
+                 metrics["best_eval"], metrics["baselines"]["lookahead"], metrics["steps"], metrics["seconds"])
+        return float(metrics["best_eval"])
+
+
+class LettersSummary(Callback):
+    """Hydra callback of the letters experiment: mean/std curves and the table after a multirun."""
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        from aslexp.rl.report import summarize_letters
+
+        sweep_dir = Path(config.hydra.sweep.dir)
+        try:
+            summary = summarize_letters(sweep_dir)
+            log.info("letters summary in %s\n%s", sweep_dir, summary["table"])
+        except FileNotFoundError as exc:
+            log.warning("no letters summary: %s", exc)
+
+
+if __name__ == "__main__":
+    main()

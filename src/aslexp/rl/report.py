@@ -1,0 +1,164 @@
+"""Figures and tables of imitation runs: tracking plots, reward curves, GIFs, letter summaries.
+
+Reads and writes plain files only (run folders: ``progress.csv``, ``metrics.json``,
+``.hydra/config.yaml``), so it works the same after a run, after a sweep, or from a notebook.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_tracking(trajectory: dict[str, np.ndarray], joint_names: list[str], path: str | Path,
+                  title: str = "") -> Path:
+    """Per-joint reference vs simulated position and velocity (thesis figures 5.6 and 5.10)."""
+    plt = _pyplot()
+    n = len(joint_names)
+    fig, axes = plt.subplots(n, 2, figsize=(10, 1.6 * n), sharex=True, squeeze=False)
+    t = trajectory["time"]
+    for j, name in enumerate(joint_names):
+        for col, (sim_key, ref_key, unit) in enumerate((("q_sim", "q_ref", "rad"), ("qd_sim", "qd_ref", "rad/s"))):
+            ax = axes[j, col]
+            ax.plot(t, trajectory[ref_key][:, j], color="tab:blue", lw=1, label="reference")
+            ax.plot(t, trajectory[sim_key][:, j], color="tab:orange", lw=1, label="simulation")
+            ax.set_ylabel(f"{name}\n{unit}", fontsize=7)
+            ax.tick_params(labelsize=6)
+    axes[0, 0].set_title("position", fontsize=9)
+    axes[0, 1].set_title("velocity", fontsize=9)
+    axes[0, 0].legend(fontsize=6, loc="upper right")
+    axes[-1, 0].set_xlabel("time (s)")
+    axes[-1, 1].set_xlabel("time (s)")
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=80)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_reward_curve(history: list[dict[str, Any]], baselines: dict[str, float], path: str | Path,
+                      title: str = "") -> Path:
+    """Evaluation (and training) reward against environment steps, with the baselines as lines."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ev = [(h["step"], h["eval_reward"]) for h in history if "eval_reward" in h]
+    tr = [(h["step"], h["train_reward"]) for h in history if "train_reward" in h]
+    if tr:
+        ax.plot(*zip(*tr), color="tab:gray", lw=1, alpha=0.6, label="training (stochastic)")
+    if ev:
+        ax.plot(*zip(*ev), color="tab:green", marker="o", ms=3, label="evaluation (deterministic)")
+    for (name, value), style in zip(baselines.items(), ("--", ":")):
+        ax.axhline(value, color="black", ls=style, lw=1, label=f"baseline: {name} ({value:.3f})")
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("mean reward per step")
+    ax.set_title(title)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def save_gif(frames: list[np.ndarray] | np.ndarray, path: str | Path, fps: float = 15.0) -> Path:
+    """Animated GIF of RGB frames (reference left, imitation right)."""
+    from PIL import Image
+
+    images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
+    if not images:
+        raise ValueError("no frames to write")
+    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
+    return Path(path)
+
+
+def read_progress(run_dir: str | Path) -> list[dict[str, float]]:
+    path = Path(run_dir) / "progress.csv"
+    if not path.is_file():
+        return []
+    with open(path, newline="", encoding="utf-8") as fh:
+        return [{k: float(v) for k, v in row.items() if v not in ("", None)} for row in csv.DictReader(fh)]
+
+
+def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None) -> dict[str, Any]:
+    """Mean and std evaluation-reward curves per letter over seeds (thesis figure 5.9) and a table.
+
+    Reads every run folder under ``sweep_dir`` holding ``metrics.json``; writes
+    ``letters_curves.png``, ``letters_table.csv`` and ``letters_table.md`` to ``out_dir``.
+    """
+    sweep_dir = Path(sweep_dir)
+    out_dir = Path(out_dir or sweep_dir)
+    runs: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for metrics_path in sorted(sweep_dir.glob("**/metrics.json")):
+        metrics = json.loads(metrics_path.read_text())
+        if "motion" not in metrics:
+            continue
+        metrics["progress"] = read_progress(metrics_path.parent)
+        runs[metrics["motion"]].append(metrics)
+    if not runs:
+        raise FileNotFoundError(f"no imitation runs (metrics.json with a motion) under {sweep_dir}")
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    rows = []
+    for i, (letter, items) in enumerate(sorted(runs.items())):
+        color = f"C{i}"
+        curves = [[(p["step"], p["eval_reward"]) for p in m["progress"] if "eval_reward" in p] for m in items]
+        curves = [c for c in curves if c]
+        if curves:
+            length = min(len(c) for c in curves)
+            steps = np.asarray([s for s, _ in curves[0][:length]])
+            values = np.asarray([[v for _, v in c[:length]] for c in curves])
+            mean, std = values.mean(0), values.std(0)
+            ax.plot(steps, mean, color=color, label=f"{letter} (n={len(curves)})")
+            ax.fill_between(steps, mean - std, mean + std, color=color, alpha=0.2)
+        look = float(np.mean([m["baselines"]["lookahead"] for m in items]))
+        ax.axhline(look, color=color, ls=":", lw=1)
+        best = np.asarray([m["best_eval"] for m in items])
+        rows.append({
+            "motion": letter, "seeds": " ".join(str(m.get("seed")) for m in items),
+            "best_eval_mean": round(float(best.mean()), 4), "best_eval_std": round(float(best.std()), 4),
+            "baseline_reference": round(float(np.mean([m["baselines"]["reference"] for m in items])), 4),
+            "baseline_lookahead": round(look, 4),
+            "steps_mean": int(np.mean([m["steps"] for m in items])),
+            "minutes_mean": round(float(np.mean([m["seconds"] for m in items])) / 60, 1),
+            "passed_lookahead": f"{sum(1 for m in items if m.get('steps_to_lookahead') is not None)}/{len(items)}",
+        })
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("evaluation reward (mean ± std over seeds)")
+    ax.set_title("imitation per letter (dotted: one-step-lookahead baseline)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out_dir / "letters_curves.png", dpi=90)
+    plt.close(fig)
+    with open(out_dir / "letters_table.csv", "w", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    header = "| " + " | ".join(rows[0]) + " |\n|" + "---|" * len(rows[0]) + "\n"
+    table = header + "".join("| " + " | ".join(str(v) for v in r.values()) + " |\n" for r in rows)
+    (out_dir / "letters_table.md").write_text(table, encoding="utf-8")
+    return {"rows": rows, "table": table}
+
+
+def finite_or_none(value: float | None) -> float | None:
+    return None if value is None or not math.isfinite(value) else float(value)
+
+
+if __name__ == "__main__":  # python -m aslexp.rl.report SWEEP_DIR
+    import sys
+
+    print(summarize_letters(sys.argv[1])["table"])

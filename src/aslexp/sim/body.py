@@ -1,0 +1,165 @@
+"""What a simulated body is, independent of the simulator: URDF, joint groups, motion layout.
+
+A body config (``conf/body/*.yaml``) names a URDF (or a builder), groups its joints (the PD
+gains and reward weights are given per group), lists its end effectors and says how the
+columns of a motion file map onto its joints. Nothing here is hand-specific: the upper-body
+humanoid is another body config with spherical joints and a longer motion layout.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import hashlib
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from aslexp.sim.motion import ROOT_COLUMNS
+from aslexp.sim.urdf import HandProportions, JointInfo, read_joints, write_hand_urdf
+
+BUILDERS = ("hand15",)
+
+
+@dataclass(frozen=True)
+class BodySpec:
+    """Plain description of a body (see ``conf/body/hand15.yaml`` for the fields)."""
+
+    name: str
+    urdf: str | None = None
+    builder: str | None = None
+    proportions: dict[str, Any] = field(default_factory=dict)
+    fixed_base: bool = True
+    self_collision: bool = True
+    global_scaling: float = 1.0
+    # Group name -> list of joint-name patterns (fnmatch); every actuated joint needs one group.
+    joint_groups: dict[str, list[str]] = field(default_factory=lambda: {"all": ["*"]})
+    end_effectors: list[str] = field(default_factory=list)
+    # Point on each end-effector link (link frame, metres) taken as its tip.
+    end_effector_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # Motion columns after the root, as [joint name, width]; None: actuated joints in URDF order.
+    # Entries naming joints that are fixed or absent in the model are read and ignored.
+    motion_layout: list[list[Any]] | None = None
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> "BodySpec":
+        unknown = set(values) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"body config: unknown keys {sorted(unknown)}")
+        values = dict(values)
+        if "end_effector_offset" in values:
+            values["end_effector_offset"] = tuple(values["end_effector_offset"])
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class ActuatedJoint:
+    """One joint the controller drives, with where it sits in the state and motion vectors."""
+
+    name: str
+    index: int  # PyBullet joint index (URDF order with URDF_MAINTAIN_LINK_ORDER)
+    dof: int  # 1 (revolute) or 4 (spherical, quaternion w x y z in the motion)
+    group: str
+    motion_column: int  # first column in a motion frame (after the 7 root values)
+    lower: float | None = None
+    upper: float | None = None
+
+
+@dataclass(frozen=True)
+class BodyLayout:
+    """The actuated joints of a body and the motion columns that feed them."""
+
+    joints: tuple[ActuatedJoint, ...]
+    motion_columns: int  # values per motion frame without dt (root included)
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.joints)
+
+    @property
+    def all_revolute(self) -> bool:
+        return all(j.dof == 1 for j in self.joints)
+
+    @property
+    def action_size(self) -> int:
+        return sum(j.dof for j in self.joints)
+
+    @property
+    def quaternion_columns(self) -> tuple[int, ...]:
+        """First column of each quaternion block in a motion frame (root and spherical joints)."""
+        return (3,) + tuple(j.motion_column for j in self.joints if j.dof == 4)
+
+    def group_of(self, name: str) -> str:
+        return next(j.group for j in self.joints if j.name == name)
+
+
+def _group_for(joint: str, groups: dict[str, list[str]]) -> str:
+    for group, patterns in groups.items():
+        if any(fnmatch.fnmatch(joint, p) for p in patterns):
+            return group
+    raise ValueError(f"joint {joint!r} is in no joint group; groups: {groups}")
+
+
+def build_layout(spec: BodySpec, joints: list[JointInfo]) -> BodyLayout:
+    """Match the URDF's joints with the body's groups and motion layout."""
+    index_of = {j.name: i for i, j in enumerate(joints)}
+    by_name = {j.name: j for j in joints}
+    layout = spec.motion_layout
+    if layout is None:
+        layout = [[j.name, j.dof] for j in joints if j.dof > 0]
+    actuated: list[ActuatedJoint] = []
+    column = ROOT_COLUMNS
+    for name, width in layout:
+        info = by_name.get(name)
+        if info is not None and info.dof > 0:
+            if info.dof != int(width):
+                raise ValueError(
+                    f"body {spec.name}: motion layout gives joint {name!r} {width} columns but the "
+                    f"URDF joint is {info.type} ({info.dof} columns)"
+                )
+            actuated.append(ActuatedJoint(
+                name=name, index=index_of[name], dof=info.dof,
+                group=_group_for(name, spec.joint_groups), motion_column=column,
+                lower=info.lower, upper=info.upper,
+            ))
+        column += int(width)
+    missing = [j.name for j in joints if j.dof > 0 and j.name not in {a.name for a in actuated}]
+    if missing:
+        raise ValueError(f"body {spec.name}: actuated joints {missing} have no motion columns")
+    return BodyLayout(tuple(actuated), motion_columns=column)
+
+
+def resolve_urdf(spec: BodySpec, data_root: str | os.PathLike | None = None,
+                 cache_dir: str | os.PathLike | None = None) -> Path:
+    """Path of the body's URDF: the named file (absolute or under the data root) or a built one."""
+    if spec.urdf:
+        path = Path(spec.urdf).expanduser()
+        candidates = [path] if path.is_absolute() else [Path.cwd() / path]
+        if not path.is_absolute() and data_root is not None:
+            candidates.append(Path(data_root) / path)
+        for candidate in candidates:
+            if candidate.is_file():
+                return candidate.resolve()
+        raise FileNotFoundError(
+            f"body {spec.name}: URDF {spec.urdf!r} not found (tried {', '.join(map(str, candidates))})"
+        )
+    if spec.builder not in BUILDERS:
+        raise ValueError(f"body {spec.name}: give `urdf` or a `builder` in {BUILDERS}, got {spec.builder!r}")
+    proportions = HandProportions.from_dict(spec.proportions)
+    # Content-addressed cache: the same proportions reuse one file, different ones never clash.
+    from aslexp.sim.urdf import build_hand_urdf
+
+    text = build_hand_urdf(proportions)
+    digest = hashlib.sha1(text.encode()).hexdigest()[:12]
+    folder = Path(cache_dir) if cache_dir else Path(tempfile.gettempdir()) / "aslexp-urdf"
+    target = folder / f"{spec.builder}-{digest}.urdf"
+    if not target.is_file():
+        write_hand_urdf(target, proportions)
+    return target
+
+
+def load_layout(spec: BodySpec, data_root: str | os.PathLike | None = None) -> tuple[Path, BodyLayout]:
+    """URDF path and joint layout of a body."""
+    urdf = resolve_urdf(spec, data_root)
+    return urdf, build_layout(spec, read_joints(urdf))

@@ -1,0 +1,232 @@
+"""Reference motions in the DeepMimic text format (JSON).
+
+File: ``{"Loop": "wrap" | "none", "Frames": [[dt, root_x, root_y, root_z, root_qw, root_qx,
+root_qy, root_qz, joint values...], ...]}``. Each frame's first value is its own duration; as in
+DeepMimic, the motion lasts the sum of the durations of all frames but the last (the last frame
+is the end pose, which a looping motion shares with its first).
+
+In memory a :class:`Motion` holds the frames WITHOUT the dt column, ``frames[:, 0:3]`` the root
+position, ``frames[:, 3:7]`` the root quaternion (w, x, y, z), the rest the joint values in the
+body's order (1 value per revolute joint, 4 (w, x, y, z) per spherical joint).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+LOOP_MODES = ("wrap", "none")
+ROOT_COLUMNS = 7  # root position (3) + root quaternion (4)
+
+
+class MotionFormatError(ValueError):
+    """A motion file or array that does not follow the format (the message names file and field)."""
+
+
+class Motion:
+    """A reference motion: frames (F, D) without the dt column, per-frame durations, loop mode.
+
+    ``quaternions`` lists the first column of each (w, x, y, z) block, interpolated by
+    normalised linear interpolation instead of plain lerp (default: the root rotation, column 3).
+    """
+
+    def __init__(
+        self,
+        frames: np.ndarray,
+        dt: np.ndarray | float,
+        loop: str = "wrap",
+        quaternions: Sequence[int] | None = None,
+        source: str | None = None,
+    ) -> None:
+        where = source or "motion"
+        frames = np.asarray(frames, dtype=np.float64)
+        if frames.ndim != 2 or frames.shape[0] < 1:
+            raise MotionFormatError(f"{where}: Frames must be a non-empty 2-D array, got shape {frames.shape}")
+        dt_arr = np.broadcast_to(np.asarray(dt, dtype=np.float64), (frames.shape[0],)).copy()
+        if loop not in LOOP_MODES:
+            raise MotionFormatError(f"{where}: Loop must be one of {LOOP_MODES}, got {loop!r}")
+        if not np.all(np.isfinite(frames)):
+            bad = np.argwhere(~np.isfinite(frames))[0]
+            raise MotionFormatError(
+                f"{where}: non-finite value in Frames at frame {bad[0]}, column {bad[1] + 1} "
+                f"(counting dt as column 0)"
+            )
+        if not np.all(np.isfinite(dt_arr)) or np.any(dt_arr[: max(len(dt_arr) - 1, 1)] <= 0):
+            bad = int(np.argmax(~(np.isfinite(dt_arr) & (dt_arr > 0))))
+            raise MotionFormatError(f"{where}: frame {bad} has duration dt={dt_arr[bad]!r}; expected dt > 0")
+        self.frames = frames
+        self.dt = dt_arr
+        self.loop = loop
+        self.source = source
+        default_quats = (3,) if frames.shape[1] >= ROOT_COLUMNS else ()
+        self.quaternions = tuple(default_quats if quaternions is None else quaternions)
+        # Start time of every frame; the last frame starts at `duration`.
+        self.times = np.concatenate([[0.0], np.cumsum(self.dt[:-1])])
+
+    # -- shape -----------------------------------------------------------------------------
+    @property
+    def num_frames(self) -> int:
+        return self.frames.shape[0]
+
+    @property
+    def num_columns(self) -> int:
+        """Values per frame, without the dt column."""
+        return self.frames.shape[1]
+
+    @property
+    def duration(self) -> float:
+        """Length of one cycle in seconds (sum of all durations but the last frame's)."""
+        return float(self.times[-1])
+
+    # -- time ------------------------------------------------------------------------------
+    def _locate(self, t: float) -> tuple[int, float]:
+        """Frame index i and fraction in [0, 1) so that t lies between frame i and i + 1."""
+        if self.num_frames == 1 or self.duration <= 0:
+            return 0, 0.0
+        if self.loop == "wrap":
+            t = math.fmod(t, self.duration)
+            if t < 0:
+                t += self.duration
+        else:
+            t = min(max(t, 0.0), self.duration)
+        i = int(np.searchsorted(self.times, t, side="right") - 1)
+        i = min(max(i, 0), self.num_frames - 2)
+        frac = (t - self.times[i]) / self.dt[i]
+        return i, float(min(max(frac, 0.0), 1.0))
+
+    def phase(self, t: float) -> float:
+        """Position in the cycle, in [0, 1)."""
+        if self.duration <= 0:
+            return 0.0
+        p = (t / self.duration) % 1.0 if self.loop == "wrap" else min(max(t / self.duration, 0.0), 1.0)
+        return float(p)
+
+    def sample(self, t: float) -> np.ndarray:
+        """The frame at time ``t`` (seconds), linearly interpolated; quaternions nlerp'd."""
+        i, frac = self._locate(t)
+        if self.num_frames == 1:
+            return self.frames[0].copy()
+        a, b = self.frames[i], self.frames[i + 1]
+        out = a + frac * (b - a)
+        for q in self.quaternions:
+            qa, qb = a[q:q + 4], b[q:q + 4]
+            if np.dot(qa, qb) < 0:  # shortest arc
+                qb = -qb
+            blend = qa + frac * (qb - qa)
+            out[q:q + 4] = blend / max(np.linalg.norm(blend), 1e-12)
+        return out
+
+    def velocities(self) -> np.ndarray:
+        """Per-frame column velocities by forward finite differences, shape (F, D).
+
+        Frame i gets (frame[i + 1] - frame[i]) / dt[i]; the last frame gets frame 0's velocity
+        for a looping motion (it is where the cycle restarts) and its predecessor's otherwise.
+        Quaternion blocks are differenced like other columns (the body layer converts them).
+        """
+        if self.num_frames == 1:
+            return np.zeros_like(self.frames)
+        vel = np.empty_like(self.frames)
+        vel[:-1] = np.diff(self.frames, axis=0) / self.dt[:-1, None]
+        vel[-1] = vel[0] if self.loop == "wrap" else vel[-2]
+        return vel
+
+    def sample_velocity(self, t: float) -> np.ndarray:
+        """Column velocity at time ``t``: the slope of the interpolation segment holding ``t``."""
+        i, _ = self._locate(t)
+        return self.velocities()[i] if self.num_frames > 1 else np.zeros(self.num_columns)
+
+    # -- I/O -------------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        rows = np.concatenate([self.dt[:, None], self.frames], axis=1)
+        return {"Loop": self.loop, "Frames": rows.tolist()}
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the motion as DeepMimic JSON (atomically)."""
+        return save_motion(self, path)
+
+    def __repr__(self) -> str:
+        return (f"Motion({self.source or '<memory>'}: {self.num_frames} frames x {self.num_columns} "
+                f"values, {self.duration:.3f} s, loop={self.loop})")
+
+
+def save_motion(motion: Motion, path: str | os.PathLike) -> Path:
+    """Write ``motion`` to ``path`` in the DeepMimic JSON format; returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    with open(tmp, "w", encoding="utf-8") as fh:
+        json.dump(motion.to_dict(), fh)
+    os.replace(tmp, path)
+    return path
+
+
+def load_motion(
+    path: str | os.PathLike,
+    expected_columns: int | None = None,
+    quaternions: Sequence[int] | None = None,
+) -> Motion:
+    """Read a DeepMimic motion file.
+
+    ``expected_columns`` is the number of values per frame the model needs, WITHOUT the dt column
+    (7 root values + the joint values: 22 for the 15-DoF hand); a mismatch raises
+    :class:`MotionFormatError` naming the file, the expected and the found count.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"motion file not found: {path}")
+    try:
+        with open(path, encoding="utf-8") as fh:
+            payload = json.load(fh)
+    except json.JSONDecodeError as exc:
+        raise MotionFormatError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(payload, dict) or "Frames" not in payload:
+        raise MotionFormatError(f"{path}: expected a JSON object with a 'Frames' list")
+    rows = payload["Frames"]
+    if not isinstance(rows, list) or not rows:
+        raise MotionFormatError(f"{path}: 'Frames' must be a non-empty list of frames")
+    widths = {len(r) if isinstance(r, list) else -1 for r in rows}
+    if len(widths) != 1 or -1 in widths:
+        raise MotionFormatError(f"{path}: frames have different lengths {sorted(widths)}; expected one width")
+    try:
+        data = np.asarray(rows, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise MotionFormatError(f"{path}: 'Frames' holds non-numeric values ({exc})") from exc
+    if data.shape[1] < 2:
+        raise MotionFormatError(f"{path}: frames need a dt column and at least one value")
+    found = data.shape[1] - 1
+    if expected_columns is not None and found != expected_columns:
+        raise MotionFormatError(
+            f"{path}: the model expects {expected_columns} values per frame "
+            f"({expected_columns + 1} columns with dt) but the file has {found} "
+            f"({found + 1} columns with dt)"
+        )
+    loop = payload.get("Loop", "wrap")
+    return Motion(data[:, 1:], data[:, 0], loop=loop, quaternions=quaternions, source=str(path))
+
+
+def random_motion(lower: Sequence[float], upper: Sequence[float], seconds: float = 4.0, dt: float = 0.03,
+                  keyframe_seconds: float = 0.3, margin: float = 0.05, seed: int = 0,
+                  root: Sequence[float] = (0.0, 0.9, 0.0, 1.0, 0.0, 0.0, 0.0)) -> Motion:
+    """A random, smooth reference motion within joint limits (the PD-tuning signal).
+
+    Joint values move between uniformly drawn keyframes every ``keyframe_seconds`` with a
+    cosine ease, sampled every ``dt``; the root stays at ``root``; the motion does not loop.
+    """
+    rng = np.random.default_rng(seed)
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    span = upper - lower
+    keys = int(math.ceil(seconds / keyframe_seconds)) + 1
+    keyframes = lower + margin * span + rng.random((keys, len(lower))) * (1 - 2 * margin) * span
+    times = np.arange(0.0, seconds + 1e-9, dt)
+    position = times / keyframe_seconds
+    index = np.minimum(position.astype(int), keys - 2)
+    frac = position - index
+    ease = (1 - np.cos(np.pi * np.clip(frac, 0, 1))) / 2
+    joints = keyframes[index] + ease[:, None] * (keyframes[index + 1] - keyframes[index])
+    frames = np.concatenate([np.tile(np.asarray(root, float), (len(times), 1)), joints], axis=1)
+    return Motion(frames, dt, loop="none", source=f"random_motion(seed={seed})")

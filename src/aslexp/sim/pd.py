@@ -1,0 +1,100 @@
+"""PD control: gains per joint group, applied with PyBullet's position motors.
+
+PyBullet's POSITION_CONTROL motor is a PD controller solved as a velocity constraint,
+``kp * (q* - q) + kd * (qd* - qd)`` limited by ``max_force``; its gains are dimensionless
+(the thesis tuned kp = 0.22, kd = 0.87). STABLE_PD_CONTROL gave NaN or poor tracking on
+fixed-base models here, so position control is the one mode offered.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from aslexp.sim.body import BodyLayout
+from aslexp.sim.world import Character
+
+MODES = ("position",)
+
+
+@dataclass(frozen=True)
+class Gains:
+    kp: float
+    kd: float
+    max_force: float = 100.0
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    """``conf/controller/*.yaml``: a mode and gains per joint group (``default`` fills the rest)."""
+
+    name: str
+    mode: str
+    groups: dict[str, Gains]
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> "ControllerSpec":
+        unknown = set(values) - {"name", "mode", "groups"}
+        if unknown:
+            raise ValueError(f"controller config: unknown keys {sorted(unknown)}")
+        mode = values.get("mode", "position")
+        if mode not in MODES:
+            raise ValueError(f"controller config: mode must be one of {MODES}, got {mode!r}")
+        groups = {name: Gains(**gains) for name, gains in (values.get("groups") or {}).items()}
+        if not groups:
+            raise ValueError("controller config: `groups` must give gains for at least `default`")
+        return cls(name=values.get("name", "custom"), mode=mode, groups=groups)
+
+
+class PDController:
+    """Per-joint gains expanded from the groups; :meth:`apply` sets the motors for the next steps."""
+
+    def __init__(self, spec: ControllerSpec, layout: BodyLayout) -> None:
+        self.spec = spec
+        self.layout = layout
+        per_joint = []
+        for joint in layout.joints:
+            gains = spec.groups.get(joint.group, spec.groups.get("default"))
+            if gains is None:
+                raise ValueError(
+                    f"controller {spec.name}: no gains for joint group {joint.group!r} and no `default`"
+                )
+            per_joint.append(gains)
+        self.kp = [g.kp for g in per_joint]
+        self.kd = [g.kd for g in per_joint]
+        self.max_force = [g.max_force for g in per_joint]
+
+    def apply(self, character: Character, targets: np.ndarray,
+              target_velocities: np.ndarray | None = None) -> None:
+        """Drive ``character`` towards ``targets`` (motion-layout joint vector) until the next call."""
+        pb = character.world.client
+        if self.layout.all_revolute:
+            velocities = [0.0] * len(targets) if target_velocities is None else list(target_velocities)
+            pb.setJointMotorControlArray(
+                character.id, character.joint_indices, pb.POSITION_CONTROL,
+                targetPositions=[float(t) for t in targets], targetVelocities=velocities,
+                forces=self.max_force, positionGains=self.kp, velocityGains=self.kd,
+            )
+            return
+        positions, velocities, forces = [], [], []
+        offset = voffset = 0
+        for k, joint in enumerate(self.layout.joints):
+            if joint.dof == 1:
+                positions.append([float(targets[offset])])
+                velocities.append([0.0 if target_velocities is None else float(target_velocities[voffset])])
+                forces.append([self.max_force[k]])
+                offset, voffset = offset + 1, voffset + 1
+            else:
+                w, x, y, z = targets[offset:offset + 4]
+                positions.append([float(x), float(y), float(z), float(w)])
+                velocities.append([0.0, 0.0, 0.0] if target_velocities is None
+                                  else [float(v) for v in target_velocities[voffset:voffset + 3]])
+                forces.append([self.max_force[k]] * 3)
+                offset, voffset = offset + 4, voffset + 3
+        pb.setJointMotorControlMultiDofArray(
+            character.id, character.joint_indices, pb.POSITION_CONTROL,
+            targetPositions=positions, targetVelocities=velocities, forces=forces,
+            positionGains=self.kp, velocityGains=self.kd,
+        )

@@ -1,0 +1,208 @@
+"""URDF models: the project's hand builder, and a reader for any URDF's joint table.
+
+The hand is generated from proportions (:class:`HandProportions`): a fixed wrist and five fingers
+of three revolute joints each (thumb about y, the others about x), so the thesis model
+(``models/final_hand.urdf``) is one point in a family of hands. Bodies for later issues (the
+upper-body humanoid) come as URDF paths; :func:`read_joints` gives the joint table either way.
+"""
+
+from __future__ import annotations
+
+import os
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+FINGERS = ("thumb", "index", "middle", "ring", "pinkie")
+PHALANGES = ("prox", "inter", "dist")
+
+
+@dataclass(frozen=True)
+class JointInfo:
+    """One joint of a URDF, as the simulator and the motion format see it."""
+
+    name: str
+    type: str  # revolute | continuous | prismatic | spherical | fixed
+    parent: str
+    child: str
+    axis: tuple[float, float, float] = (1.0, 0.0, 0.0)
+    lower: float | None = None
+    upper: float | None = None
+
+    @property
+    def dof(self) -> int:
+        """Motion columns this joint takes: 0 (fixed), 1 (revolute/prismatic), 4 (spherical, wxyz)."""
+        return {"fixed": 0, "spherical": 4}.get(self.type, 1)
+
+
+@dataclass(frozen=True)
+class FingerProportions:
+    """Where a finger starts on the palm and how long its phalanges are (metres, radians)."""
+
+    origin_xyz: tuple[float, float, float]
+    origin_rpy: tuple[float, float, float]
+    # Distance from the proximal joint to the intermediate one, and from there to the distal one.
+    segment_lengths: tuple[float, float]
+    axis: tuple[float, float, float] = (1.0, 0.0, 0.0)
+
+
+def _thesis_fingers() -> dict[str, FingerProportions]:
+    # Values of the thesis model (final_hand.urdf), so the default build reproduces it.
+    return {
+        "thumb": FingerProportions((0.1, 0.0, 0.0), (3.14, -2.81, 0.0), (0.056, 0.066), (0.0, 1.0, 0.0)),
+        "index": FingerProportions((0.08, 0.0, 0.22), (0.0, 0.0, 0.0), (0.061, 0.061)),
+        "middle": FingerProportions((0.01, 0.0, 0.227), (0.0, 0.0, 0.1), (0.060, 0.062)),
+        "ring": FingerProportions((-0.057, 0.0, 0.189), (0.0, -0.05, 0.11), (0.059, 0.052)),
+        "pinkie": FingerProportions((-0.108, 0.0, 0.123), (0.0, -0.13, 0.21), (0.045, 0.044)),
+    }
+
+
+@dataclass(frozen=True)
+class HandProportions:
+    """Everything the hand builder needs; the defaults are the thesis' 15-DoF hand."""
+
+    name: str = "hand15"
+    fingers: dict[str, FingerProportions] = field(default_factory=_thesis_fingers)
+    palm_size: tuple[float, float, float] = (0.15, 0.04, 0.15)
+    palm_mass: float = 0.5
+    wrist_rpy: tuple[float, float, float] = (3.14, -1.57, 1.57)
+    phalanx_size: tuple[float, float, float] = (0.025, 0.025, 0.04)
+    phalanx_mass: float = 0.05
+    # The thesis file declares 0.1 kg m^2; PyBullet ignores it unless URDF_USE_INERTIA_FROM_FILE.
+    inertia: float = 0.1
+    joint_limits: tuple[float, float] = (0.0, 2.0)
+    effort: float = 1000.0
+    velocity: float = 0.5
+
+    @classmethod
+    def from_dict(cls, values: dict | None) -> "HandProportions":
+        """Proportions from plain config values (``fingers`` entries may override a subset)."""
+        values = dict(values or {})
+        fingers = _thesis_fingers()
+        for finger, overrides in (values.pop("fingers", None) or {}).items():
+            if finger not in fingers:
+                raise ValueError(f"hand proportions: unknown finger {finger!r}; expected one of {FINGERS}")
+            base = fingers[finger].__dict__ | {k: tuple(v) for k, v in overrides.items()}
+            fingers[finger] = FingerProportions(**base)
+        unknown = set(values) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"hand proportions: unknown keys {sorted(unknown)}")
+        tupled = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
+        return cls(fingers=fingers, **tupled)
+
+
+def _vec(values) -> str:
+    return " ".join(f"{float(v):g}" for v in values)
+
+
+def _link(name: str, mass: float, size, com_z: float, inertia: float) -> str:
+    return f"""  <link name="{name}">
+    <inertial>
+      <origin rpy="0 0 0" xyz="0 0 {com_z:g}"/>
+      <mass value="{mass:g}"/>
+      <inertia ixx="{inertia:g}" ixy="0" ixz="0" iyy="{inertia:g}" iyz="0" izz="{inertia:g}"/>
+    </inertial>
+    <collision>
+      <origin rpy="0 0 0" xyz="0 0 {com_z:g}"/>
+      <geometry><box size="{_vec(size)}"/></geometry>
+    </collision>
+    <visual>
+      <origin rpy="0 0 0" xyz="0 0 {com_z:g}"/>
+      <geometry><box size="{_vec(size)}"/></geometry>
+    </visual>
+  </link>
+"""
+
+
+def build_hand_urdf(proportions: HandProportions | None = None) -> str:
+    """URDF text of a fixed-wrist hand with five three-joint fingers (thumb first)."""
+    hp = proportions or HandProportions()
+    lower, upper = hp.joint_limits
+    parts = [f'<?xml version="1.0"?>\n<robot name="{hp.name}">\n']
+    parts.append(
+        '  <link name="base">\n    <inertial>\n      <origin rpy="0 0 0" xyz="0 0 0"/>\n'
+        '      <mass value="0.0001"/>\n'
+        '      <inertia ixx="0.0001" ixy="0" ixz="0" iyy="0.0001" iyz="0" izz="0.0001"/>\n'
+        "    </inertial>\n  </link>\n"
+    )
+    parts.append(_link("right_wrist", hp.palm_mass, hp.palm_size, hp.palm_size[2] / 2, hp.inertia))
+    parts.append(
+        f'  <joint name="right_wrist" type="fixed">\n    <parent link="base"/>\n'
+        f'    <child link="right_wrist"/>\n    <origin rpy="{_vec(hp.wrist_rpy)}" xyz="0 0 0"/>\n'
+        "  </joint>\n"
+    )
+    com_z = hp.phalanx_size[2] / 2
+    for finger in FINGERS:
+        fp = hp.fingers[finger]
+        parent = "right_wrist"
+        offsets = [(fp.origin_xyz, fp.origin_rpy), ((0, 0, fp.segment_lengths[0]), (0, 0, 0)),
+                   ((0, 0, fp.segment_lengths[1]), (0, 0, 0))]
+        for phalanx, (xyz, rpy) in zip(PHALANGES, offsets):
+            name = f"{finger}_{phalanx}"
+            parts.append(_link(name, hp.phalanx_mass, hp.phalanx_size, com_z, hp.inertia))
+            parts.append(
+                f'  <joint name="{name}" type="revolute">\n    <parent link="{parent}"/>\n'
+                f'    <child link="{name}"/>\n    <origin rpy="{_vec(rpy)}" xyz="{_vec(xyz)}"/>\n'
+                f'    <axis xyz="{_vec(fp.axis)}"/>\n'
+                f'    <limit effort="{hp.effort:g}" lower="{lower:g}" upper="{upper:g}" '
+                f'velocity="{hp.velocity:g}"/>\n  </joint>\n'
+            )
+            parent = name
+    parts.append("</robot>\n")
+    return "".join(parts)
+
+
+def write_hand_urdf(path: str | os.PathLike, proportions: HandProportions | None = None) -> Path:
+    """Write the built hand to ``path`` (atomically) and return the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(build_hand_urdf(proportions), encoding="utf-8")
+    os.replace(tmp, path)
+    return path
+
+
+def read_joints(urdf: str | os.PathLike) -> list[JointInfo]:
+    """The joints of a URDF file in file order (PyBullet's order with URDF_MAINTAIN_LINK_ORDER)."""
+    path = Path(urdf)
+    if not path.is_file():
+        raise FileNotFoundError(f"URDF not found: {path}")
+    try:
+        root = ET.parse(path).getroot()
+    except ET.ParseError as exc:
+        raise ValueError(f"URDF {path} is not valid XML: {exc}") from exc
+    joints = []
+    for element in root.iter("joint"):
+        axis_el = element.find("axis")
+        limit_el = element.find("limit")
+        axis = tuple(float(v) for v in axis_el.get("xyz").split()) if axis_el is not None else (1.0, 0.0, 0.0)
+        lower = upper = None
+        if limit_el is not None:
+            lower = float(limit_el.get("lower", "nan"))
+            upper = float(limit_el.get("upper", "nan"))
+        joints.append(JointInfo(
+            name=element.get("name"), type=element.get("type"),
+            parent=element.find("parent").get("link"), child=element.find("child").get("link"),
+            axis=axis, lower=lower, upper=upper,
+        ))
+    return joints
+
+
+def compare_joint_tables(ours: list[JointInfo], theirs: list[JointInfo], tol: float = 1e-9) -> list[str]:
+    """Differences in joint names, order, types, axes and limits (empty list: same model)."""
+    problems = []
+    if [j.name for j in ours] != [j.name for j in theirs]:
+        problems.append(f"joint names/order differ: {[j.name for j in ours]} vs {[j.name for j in theirs]}")
+        return problems
+    for a, b in zip(ours, theirs):
+        if a.type != b.type:
+            problems.append(f"{a.name}: type {a.type} vs {b.type}")
+        if a.type == "fixed":
+            continue
+        if any(abs(x - y) > tol for x, y in zip(a.axis, b.axis)):
+            problems.append(f"{a.name}: axis {a.axis} vs {b.axis}")
+        if (a.lower, a.upper) != (b.lower, b.upper):
+            problems.append(f"{a.name}: limits {(a.lower, a.upper)} vs {(b.lower, b.upper)}")
+        if a.parent != b.parent:
+            problems.append(f"{a.name}: parent {a.parent} vs {b.parent}")
+    return problems

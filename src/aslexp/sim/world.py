@@ -1,0 +1,249 @@
+"""The physics engine: a PyBullet world in DIRECT mode and the characters in it.
+
+A :class:`World` owns one PyBullet client (its own physics server: worlds never share state).
+A :class:`Character` is a body loaded into a world, read and written in the motion layout's
+terms (joint vector q in motion order, quaternions w x y z for spherical joints). The imitation
+environment uses two worlds: the simulated character, stepped, and a kinematic reference
+character in a world that is never stepped (it only answers forward-kinematics questions).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pybullet
+from pybullet_utils import bullet_client
+
+from aslexp.sim.body import BodyLayout, BodySpec
+
+
+@dataclass(frozen=True)
+class PhysicsConfig:
+    """Engine settings (``conf/env/*.yaml`` holds them next to the control rate)."""
+
+    physics_hz: float = 240.0
+    gravity: tuple[float, float, float] = (0.0, -9.8, 0.0)
+    solver_iterations: int = 10
+
+
+@contextlib.contextmanager
+def _quiet_stdout():
+    """Silence C-level writes to stdout (file descriptor 1) for the duration of the block."""
+    try:
+        sys.stdout.flush()
+        saved = os.dup(1)
+    except (OSError, ValueError, AttributeError):
+        yield
+        return
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 1)
+            yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+class World:
+    """One PyBullet physics server in DIRECT mode (no GUI, no shared state with other worlds)."""
+
+    def __init__(self, physics: PhysicsConfig | None = None) -> None:
+        self.physics = physics or PhysicsConfig()
+        with _quiet_stdout():  # PyBullet's C code prints "argv[0]=" on every connection
+            self.client = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
+        self.client.setTimeStep(1.0 / self.physics.physics_hz)
+        self.client.setGravity(*self.physics.gravity)
+        self.client.setPhysicsEngineParameter(numSolverIterations=int(self.physics.solver_iterations))
+
+    @property
+    def timestep(self) -> float:
+        return 1.0 / self.physics.physics_hz
+
+    def step(self, substeps: int = 1) -> None:
+        for _ in range(substeps):
+            self.client.stepSimulation()
+
+    def close(self) -> None:
+        if self.client is not None:
+            try:
+                self.client.disconnect()
+            except pybullet.error:
+                pass
+            self.client = None
+
+    def __del__(self) -> None:  # pragma: no cover - best effort at interpreter exit
+        try:
+            self.close()
+        except Exception:
+            pass
+
+
+def _quat_wxyz_to_xyzw(q: np.ndarray) -> list[float]:
+    return [float(q[1]), float(q[2]), float(q[3]), float(q[0])]
+
+
+class Character:
+    """A body in a world: load it, set its pose, read joints and links in motion-layout terms."""
+
+    def __init__(self, world: World, urdf: str | os.PathLike, spec: BodySpec, layout: BodyLayout,
+                 base_position=(0.0, 0.0, 0.0), base_orientation_wxyz=(1.0, 0.0, 0.0, 0.0),
+                 kinematic: bool = False) -> None:
+        self.world = world
+        self.spec = spec
+        self.layout = layout
+        pb = world.client
+        flags = pb.URDF_MAINTAIN_LINK_ORDER
+        if spec.self_collision and not kinematic:
+            flags |= pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_ALL_PARENTS
+        path = Path(urdf)
+        if not path.is_file():
+            raise FileNotFoundError(f"URDF not found: {path}")
+        self.id = pb.loadURDF(
+            str(path), list(base_position), _quat_wxyz_to_xyzw(np.asarray(base_orientation_wxyz)),
+            useFixedBase=spec.fixed_base, globalScaling=spec.global_scaling, flags=flags,
+        )
+        self.num_links = pb.getNumJoints(self.id)
+        self.link_names = [pb.getJointInfo(self.id, i)[12].decode() for i in range(self.num_links)]
+        self.joint_indices = [j.index for j in layout.joints]
+        self.end_effector_links = [self._link_index(name) for name in spec.end_effectors]
+        self.end_effector_offset = np.asarray(spec.end_effector_offset, dtype=np.float64)
+        if kinematic:
+            # A reference pose holder: no collisions, never simulated.
+            pb.setCollisionFilterGroupMask(self.id, -1, 0, 0)
+            for link in range(self.num_links):
+                pb.setCollisionFilterGroupMask(self.id, link, 0, 0)
+        self._disable_default_motors()
+
+    def _link_index(self, name: str) -> int:
+        try:
+            return self.link_names.index(name)
+        except ValueError:
+            raise ValueError(f"body {self.spec.name}: no link named {name!r}; links: {self.link_names}") from None
+
+    def _disable_default_motors(self) -> None:
+        """PyBullet gives every joint a default motor; switch them off (spherical ones too)."""
+        pb = self.world.client
+        for joint in self.layout.joints:
+            if joint.dof == 1:
+                pb.setJointMotorControl2(self.id, joint.index, pb.VELOCITY_CONTROL, force=0)
+            else:
+                pb.setJointMotorControlMultiDof(self.id, joint.index, pb.POSITION_CONTROL,
+                                                targetPosition=[0, 0, 0, 1], positionGain=0,
+                                                velocityGain=0, force=[0, 0, 0])
+
+    # -- state -----------------------------------------------------------------------------
+    def set_state(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
+        """Teleport the joints to ``q`` (motion-layout joint vector) with velocities ``qd``."""
+        pb = self.world.client
+        if self.layout.all_revolute:  # one array call instead of one call per joint
+            velocities = np.zeros_like(q) if qd is None else qd
+            pb.resetJointStatesMultiDof(self.id, self.joint_indices, [[float(v)] for v in q],
+                                        [[float(v)] for v in velocities])
+            return
+        positions, velocities = [], []
+        offset, voffset = 0, 0
+        for joint in self.layout.joints:
+            if joint.dof == 1:
+                positions.append([float(q[offset])])
+                velocities.append([0.0 if qd is None else float(qd[voffset])])
+                offset, voffset = offset + 1, voffset + 1
+            else:
+                positions.append(_quat_wxyz_to_xyzw(q[offset:offset + 4]))
+                velocities.append([0.0] * 3 if qd is None else [float(v) for v in qd[voffset:voffset + 3]])
+                offset, voffset = offset + 4, voffset + 3
+        pb.resetJointStatesMultiDof(self.id, self.joint_indices, positions, velocities)
+
+    def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Joint positions (motion layout) and velocities (1 per revolute, 3 per spherical joint)."""
+        pb = self.world.client
+        if self.layout.all_revolute:
+            states = pb.getJointStates(self.id, self.joint_indices)
+            return (np.fromiter((s[0] for s in states), np.float64, len(states)),
+                    np.fromiter((s[1] for s in states), np.float64, len(states)))
+        q, qd = [], []
+        for joint, (pos, vel, *_rest) in zip(self.layout.joints,
+                                             pb.getJointStatesMultiDof(self.id, self.joint_indices)):
+            if joint.dof == 1:
+                q.append(pos[0])
+                qd.append(vel[0])
+            else:
+                q.extend([pos[3], pos[0], pos[1], pos[2]])
+                qd.extend(vel)
+        return np.asarray(q), np.asarray(qd)
+
+    def base_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Root position, orientation (w x y z), linear and angular velocity (world frame)."""
+        pb = self.world.client
+        pos, orn = pb.getBasePositionAndOrientation(self.id)
+        lin, ang = pb.getBaseVelocity(self.id)
+        return (np.asarray(pos), np.asarray([orn[3], orn[0], orn[1], orn[2]]),
+                np.asarray(lin), np.asarray(ang))
+
+    def link_states(self, velocities: bool = True) -> np.ndarray:
+        """Per link (all non-base links): world position, orientation (w x y z), lin/ang velocity.
+
+        Shape (num_links, 13); the orientation is the link frame's, positions its origin.
+        """
+        pb = self.world.client
+        states = pb.getLinkStates(self.id, list(range(self.num_links)),
+                                  computeLinkVelocity=int(velocities), computeForwardKinematics=1)
+        out = np.zeros((self.num_links, 13))
+        for i, s in enumerate(states):
+            out[i, 0:3] = s[4]
+            x, y, z, w = s[5]
+            out[i, 3:7] = (w, x, y, z)
+            if velocities:
+                out[i, 7:10] = s[6]
+                out[i, 10:13] = s[7]
+        return out
+
+    def end_effector_positions(self, links: np.ndarray | None = None) -> np.ndarray:
+        """World positions of the end-effector tips, shape (num_end_effectors, 3)."""
+        if links is None:
+            links = self.link_states(velocities=False)
+        tips = links[self.end_effector_links]
+        return tips[:, 0:3] + quat_rotate(tips[:, 3:7], self.end_effector_offset)
+
+
+def quat_rotate(q_wxyz: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vector(s) ``v`` by unit quaternion(s) ``q`` (w, x, y, z); broadcasts over rows.
+
+    v' = v + w t + u x t with t = 2 u x v (u the vector part); written out because np.cross is
+    slow on small arrays and this runs every control step.
+    """
+    q = np.asarray(q_wxyz, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
+    tx, ty, tz = 2 * (y * vz - z * vy), 2 * (z * vx - x * vz), 2 * (x * vy - y * vx)
+    return np.stack([vx + w * tx + (y * tz - z * ty),
+                     vy + w * ty + (z * tx - x * tz),
+                     vz + w * tz + (x * ty - y * tx)], axis=-1)
+
+
+def quat_conjugate(q_wxyz: np.ndarray) -> np.ndarray:
+    return np.asarray([q_wxyz[0], -q_wxyz[1], -q_wxyz[2], -q_wxyz[3]])
+
+
+def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of quaternions (w, x, y, z); broadcasts over leading axes."""
+    a, b = np.asarray(a), np.asarray(b)
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ], axis=-1)
+
+
+def quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotation angle (radians, in [0, pi]) of the difference between unit quaternions a and b."""
+    dot = np.abs(np.sum(np.asarray(a) * np.asarray(b), axis=-1))
+    return 2.0 * np.arccos(np.clip(dot, -1.0, 1.0))
