@@ -33,20 +33,34 @@ def main() -> int:
     parser.add_argument("--splits", default="phoneme,gloss")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="concurrent multiruns, one per split (each with 2/jobs torch threads)")
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides, e.g. trainer.max_epochs=20")
     args = parser.parse_args()
     out = args.out or ROOT / "outputs" / "bench" / f"table_{datetime.now():%Y%m%d_%H%M%S}"
-    command = [
-        sys.executable, "-m", "aslexp.cli", "recognize", "experiment=recognition_table",
-        f"n_seeds={args.seeds}", f"hydra.sweep.dir={out}",
-        f"hydra.sweeper.params.classifier={args.models}",
-        f"hydra.sweeper.params.property={args.properties}",
-        f"hydra.sweeper.params.split={args.splits}", *args.overrides,
-    ]
-    print("$", " ".join(command[2:]), flush=True)
+    splits = args.splits.split(",")
+    groups = [splits] if args.jobs <= 1 else [[s] for s in splits]
+    threads = max(1, 2 // max(1, len(groups)))
+    commands = []
+    for group in groups:
+        sweep_dir = out if len(groups) == 1 else out / "_".join(group)
+        commands.append([
+            sys.executable, "-m", "aslexp.cli", "recognize", "experiment=recognition_table",
+            f"n_seeds={args.seeds}", f"hydra.sweep.dir={sweep_dir}",
+            f"classifier={args.models}", f"property={args.properties}",
+            f"split={','.join(group)}", f"trainer.num_threads={threads}",
+            *args.overrides,
+        ])
     started = time.perf_counter()
-    subprocess.run(command, cwd=ROOT, check=True, env=dict(os.environ, MPLBACKEND="Agg"))
+    procs = []
+    for command in commands:
+        print("$", " ".join(command[2:]), flush=True)
+        procs.append(subprocess.Popen(command, cwd=ROOT, env=dict(os.environ, MPLBACKEND="Agg")))
+    codes = [p.wait() for p in procs]
     total = time.perf_counter() - started
+    if any(codes):
+        print(f"multirun exit codes: {codes}", file=sys.stderr)
+        return 1
 
     per_model: dict[str, list[float]] = defaultdict(list)
     statuses: dict[str, int] = defaultdict(int)
@@ -59,7 +73,8 @@ def main() -> int:
             per_model[metrics["context"]["classifier"]].append(float(metrics["time_s"]))
     runs = sum(statuses.values())
     print(f"\nfull table: {runs} runs ({dict(statuses)}), {args.seeds} seed(s) each, "
-          f"{total / 60:.1f} min wall-clock on {os.cpu_count()} cores")
+          f"{total / 60:.1f} min wall-clock on {os.cpu_count()} cores, {len(groups)} concurrent "
+          f"multirun(s) x {threads} torch thread(s)")
     print("| model | runs | median s/run (all seeds) | total min |")
     print("|---|---|---|---|")
     for model, times in sorted(per_model.items()):
