@@ -6,6 +6,7 @@ Registration uses string entry points so that importing ``aslexp`` never imports
 from __future__ import annotations
 
 HAND_IMITATION_ID = "aslexp/HandImitation-v0"
+UPPER_BODY_IMITATION_ID = "aslexp/UpperBodyImitation-v0"
 
 
 def register_envs() -> None:
@@ -20,6 +21,8 @@ def register_envs() -> None:
             entry_point="aslexp.envs.imitation:ImitationEnv",
             kwargs={"body": "hand15"},
         )
+    if UPPER_BODY_IMITATION_ID not in registry:
+        register(id=UPPER_BODY_IMITATION_ID, entry_point="aslexp.envs.upper_body:UpperBodyImitationEnv")
 
 
 register_envs()

@@ -51,12 +51,13 @@ def load_group_file(group: str, name: str) -> dict[str, Any]:
     return merged
 
 
-def resolve_group(group: str, value: str | dict[str, Any] | None) -> dict[str, Any]:
-    """A group's config from a name, a (partial) dict or None (the group default)."""
+def resolve_group(group: str, value: str | dict[str, Any] | None, default: str | None = None) -> dict[str, Any]:
+    """A group's config from a name, a (partial) dict or None (``default``, else the group default)."""
+    default = default or DEFAULTS[group]
     if value is None:
-        return load_group_file(group, DEFAULTS[group])
+        return load_group_file(group, default)
     if isinstance(value, str):
         return load_group_file(group, value)
     if isinstance(value, dict):
-        return deep_merge(load_group_file(group, DEFAULTS[group]), value)
+        return deep_merge(load_group_file(group, default), value)
     raise TypeError(f"{group} config must be a name, a dict or None, got {type(value).__name__}")

@@ -2,11 +2,14 @@
 
 One control step (``1 / control_hz`` seconds):
   1. the action becomes PD targets: absolute joint positions, or (``action_mode: residual``)
-     corrections added to the reference ``reference_lookahead`` control steps ahead;
+     corrections added to the reference ``reference_lookahead`` control steps ahead (or, with
+     the controller's ``target_rate: physics``, to the reference at the end of each physics
+     substep; ``target_velocity: reference`` adds the reference velocity as velocity target);
   2. the world steps ``physics_hz / control_hz`` times;
   3. the reward compares the simulated character with the reference at the new time;
   4. the observation: phase, then each link's position, orientation, linear and angular velocity
-     in the root frame, then (``observe_future``) upcoming reference joint positions, then
+     in the root frame, then (``observe_future``) upcoming reference joint positions (and, with
+     ``observe_future_velocities``, velocities), then
      (``observe_joints``) the joint positions and velocities.
 
 Episodes end when ``episode_steps`` have passed (truncated), and are terminated on a NaN action,
@@ -19,6 +22,7 @@ from __future__ import annotations
 
 import os
 from collections import defaultdict
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -52,6 +56,9 @@ class EnvSpec:
     reference_lookahead: int = 1
     observe_future: tuple[int, ...] = ()
     observe_joints: bool = False
+    observe_future_velocities: bool = False  # also the reference joint velocities at observe_future
+    # Links in the observation (fnmatch patterns on link names, URDF order); None: every link.
+    observe_links: tuple[str, ...] | None = None
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "EnvSpec":
@@ -61,6 +68,8 @@ class EnvSpec:
         values = dict(values)
         values["gravity"] = tuple(values.get("gravity", (0.0, -9.8, 0.0)))
         values["observe_future"] = tuple(int(k) for k in values.get("observe_future") or ())
+        if values.get("observe_links") is not None:
+            values["observe_links"] = tuple(str(p) for p in values["observe_links"])
         spec = cls(**values)
         if spec.action_mode not in ("absolute", "residual"):
             raise ValueError(f"env config: action_mode must be absolute or residual, got {spec.action_mode!r}")
@@ -100,6 +109,9 @@ class ImitationEnv(gym.Env):
     """Imitation of one reference motion by one body (see the module docstring)."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
+    # Group file used for a group given as None or as a partial dict (subclasses change them).
+    GROUP_DEFAULTS: dict[str, str] = {"body": "hand15", "controller": "thesis", "reward": "deepmimic",
+                                      "env": "default"}
 
     def __init__(
         self,
@@ -124,10 +136,12 @@ class ImitationEnv(gym.Env):
         self.data_root = Path(data_root)
 
         # -- configuration ----------------------------------------------------------------
-        self.body_spec = BodySpec.from_dict(resolve_group("body", body))
-        self.controller_spec = ControllerSpec.from_dict(resolve_group("controller", controller))
-        self.reward_spec = RewardSpec.from_dict(resolve_group("reward", reward))
-        self.spec_env = EnvSpec.from_dict(resolve_group("env", env))
+        defaults = self.GROUP_DEFAULTS
+        self.body_spec = BodySpec.from_dict(resolve_group("body", body, defaults["body"]))
+        self.controller_spec = ControllerSpec.from_dict(resolve_group("controller", controller,
+                                                                      defaults["controller"]))
+        self.reward_spec = RewardSpec.from_dict(resolve_group("reward", reward, defaults["reward"]))
+        self.spec_env = EnvSpec.from_dict(resolve_group("env", env, defaults["env"]))
         self.urdf, self.layout = load_layout(self.body_spec, self.data_root)
 
         if isinstance(motion, Motion):
@@ -156,6 +170,11 @@ class ImitationEnv(gym.Env):
             _colour(self.ref, (0.25, 0.45, 0.85))  # reference: blue
             _colour(self.sim, (0.95, 0.55, 0.15))  # simulation: orange
         self.controller = PDController(self.controller_spec, self.layout)
+        if self.controller_spec.target_rate == "physics" and self.spec_env.action_mode != "residual":
+            raise ValueError(f"controller {self.controller_spec.name}: target_rate physics re-samples the "
+                             f"reference under the policy's correction and needs env action_mode residual, "
+                             f"got {self.spec_env.action_mode!r}")
+        self._thesis_pd = False  # set by thesis_pd(): the baselines use the thesis' targets
         self.reward_fn = ImitationReward(self.reward_spec, self.layout)
 
         # -- spaces ---------------------------------------------------------------------------
@@ -175,10 +194,13 @@ class ImitationEnv(gym.Env):
         else:
             r = float(self.spec_env.residual_range)
             self.action_space = gym.spaces.Box(-r, r, shape=(self.layout.action_size,), dtype=np.float32)
-        obs_size = 1 + 13 * self.sim.num_links + len(self.spec_env.observe_future) * self.layout.action_size
+        self.observed_links = self._select_links(self.spec_env.observe_links)
+        obs_size = 1 + 13 * len(self.observed_links) + len(self.spec_env.observe_future) * self.layout.action_size
+        velocity_size = sum(1 if j.dof == 1 else 3 for j in self.layout.joints)
+        if self.spec_env.observe_future_velocities:
+            obs_size += len(self.spec_env.observe_future) * velocity_size
         if self.spec_env.observe_joints:
-            obs_size += self.layout.action_size + sum(
-                1 if j.dof == 1 else 3 for j in self.layout.joints)
+            obs_size += self.layout.action_size + velocity_size
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(obs_size,), dtype=np.float32)
 
         # -- episode state and counters --------------------------------------------------
@@ -186,6 +208,19 @@ class ImitationEnv(gym.Env):
         self.steps = 0
         self.counters: dict[str, int] = defaultdict(int)
         self._term_sums: dict[str, float] = defaultdict(float)
+
+    def _select_links(self, patterns: tuple[str, ...] | None) -> np.ndarray:
+        """Indices of the observed links (all links, or those matching one of ``patterns``)."""
+        if patterns is None:
+            return np.arange(self.sim.num_links)
+        import fnmatch
+
+        chosen = [i for i, name in enumerate(self.sim.link_names)
+                  if any(fnmatch.fnmatch(name, p) for p in patterns)]
+        if not chosen:
+            raise ValueError(f"env config: observe_links {list(patterns)} match no link of body "
+                             f"{self.body_spec.name}; links: {self.sim.link_names}")
+        return np.asarray(chosen, dtype=int)
 
     # ------------------------------------------------------------------------------------
     # Reference helpers
@@ -199,6 +234,40 @@ class ImitationEnv(gym.Env):
         if self.spec_env.action_mode == "residual":
             target = target - self.reference_targets(self.spec_env.reference_lookahead)
         return target.astype(np.float32)
+
+    @contextmanager
+    def thesis_pd(self):
+        """Within the block the motors get the thesis' targets (held positions, zero velocity)
+        whatever the controller's target options: the reference-driven baselines are defined so."""
+        previous, self._thesis_pd = self._thesis_pd, True
+        try:
+            yield self
+        finally:
+            self._thesis_pd = previous
+
+    def _drive(self, action: np.ndarray) -> None:
+        """Set the motors from the action and step the physics through one control step."""
+        spec, n = self.controller_spec, self.spec_env.substeps
+        plain = self._thesis_pd or spec.is_thesis_pd
+        feed_velocity = spec.target_velocity == "reference" and not plain
+        if spec.target_rate == "physics" and not plain:
+            substep = self.control_dt / n
+            for i in range(n):
+                t = self.time + (i + 1) * substep
+                targets = np.clip(self.reference.joints(t) + action, self.joint_lower, self.joint_upper)
+                velocities = spec.velocity_scale * self.reference.joint_velocities(t) if feed_velocity else None
+                self.controller.apply(self.sim, targets, velocities)
+                self.sim_world.step(1)
+            return
+        target_time = self.time + self.spec_env.reference_lookahead * self.control_dt
+        if self.spec_env.action_mode == "residual":
+            targets = self.reference.joints(target_time) + action
+        else:
+            targets = action
+        targets = np.clip(targets, self.joint_lower, self.joint_upper)
+        velocities = spec.velocity_scale * self.reference.joint_velocities(target_time) if feed_velocity else None
+        self.controller.apply(self.sim, targets, velocities)
+        self.sim_world.step(n)
 
     def _reference_snapshot(self, t: float) -> PoseSnapshot:
         q = self.reference.joints(t)
@@ -215,6 +284,8 @@ class ImitationEnv(gym.Env):
     # ------------------------------------------------------------------------------------
     def _observation(self, links: np.ndarray) -> np.ndarray:
         root_pos, root_rot, _, _ = self.sim.base_state()
+        if len(self.observed_links) != len(links):
+            links = links[self.observed_links]
         to_root = _rotation_matrix(root_rot).T
         local = np.empty_like(links)
         local[:, 0:3] = (links[:, 0:3] - root_pos) @ to_root.T
@@ -225,6 +296,9 @@ class ImitationEnv(gym.Env):
         parts = [np.asarray([self.reference.phase(self.time)]), local.ravel()]
         for k in self.spec_env.observe_future:
             parts.append(self.reference.joints(self.time + k * self.control_dt))
+        if self.spec_env.observe_future_velocities:
+            for k in self.spec_env.observe_future:
+                parts.append(self.reference.joint_velocities(self.time + k * self.control_dt))
         if self.spec_env.observe_joints:
             parts.extend(self.sim.joint_state())
         return np.concatenate(parts).astype(np.float32)
@@ -261,13 +335,7 @@ class ImitationEnv(gym.Env):
             links = self.sim.link_states()
             return self._observation(links), 0.0, True, False, {"nan_action": True, "diverged": False}
 
-        if self.spec_env.action_mode == "residual":
-            targets = self.reference_targets(self.spec_env.reference_lookahead) + action
-        else:
-            targets = action
-        targets = np.clip(targets, self.joint_lower, self.joint_upper)
-        self.controller.apply(self.sim, targets)
-        self.sim_world.step(self.spec_env.substeps)
+        self._drive(action)
         self.time += self.control_dt
         self.steps += 1
 

@@ -7,10 +7,16 @@ Errors (``x``): ``pose`` = sum_j w_j angle_j^2 with angle_j the quaternion-diffe
 joint j (for a revolute joint |q_sim - q_ref|); ``velocity`` = sum_j w_j |qd_sim - qd_ref|^2;
 ``end_effector`` = mean over end effectors of |p_sim - p_ref|^2 (world, metres); ``root`` =
 c_p |dp|^2 + c_r angle^2 + c_v |dv|^2 + c_w |dw|^2 over the root's pose and velocities.
+
+A term may be named freely when it says which ``error`` it uses and, for pose and velocity,
+which joint ``groups`` it covers: the upper body's multiplicative reward (thesis 6.1-6.3)
+``r = r_p * r_v * r_e * r_r`` splits r_p and r_v into body and hands this way
+(``pose_body: {error: pose, groups: [chest, ...]}``, ``pose_hands: {error: pose, groups: [fingers]}``).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,6 +34,11 @@ COMBINE = ("sum", "product")
 class TermSpec:
     weight: float
     scale: float
+    error: str | None = None  # which error (TERMS); None: the term's own name
+    groups: tuple[str, ...] | None = None  # joint groups of a pose/velocity term; None: all
+
+    def kind(self, name: str) -> str:
+        return self.error or name
 
 
 @dataclass(frozen=True)
@@ -39,24 +50,37 @@ class RewardSpec:
     joint_weights: dict[str, float] = field(default_factory=dict)
     root_error: dict[str, float] = field(default_factory=lambda: {
         "position": 1.0, "rotation": 0.1, "velocity": 0.01, "angular_velocity": 0.001})
+    # True: joint weights are normalised to sum to 1 over each pose/velocity term's joints (a
+    # weighted mean, as DeepMimic's normalised joint weights); False: a weighted sum (the hand).
+    normalize_joint_weights: bool = False
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "RewardSpec":
-        unknown = set(values) - {"terms", "combine", "joint_weights", "root_error"}
+        unknown = set(values) - {"terms", "combine", "joint_weights", "root_error", "normalize_joint_weights"}
         if unknown:
             raise ValueError(f"reward config: unknown keys {sorted(unknown)}")
         terms = {}
         for name, term in (values.get("terms") or {}).items():
-            if name not in TERMS:
-                raise ValueError(f"reward config: unknown term {name!r}; known terms: {TERMS}")
-            terms[name] = TermSpec(float(term["weight"]), float(term["scale"]))
+            if term is None:  # a term switched off by an override (`reward.terms.pose: null`)
+                continue
+            unknown_keys = set(term) - {"weight", "scale", "error", "groups"}
+            if unknown_keys:
+                raise ValueError(f"reward config: term {name!r} has unknown keys {sorted(unknown_keys)}")
+            kind = term.get("error") or name
+            if kind not in TERMS:
+                raise ValueError(f"reward config: unknown term {name!r} (error {kind!r}); known errors: {TERMS}")
+            groups = term.get("groups")
+            if groups is not None and kind not in ("pose", "velocity"):
+                raise ValueError(f"reward config: term {name!r}: `groups` applies to pose and velocity only")
+            terms[name] = TermSpec(float(term["weight"]), float(term["scale"]), term.get("error"),
+                                   None if groups is None else tuple(str(g) for g in groups))
         combine = values.get("combine", "sum")
         if combine not in COMBINE:
             raise ValueError(f"reward config: combine must be one of {COMBINE}, got {combine!r}")
-        spec = cls(terms=terms, combine=combine, joint_weights=dict(values.get("joint_weights") or {}))
+        spec = cls(terms=terms, combine=combine, joint_weights=dict(values.get("joint_weights") or {}),
+                   normalize_joint_weights=bool(values.get("normalize_joint_weights", False)))
         if values.get("root_error"):
-            spec = cls(terms=terms, combine=combine, joint_weights=spec.joint_weights,
-                       root_error={**spec.root_error, **values["root_error"]})
+            spec = dataclasses.replace(spec, root_error={**spec.root_error, **values["root_error"]})
         return spec
 
 
@@ -81,35 +105,59 @@ class ImitationReward:
         self.layout = layout
         self.joint_weights = np.asarray([spec.joint_weights.get(j.group, 1.0) for j in layout.joints])
         # Index helpers: revolute joints compare values, spherical joints compare quaternions.
-        self._revolute_q, self._revolute_v, self._spherical_q, self._spherical_v = [], [], [], []
-        self._revolute_w, self._spherical_w = [], []
+        rev_q, rev_v, sph_q, sph_v = [], [], [], []
         offset = voffset = 0
-        for joint, weight in zip(layout.joints, self.joint_weights):
+        for joint in layout.joints:
             if joint.dof == 1:
-                self._revolute_q.append(offset)
-                self._revolute_v.append(voffset)
-                self._revolute_w.append(weight)
+                rev_q.append(offset)
+                rev_v.append(voffset)
                 offset, voffset = offset + 1, voffset + 1
             else:
-                self._spherical_q.append(offset)
-                self._spherical_v.append(voffset)
-                self._spherical_w.append(weight)
+                sph_q.append(np.arange(offset, offset + 4))
+                sph_v.append(np.arange(voffset, voffset + 3))
                 offset, voffset = offset + 4, voffset + 3
-        self._revolute_q = np.asarray(self._revolute_q, dtype=int)
-        self._revolute_v = np.asarray(self._revolute_v, dtype=int)
-        self._revolute_w = np.asarray(self._revolute_w)
-        self._spherical_w = np.asarray(self._spherical_w)
+        self._revolute = np.asarray([j.dof == 1 for j in layout.joints])
+        self._revolute_q = np.asarray(rev_q, dtype=int)
+        self._revolute_v = np.asarray(rev_v, dtype=int)
+        self._spherical_q = np.asarray(sph_q, dtype=int).reshape(-1, 4)
+        self._spherical_v = np.asarray(sph_v, dtype=int).reshape(-1, 3)
+        # Per joint-weight mask of every grouped term (joint order: revolute first, then spherical).
+        groups = [j.group for j in layout.joints]
+        known = set(groups) | set(getattr(layout, "groups", ()))
+        order = [i for i, r in enumerate(self._revolute) if r] + [i for i, r in enumerate(self._revolute) if not r]
+        self._ordered_weights = self._normalized(self.joint_weights[order])
+        self._term_weights: dict[str, np.ndarray] = {}
+        for name, term in spec.terms.items():
+            if term.groups is None:
+                continue
+            unknown = set(term.groups) - known
+            if unknown:
+                raise ValueError(f"reward term {name!r}: joint groups {sorted(unknown)} are not in the body "
+                                 f"(groups: {sorted(known)})")
+            mask = np.asarray([groups[i] in term.groups for i in order], dtype=float)
+            self._term_weights[name] = self._normalized(self.joint_weights[order] * mask)
 
-    def errors(self, sim: PoseSnapshot, ref: PoseSnapshot) -> dict[str, float]:
-        """The four error terms (see the module docstring)."""
+    def _normalized(self, weights: np.ndarray) -> np.ndarray:
+        if not self.spec.normalize_joint_weights or weights.sum() <= 0:
+            return weights
+        return weights / weights.sum()
+
+    def joint_errors(self, sim: PoseSnapshot, ref: PoseSnapshot) -> tuple[np.ndarray, np.ndarray]:
+        """Squared pose and velocity error per joint (revolute joints first, then spherical)."""
         dq = sim.q[self._revolute_q] - ref.q[self._revolute_q]
         dv = sim.qd[self._revolute_v] - ref.qd[self._revolute_v]
-        pose = float(np.sum(self._revolute_w * dq * dq))
-        vel = float(np.sum(self._revolute_w * dv * dv))
-        for q0, v0, w in zip(self._spherical_q, self._spherical_v, self._spherical_w):
-            angle = float(quat_angle(sim.q[q0:q0 + 4], ref.q[q0:q0 + 4]))
-            pose += w * angle * angle
-            vel += w * float(np.sum((sim.qd[v0:v0 + 3] - ref.qd[v0:v0 + 3]) ** 2))
+        if len(self._spherical_q) == 0:
+            return dq * dq, dv * dv
+        angle = quat_angle(sim.q[self._spherical_q], ref.q[self._spherical_q])
+        sdv = sim.qd[self._spherical_v] - ref.qd[self._spherical_v]
+        return (np.concatenate([dq * dq, angle * angle]),
+                np.concatenate([dv * dv, np.sum(sdv * sdv, axis=1)]))
+
+    def errors(self, sim: PoseSnapshot, ref: PoseSnapshot) -> dict[str, float]:
+        """The four error terms (see the module docstring), and those of group-restricted terms."""
+        pose_j, vel_j = self.joint_errors(sim, ref)
+        pose = float(self._ordered_weights @ pose_j)
+        vel = float(self._ordered_weights @ vel_j)
         if len(sim.end_effectors):
             end = float(np.mean(np.sum((sim.end_effectors - ref.end_effectors) ** 2, axis=1)))
         else:
@@ -120,11 +168,16 @@ class ImitationReward:
                 + c["rotation"] * root_angle * root_angle
                 + c["velocity"] * float(np.sum((sim.root_vel - ref.root_vel) ** 2))
                 + c["angular_velocity"] * float(np.sum((sim.root_ang_vel - ref.root_ang_vel) ** 2)))
-        return {"pose": pose, "velocity": vel, "end_effector": end, "root": root}
+        out = {"pose": pose, "velocity": vel, "end_effector": end, "root": root}
+        for name, weights in self._term_weights.items():
+            per_joint = pose_j if self.spec.terms[name].kind(name) == "pose" else vel_j
+            out[name] = float(weights @ per_joint)
+        return out
 
     def combine(self, errors: dict[str, float]) -> tuple[float, dict[str, float]]:
         """Total reward and the per-term rewards exp(-k e) (before weighting)."""
-        terms = {name: math.exp(-t.scale * errors[name]) for name, t in self.spec.terms.items()}
+        terms = {name: math.exp(-t.scale * errors[name if name in errors else t.kind(name)])
+                 for name, t in self.spec.terms.items()}
         if self.spec.combine == "sum":
             total = sum(self.spec.terms[name].weight * r for name, r in terms.items())
         else:

@@ -3,15 +3,14 @@
 from __future__ import annotations
 
 import logging
-import random
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import DictConfig, OmegaConf
 
 from aslexp.runs.record import Run, start_run
+from aslexp.seeding import seed_everything  # noqa: F401  (re-exported for the jobs)
 
 PROJECT_ROOT = Path(__file__).resolve().parents[3]
 CONF_DIR = str(PROJECT_ROOT / "conf")
@@ -29,17 +28,6 @@ def to_dict(cfg: DictConfig | Any) -> Any:
     if isinstance(cfg, DictConfig):
         return OmegaConf.to_container(cfg, resolve=True)
     return cfg
-
-
-def seed_everything(seed: int) -> None:
-    random.seed(seed)
-    np.random.seed(seed % (2**32))
-    try:
-        import torch
-
-        torch.manual_seed(seed)
-    except ImportError:  # torch is a hard dependency; kept defensive for slim tools
-        pass
 
 
 def begin(job: str, cfg: DictConfig) -> Run:

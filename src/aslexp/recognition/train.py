@@ -18,7 +18,6 @@ import copy
 import dataclasses
 import logging
 import math
-import random
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -32,6 +31,7 @@ from torch import nn
 
 from aslexp.data.dataset import RecognitionDataset
 from aslexp.recognition.metrics import mcc
+from aslexp.seeding import seed_everything
 from aslexp.recognition.models import (
     Classifier,
     ClassifierSpec,
@@ -163,14 +163,6 @@ class FinalResult:
     fit: FitResult
     y_pred: np.ndarray
     proba: np.ndarray
-
-
-def seed_everything(seed: int, deterministic: bool = True) -> None:
-    """Seed python, numpy and torch; optionally ask torch for deterministic kernels."""
-    random.seed(seed)
-    np.random.seed(seed % (2**32))
-    torch.manual_seed(seed)
-    torch.use_deterministic_algorithms(deterministic, warn_only=True)
 
 
 def inverse_frequency_weights(y: np.ndarray, num_classes: int) -> np.ndarray:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -69,8 +70,22 @@ def reference_policy(lookahead: int) -> Callable[[np.ndarray, ImitationEnv], np.
 
 
 def baselines(env: ImitationEnv, steps: int | None = None) -> dict[str, float]:
-    """Mean reward of the reference-tracking baselines (no lookahead, one control step ahead)."""
-    return {
-        "reference": evaluate(env, reference_policy(0), steps).mean_reward,
-        "lookahead": evaluate(env, reference_policy(1), steps).mean_reward,
-    }
+    """Mean reward of the reference-tracking baselines.
+
+    ``reference`` and ``lookahead`` (the reference now / one control step ahead as held PD
+    targets, zero velocity targets) always use the thesis' targets, whatever the env's controller
+    options. When the controller has target options on (reference velocity targets, physics-rate
+    reference), ``reference_velocity_pd`` is that controller with no policy correction: a
+    stronger no-learning baseline, reported beside the others, not instead of them.
+    """
+    thesis_pd = getattr(env, "thesis_pd", contextlib.nullcontext)
+    with thesis_pd():
+        out = {
+            "reference": evaluate(env, reference_policy(0), steps).mean_reward,
+            "lookahead": evaluate(env, reference_policy(1), steps).mean_reward,
+        }
+    controller = getattr(env, "controller_spec", None)
+    if controller is not None and not controller.is_thesis_pd:
+        lookahead = env.spec_env.reference_lookahead  # a zero correction in residual mode
+        out["reference_velocity_pd"] = evaluate(env, reference_policy(lookahead), steps).mean_reward
+    return out

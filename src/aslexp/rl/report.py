@@ -63,7 +63,7 @@ def plot_reward_curve(history: list[dict[str, Any]], baselines: dict[str, float]
         ax.plot(*zip(*tr), color="tab:gray", lw=1, alpha=0.6, label="training (stochastic)")
     if ev:
         ax.plot(*zip(*ev), color="tab:green", marker="o", ms=3, label="evaluation (deterministic)")
-    for (name, value), style in zip(baselines.items(), ("--", ":")):
+    for (name, value), style in zip(baselines.items(), ("--", ":", "-.")):
         ax.axhline(value, color="black", ls=style, lw=1, label=f"baseline: {name} ({value:.3f})")
     ax.set_xlabel("environment steps")
     ax.set_ylabel("mean reward per step")

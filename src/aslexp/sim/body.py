@@ -17,9 +17,9 @@ from pathlib import Path
 from typing import Any
 
 from aslexp.sim.motion import ROOT_COLUMNS
-from aslexp.sim.urdf import HandProportions, JointInfo, read_joints, write_hand_urdf
+from aslexp.sim.urdf import HandProportions, JointInfo, read_joints
 
-BUILDERS = ("hand15",)
+BUILDERS = ("hand15", "upper_body")
 
 
 @dataclass(frozen=True)
@@ -41,6 +41,9 @@ class BodySpec:
     # Motion columns after the root, as [joint name, width]; None: actuated joints in URDF order.
     # Entries naming joints that are fixed or absent in the model are read and ignored.
     motion_layout: list[list[Any]] | None = None
+    # True: a motion-layout joint absent from the URDF is an error naming the model (a custom URDF
+    # that lost a joint must not silently drop its columns); joints present but fixed are skipped.
+    strict_layout: bool = False
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "BodySpec":
@@ -72,6 +75,7 @@ class BodyLayout:
 
     joints: tuple[ActuatedJoint, ...]
     motion_columns: int  # values per motion frame without dt (root included)
+    groups: tuple[str, ...] = ()  # every joint group of the body config (some may have no joints)
 
     @property
     def num_joints(self) -> int:
@@ -101,8 +105,16 @@ def _group_for(joint: str, groups: dict[str, list[str]]) -> str:
     raise ValueError(f"joint {joint!r} is in no joint group; groups: {groups}")
 
 
-def build_layout(spec: BodySpec, joints: list[JointInfo]) -> BodyLayout:
-    """Match the URDF's joints with the body's groups and motion layout."""
+def build_layout(spec: BodySpec, joints: list[JointInfo], source: str | os.PathLike | None = None) -> BodyLayout:
+    """Match the URDF's joints with the body's groups and motion layout (``source``: the URDF, for errors)."""
+    if spec.strict_layout and spec.motion_layout is not None:
+        present = {j.name for j in joints}
+        absent = [name for name, _ in spec.motion_layout if name not in present]
+        if absent:
+            raise ValueError(
+                f"body {spec.name}: the model {source or '(URDF)'} has no joints {absent}, which the motion "
+                f"layout needs ({len(absent)} of {len(spec.motion_layout)} joints missing)"
+            )
     index_of = {j.name: i for i, j in enumerate(joints)}
     by_name = {j.name: j for j in joints}
     layout = spec.motion_layout
@@ -127,13 +139,20 @@ def build_layout(spec: BodySpec, joints: list[JointInfo]) -> BodyLayout:
     missing = [j.name for j in joints if j.dof > 0 and j.name not in {a.name for a in actuated}]
     if missing:
         raise ValueError(f"body {spec.name}: actuated joints {missing} have no motion columns")
-    return BodyLayout(tuple(actuated), motion_columns=column)
+    return BodyLayout(tuple(actuated), motion_columns=column, groups=tuple(spec.joint_groups))
 
 
 def resolve_urdf(spec: BodySpec, data_root: str | os.PathLike | None = None,
                  cache_dir: str | os.PathLike | None = None) -> Path:
     """Path of the body's URDF: the named file (absolute or under the data root) or a built one."""
     if spec.urdf:
+        if spec.urdf.startswith("pybullet_data:"):
+            from aslexp.sim.upper_body import PYBULLET_DATA_PREFIX, pybullet_data_path
+
+            path = pybullet_data_path(spec.urdf[len(PYBULLET_DATA_PREFIX):])
+            if not path.is_file():
+                raise FileNotFoundError(f"body {spec.name}: URDF {spec.urdf!r} not found ({path})")
+            return path
         path = Path(spec.urdf).expanduser()
         candidates = [path] if path.is_absolute() else [Path.cwd() / path]
         if not path.is_absolute() and data_root is not None:
@@ -146,20 +165,33 @@ def resolve_urdf(spec: BodySpec, data_root: str | os.PathLike | None = None,
         )
     if spec.builder not in BUILDERS:
         raise ValueError(f"body {spec.name}: give `urdf` or a `builder` in {BUILDERS}, got {spec.builder!r}")
-    proportions = HandProportions.from_dict(spec.proportions)
+    text = build_urdf_text(spec)
     # Content-addressed cache: the same proportions reuse one file, different ones never clash.
-    from aslexp.sim.urdf import build_hand_urdf
-
-    text = build_hand_urdf(proportions)
     digest = hashlib.sha1(text.encode()).hexdigest()[:12]
     folder = Path(cache_dir) if cache_dir else Path(tempfile.gettempdir()) / "aslexp-urdf"
     target = folder / f"{spec.builder}-{digest}.urdf"
     if not target.is_file():
-        write_hand_urdf(target, proportions)
+        folder.mkdir(parents=True, exist_ok=True)
+        tmp = target.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, target)
     return target
+
+
+def build_urdf_text(spec: BodySpec) -> str:
+    """URDF text of a built body (``spec.builder`` with ``spec.proportions``)."""
+    if spec.builder == "hand15":
+        from aslexp.sim.urdf import build_hand_urdf
+
+        return build_hand_urdf(HandProportions.from_dict(spec.proportions))
+    if spec.builder == "upper_body":
+        from aslexp.sim.upper_body import UpperBodyProportions, build_upper_body_urdf
+
+        return build_upper_body_urdf(UpperBodyProportions.from_dict(spec.proportions))
+    raise ValueError(f"body {spec.name}: unknown builder {spec.builder!r}; expected one of {BUILDERS}")
 
 
 def load_layout(spec: BodySpec, data_root: str | os.PathLike | None = None) -> tuple[Path, BodyLayout]:
     """URDF path and joint layout of a body."""
     urdf = resolve_urdf(spec, data_root)
-    return urdf, build_layout(spec, read_joints(urdf))
+    return urdf, build_layout(spec, read_joints(urdf), source=urdf)

@@ -13,6 +13,7 @@ body's order (1 value per revolute joint, 4 (w, x, y, z) per spherical joint).
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 from collections.abc import Sequence
@@ -20,8 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+log = logging.getLogger("aslexp.motion")
 LOOP_MODES = ("wrap", "none")
 ROOT_COLUMNS = 7  # root position (3) + root quaternion (4)
+QUATERNION_TOLERANCE = 0.5  # |norm - 1| above this: not a unit quaternion (DeepMimic's own files reach 0.42)
 
 
 class MotionFormatError(ValueError):
@@ -65,6 +68,24 @@ class Motion:
         self.source = source
         default_quats = (3,) if frames.shape[1] >= ROOT_COLUMNS else ()
         self.quaternions = tuple(default_quats if quaternions is None else quaternions)
+        for q in self.quaternions:
+            # A quaternion block must be a unit quaternion (w x y z). Near-unit ones (rounding; some
+            # of DeepMimic's own files reach norm 0.93) are normalised, and counted in the log.
+            norms = np.linalg.norm(frames[:, q:q + 4], axis=1)
+            bad = np.flatnonzero(np.abs(norms - 1.0) > QUATERNION_TOLERANCE)
+            if len(bad):
+                raise MotionFormatError(
+                    f"{where}: quaternion (w x y z) in columns {q + 1}-{q + 4} (counting dt as column 0) "
+                    f"is not a unit quaternion in {len(bad)} frame(s), first frame {bad[0]} with norm "
+                    f"{norms[bad[0]]:.4g}; expected norm 1 (+-{QUATERNION_TOLERANCE})"
+                )
+            off = np.abs(norms - 1.0) > 1e-3
+            if np.any(off):
+                log.info("%s: normalised the quaternion in columns %d-%d in %d of %d frames (norms %.3f-%.3f)",
+                         where, q + 1, q + 4, int(off.sum()), len(norms), norms.min(), norms.max())
+                frames = frames.copy() if frames is self.frames else frames
+                frames[:, q:q + 4] /= norms[:, None]
+        self.frames = frames
         # Start time of every frame; the last frame starts at `duration`.
         self.times = np.concatenate([[0.0], np.cumsum(self.dt[:-1])])
 

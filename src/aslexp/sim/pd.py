@@ -4,10 +4,18 @@ PyBullet's POSITION_CONTROL motor is a PD controller solved as a velocity constr
 ``kp * (q* - q) + kd * (qd* - qd)`` limited by ``max_force``; its gains are dimensionless
 (the thesis tuned kp = 0.22, kd = 0.87). STABLE_PD_CONTROL gave NaN or poor tracking on
 fixed-base models here, so position control is the one mode offered.
+
+Two agent-side options shape the targets the environment gives the motors (defaults: the thesis
+controller): ``target_velocity: reference`` feeds the reference joint velocity (times
+``velocity_scale``) as the motor's velocity target instead of 0, and ``target_rate: physics``
+re-samples the reference part of the targets at every physics substep instead of holding one
+target for the whole control step (the policy's correction is held). Neither touches the reward
+or the reference motion.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -16,7 +24,9 @@ import numpy as np
 from aslexp.sim.body import BodyLayout
 from aslexp.sim.world import Character
 
-MODES = ("position",)
+MODES = ("position", "stable_pd")
+TARGET_VELOCITIES = ("zero", "reference")
+TARGET_RATES = ("control", "physics")
 
 
 @dataclass(frozen=True)
@@ -33,10 +43,18 @@ class ControllerSpec:
     name: str
     mode: str
     groups: dict[str, Gains]
+    target_velocity: str = "zero"  # zero (thesis) | reference: reference joint velocity as target
+    velocity_scale: float = 1.0  # multiplies the reference velocity target
+    target_rate: str = "control"  # control (thesis) | physics: reference re-sampled every substep
+
+    @property
+    def is_thesis_pd(self) -> bool:
+        """True when the targets are the thesis' (held positions, zero velocity)."""
+        return self.target_velocity == "zero" and self.target_rate == "control"
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "ControllerSpec":
-        unknown = set(values) - {"name", "mode", "groups"}
+        unknown = set(values) - {"name", "mode", "groups", "target_velocity", "velocity_scale", "target_rate"}
         if unknown:
             raise ValueError(f"controller config: unknown keys {sorted(unknown)}")
         mode = values.get("mode", "position")
@@ -45,7 +63,15 @@ class ControllerSpec:
         groups = {name: Gains(**gains) for name, gains in (values.get("groups") or {}).items()}
         if not groups:
             raise ValueError("controller config: `groups` must give gains for at least `default`")
-        return cls(name=values.get("name", "custom"), mode=mode, groups=groups)
+        target_velocity = values.get("target_velocity", "zero")
+        if target_velocity not in TARGET_VELOCITIES:
+            raise ValueError(f"controller config: target_velocity must be one of {TARGET_VELOCITIES}, "
+                             f"got {target_velocity!r}")
+        target_rate = values.get("target_rate", "control")
+        if target_rate not in TARGET_RATES:
+            raise ValueError(f"controller config: target_rate must be one of {TARGET_RATES}, got {target_rate!r}")
+        return cls(name=values.get("name", "custom"), mode=mode, groups=groups, target_velocity=target_velocity,
+                   velocity_scale=float(values.get("velocity_scale", 1.0)), target_rate=target_rate)
 
 
 class PDController:
@@ -70,7 +96,8 @@ class PDController:
               target_velocities: np.ndarray | None = None) -> None:
         """Drive ``character`` towards ``targets`` (motion-layout joint vector) until the next call."""
         pb = character.world.client
-        if self.layout.all_revolute:
+        mode = pb.POSITION_CONTROL if self.spec.mode == "position" else pb.STABLE_PD_CONTROL
+        if self.layout.all_revolute and mode == pb.POSITION_CONTROL:
             velocities = [0.0] * len(targets) if target_velocities is None else list(target_velocities)
             pb.setJointMotorControlArray(
                 character.id, character.joint_indices, pb.POSITION_CONTROL,
@@ -88,13 +115,16 @@ class PDController:
                 offset, voffset = offset + 1, voffset + 1
             else:
                 w, x, y, z = targets[offset:offset + 4]
-                positions.append([float(x), float(y), float(z), float(w)])
+                norm = math.sqrt(w * w + x * x + y * y + z * z)
+                if norm < 1e-6:  # a policy's zero quaternion: hold the identity rotation
+                    w, x, y, z, norm = 1.0, 0.0, 0.0, 0.0, 1.0
+                positions.append([float(x / norm), float(y / norm), float(z / norm), float(w / norm)])
                 velocities.append([0.0, 0.0, 0.0] if target_velocities is None
                                   else [float(v) for v in target_velocities[voffset:voffset + 3]])
                 forces.append([self.max_force[k]] * 3)
                 offset, voffset = offset + 4, voffset + 3
         pb.setJointMotorControlMultiDofArray(
-            character.id, character.joint_indices, pb.POSITION_CONTROL,
+            character.id, character.joint_indices, mode,
             targetPositions=positions, targetVelocities=velocities, forces=forces,
             positionGains=self.kp, velocityGains=self.kd,
         )

@@ -29,6 +29,7 @@ class ReferenceMotion:
             np.arange(j.motion_column, j.motion_column + j.dof) for j in layout.joints
         ]).astype(int)
         self._column_velocity = motion.velocities()
+        self._joint_velocity = self._joint_velocity_table()
 
     @property
     def duration(self) -> float:
@@ -42,22 +43,25 @@ class ReferenceMotion:
         return self.motion.sample(t)[self._q_columns]
 
     def joint_velocities(self, t: float) -> np.ndarray:
-        """Joint velocities at time t (1 per revolute joint, 3 per spherical joint)."""
+        """Joint velocities at time t (1 per revolute joint, 3 per spherical joint).
+
+        Constant over each frame interval (forward differences, as :meth:`Motion.velocities`);
+        a spherical joint's is the angular velocity in the joint's child frame, as PyBullet reads
+        and writes it (``getJointStateMultiDof``): log(conj(q_i) q_i+1) / dt_i.
+        """
         i, _ = self.motion._locate(t)
-        column_velocity = self._column_velocity[i]
-        if self.layout.all_revolute:
-            return column_velocity[self._q_columns]
-        frame = self.motion.sample(t)
-        out = []
-        for joint in self.layout.joints:
+        return self._joint_velocity[i]
+
+    def _joint_velocity_table(self) -> np.ndarray:
+        motion, layout = self.motion, self.layout
+        table = []
+        for joint in layout.joints:
             c = joint.motion_column
             if joint.dof == 1:
-                out.append(column_velocity[c])
+                table.append(self._column_velocity[:, c:c + 1])
             else:
-                # omega = 2 * (dq/dt) * conj(q), vector part (world-in-parent frame convention).
-                omega = 2.0 * quat_multiply(column_velocity[c:c + 4], quat_conjugate(frame[c:c + 4]))
-                out.extend(omega[1:4])
-        return np.asarray(out, dtype=np.float64)
+                table.append(_local_angular_velocity(motion.frames[:, c:c + 4], motion.dt, motion.loop))
+        return np.ascontiguousarray(np.concatenate(table, axis=1))
 
     def root(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Root position, rotation (w x y z), linear and angular velocity at time t."""
@@ -66,3 +70,30 @@ class ReferenceMotion:
         vel = self._column_velocity[i]
         omega = 2.0 * quat_multiply(vel[3:7], quat_conjugate(frame[3:7]))[1:4]
         return frame[0:3].copy(), frame[3:7].copy(), vel[0:3].copy(), omega
+
+
+def _local_angular_velocity(q: np.ndarray, dt: np.ndarray, loop: str) -> np.ndarray:
+    """(F, 3) angular velocities, child frame, of the quaternion track ``q`` (F, 4; w x y z).
+
+    Frame i gets the rotation from q_i to q_i+1 (shortest arc) as axis * angle / dt_i; the last
+    frame repeats frame 0 (looping) or its predecessor, like :meth:`Motion.velocities`.
+    """
+    if len(q) == 1:
+        return np.zeros((1, 3))
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    a, b = q[:-1], q[1:]
+    rel = quat_multiply(quat_conjugate_rows(a), b)
+    rel = np.where(rel[:, :1] < 0, -rel, rel)  # shortest arc
+    vec = rel[:, 1:4]
+    sin_half = np.linalg.norm(vec, axis=1)
+    angle = 2.0 * np.arctan2(sin_half, rel[:, 0])
+    scale = np.where(sin_half > 1e-12, angle / np.maximum(sin_half, 1e-12), 2.0)
+    omega = np.empty((len(q), 3))
+    omega[:-1] = vec * (scale / dt[:-1])[:, None]
+    omega[-1] = omega[0] if loop == "wrap" else omega[-2]
+    return omega
+
+
+def quat_conjugate_rows(q: np.ndarray) -> np.ndarray:
+    """Conjugates of quaternions (w x y z) along the last axis."""
+    return q * np.array([1.0, -1.0, -1.0, -1.0])

@@ -117,7 +117,6 @@ def _link(name: str, mass: float, size, com_z: float, inertia: float) -> str:
 def build_hand_urdf(proportions: HandProportions | None = None) -> str:
     """URDF text of a fixed-wrist hand with five three-joint fingers (thumb first)."""
     hp = proportions or HandProportions()
-    lower, upper = hp.joint_limits
     parts = [f'<?xml version="1.0"?>\n<robot name="{hp.name}">\n']
     parts.append(
         '  <link name="base">\n    <inertial>\n      <origin rpy="0 0 0" xyz="0 0 0"/>\n'
@@ -131,24 +130,40 @@ def build_hand_urdf(proportions: HandProportions | None = None) -> str:
         f'    <child link="right_wrist"/>\n    <origin rpy="{_vec(hp.wrist_rpy)}" xyz="0 0 0"/>\n'
         "  </joint>\n"
     )
+    parts.append(finger_chains_urdf(hp, parent="right_wrist"))
+    parts.append("</robot>\n")
+    return "".join(parts)
+
+
+def finger_chains_urdf(hp: HandProportions, parent: str, prefix: str = "",
+                       mirror_axes: bool = False) -> str:
+    """Links and joints of the five fingers of ``hp`` on link ``parent`` (names ``prefix + finger_phalanx``).
+
+    ``mirror_axes`` flips the flexion axis of the fingers bending about x (a left hand in the
+    thesis' upper body: same finger origins, index to pinkie about -x, thumb still about +y).
+    """
+    lower, upper = hp.joint_limits
     com_z = hp.phalanx_size[2] / 2
+    parts = []
     for finger in FINGERS:
         fp = hp.fingers[finger]
-        parent = "right_wrist"
+        axis = fp.axis
+        if mirror_axes and axis[0] != 0.0:
+            axis = tuple(-a for a in axis)
+        link_parent = parent
         offsets = [(fp.origin_xyz, fp.origin_rpy), ((0, 0, fp.segment_lengths[0]), (0, 0, 0)),
                    ((0, 0, fp.segment_lengths[1]), (0, 0, 0))]
         for phalanx, (xyz, rpy) in zip(PHALANGES, offsets):
-            name = f"{finger}_{phalanx}"
+            name = f"{prefix}{finger}_{phalanx}"
             parts.append(_link(name, hp.phalanx_mass, hp.phalanx_size, com_z, hp.inertia))
             parts.append(
-                f'  <joint name="{name}" type="revolute">\n    <parent link="{parent}"/>\n'
+                f'  <joint name="{name}" type="revolute">\n    <parent link="{link_parent}"/>\n'
                 f'    <child link="{name}"/>\n    <origin rpy="{_vec(rpy)}" xyz="{_vec(xyz)}"/>\n'
-                f'    <axis xyz="{_vec(fp.axis)}"/>\n'
+                f'    <axis xyz="{_vec(axis)}"/>\n'
                 f'    <limit effort="{hp.effort:g}" lower="{lower:g}" upper="{upper:g}" '
                 f'velocity="{hp.velocity:g}"/>\n  </joint>\n'
             )
-            parent = name
-    parts.append("</robot>\n")
+            link_parent = name
     return "".join(parts)
 
 
@@ -167,8 +182,12 @@ def read_joints(urdf: str | os.PathLike) -> list[JointInfo]:
     path = Path(urdf)
     if not path.is_file():
         raise FileNotFoundError(f"URDF not found: {path}")
+    text = path.read_text(encoding="utf-8", errors="replace")
+    end = text.rfind("</robot>")
+    if end >= 0:  # PyBullet ignores bytes after </robot> (pybullet_data's humanoid.urdf has some)
+        text = text[:end + len("</robot>")]
     try:
-        root = ET.parse(path).getroot()
+        root = ET.fromstring(text)
     except ET.ParseError as exc:
         raise ValueError(f"URDF {path} is not valid XML: {exc}") from exc
     joints = []

@@ -1,0 +1,22 @@
+"""The upper-body humanoid with two hands imitating a whole sign (thesis chapter 6).
+
+The same environment as the hand's (:class:`~aslexp.envs.imitation.ImitationEnv`), with the
+upper body's config groups as defaults: ``body=upper_body`` (built model; ``upper_body_thesis``
+loads the thesis' URDF), ``controller=upper_body``, ``reward=multiplicative`` and
+``env=upper_body``. Registered as ``aslexp/UpperBodyImitation-v0``::
+
+    gym.make("aslexp/UpperBodyImitation-v0", motion="motions/upper_body/00433.txt")
+"""
+
+from __future__ import annotations
+
+from aslexp.envs.imitation import ImitationEnv
+
+UPPER_BODY_DEFAULTS = {"body": "upper_body", "controller": "upper_body", "reward": "multiplicative",
+                       "env": "upper_body"}
+
+
+class UpperBodyImitationEnv(ImitationEnv):
+    """:class:`ImitationEnv` whose config groups default to the upper body's files."""
+
+    GROUP_DEFAULTS = UPPER_BODY_DEFAULTS
