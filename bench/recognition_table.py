@@ -35,8 +35,13 @@ def main() -> int:
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--jobs", type=int, default=1,
                         help="concurrent multiruns, one per split (each with 2/jobs torch threads)")
+    parser.add_argument("--summarize", type=Path, default=None, metavar="DIR",
+                        help="only print the figures of a finished table folder (no training)")
     parser.add_argument("overrides", nargs="*", help="extra Hydra overrides, e.g. trainer.max_epochs=20")
     args = parser.parse_args()
+    if args.summarize:
+        summarize(args.summarize)
+        return 0
     out = args.out or ROOT / "outputs" / "bench" / f"table_{datetime.now():%Y%m%d_%H%M%S}"
     splits = args.splits.split(",")
     groups = [splits] if args.jobs <= 1 else [[s] for s in splits]
@@ -62,25 +67,38 @@ def main() -> int:
         print(f"multirun exit codes: {codes}", file=sys.stderr)
         return 1
 
+    print(f"\n{len(groups)} concurrent multirun(s) x {threads} torch thread(s): "
+          f"{total / 60:.1f} min wall-clock on {os.cpu_count()} cores")
+    summarize(out)
+    return 0
+
+
+def summarize(out: Path) -> None:
+    """Figures from the run folders alone: wall-clock span, per-model run times, the table."""
     per_model: dict[str, list[float]] = defaultdict(list)
     statuses: dict[str, int] = defaultdict(int)
+    starts, ends, seeds = [], [], set()
     for run_file in out.rglob("run.json"):
         info = json.loads(run_file.read_text())
         statuses[info["status"]] += 1
+        starts.append(datetime.fromisoformat(info["started"]))
+        if info.get("finished"):
+            ends.append(datetime.fromisoformat(info["finished"]))
         metrics_file = run_file.parent / "metrics.json"
         if metrics_file.exists():
             metrics = json.loads(metrics_file.read_text())
             per_model[metrics["context"]["classifier"]].append(float(metrics["time_s"]))
+            seeds.add(len(metrics["context"]["seeds"]))
     runs = sum(statuses.values())
-    print(f"\nfull table: {runs} runs ({dict(statuses)}), {args.seeds} seed(s) each, "
-          f"{total / 60:.1f} min wall-clock on {os.cpu_count()} cores, {len(groups)} concurrent "
-          f"multirun(s) x {threads} torch thread(s)")
+    span = (max(ends) - min(starts)).total_seconds() / 60 if ends else float("nan")
+    print(f"table {out}: {runs} runs ({dict(statuses)}), seeds per run {sorted(seeds)}; "
+          f"first start to last end {span:.1f} min wall-clock; "
+          f"{sum(sum(t) for t in per_model.values()) / 60:.1f} min of run time in all")
     print("| model | runs | median s/run (all seeds) | total min |")
     print("|---|---|---|---|")
     for model, times in sorted(per_model.items()):
         print(f"| {model} | {len(times)} | {statistics.median(times):.1f} | {sum(times) / 60:.1f} |")
     subprocess.run([sys.executable, "-m", "aslexp.cli", "report", str(out)], cwd=ROOT, check=True)
-    return 0
 
 
 if __name__ == "__main__":

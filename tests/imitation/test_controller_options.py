@@ -30,14 +30,16 @@ def test_physics_rate_needs_residual_actions(motion_a):
         ImitationEnv(motion_a, controller="reference_velocity", env={"action_mode": "absolute"})
 
 
-def test_reference_velocity_pd_beats_the_thesis_baselines_which_stay_unchanged(motion_a):
+@pytest.mark.parametrize("controller", ["reference_velocity", "reference_velocity_tuned"])
+def test_reference_velocity_pd_beats_the_thesis_baselines_which_stay_unchanged(motion_a, controller):
+    # The tuned controller has other gains: its baselines must still be the thesis controller's.
     thesis = ImitationEnv(motion_a, env=RESIDUAL)
-    stronger = ImitationEnv(motion_a, env=RESIDUAL, controller="reference_velocity")
+    stronger = ImitationEnv(motion_a, env=RESIDUAL, controller=controller)
     plain, both = baselines(thesis, steps=120), baselines(stronger, steps=120)
     assert set(plain) == {"reference", "lookahead"}
     assert both["reference"] == pytest.approx(plain["reference"], abs=1e-9)
     assert both["lookahead"] == pytest.approx(plain["lookahead"], abs=1e-9)
-    # Measured over 300 steps: lookahead .933, reference-velocity PD at physics rate .967 (letter A).
+    # Measured over 300 steps (letter A): lookahead .933, reference_velocity .967, tuned .970.
     assert both["reference_velocity_pd"] > both["lookahead"] + 0.015, both
     thesis.close()
     stronger.close()
@@ -51,5 +53,24 @@ def test_reference_velocities_in_the_observation(motion_a):
     obs, _ = env.reset(options={"time": 0.25})
     expected = np.concatenate([env.reference.joint_velocities(0.25 + k * env.control_dt) for k in (1, 2)])
     np.testing.assert_allclose(obs[-30:], expected, rtol=1e-5, atol=1e-5)
+    env.close()
+    plain.close()
+
+
+def test_velocity_corrections_extend_the_action(motion_a):
+    cfg = {**RESIDUAL, "residual_velocity_range": 2.0, "episode_steps": 10}
+    env = ImitationEnv(motion_a, env=cfg, controller="reference_velocity")
+    plain = ImitationEnv(motion_a, env={**RESIDUAL, "episode_steps": 10}, controller="reference_velocity")
+    assert env.action_space.shape == (30,) and env.action_space.high[-1] == pytest.approx(2.0)
+    assert env.reference_action(1).shape == (30,)
+    rewards = {}
+    for name, e, action in (("zero", env, np.zeros(30)), ("plain", plain, np.zeros(15)),
+                            ("pushed", env, np.r_[np.zeros(15), np.full(15, 2.0)])):
+        e.reset(options={"time": 0.1})
+        rewards[name] = e.step(action)[1]
+    assert rewards["zero"] == pytest.approx(rewards["plain"], abs=1e-12)  # zero correction: the controller
+    assert rewards["pushed"] != pytest.approx(rewards["zero"], abs=1e-6)
+    with pytest.raises(ValueError, match="expected 30"):
+        env.step(np.zeros(15))
     env.close()
     plain.close()

@@ -57,8 +57,11 @@ class EnvSpec:
     observe_future: tuple[int, ...] = ()
     observe_joints: bool = False
     observe_future_velocities: bool = False  # also the reference joint velocities at observe_future
+    residual_velocity_range: float = 0.0  # rad/s; > 0 appends velocity-target corrections to the action
     # Links in the observation (fnmatch patterns on link names, URDF order); None: every link.
     observe_links: tuple[str, ...] | None = None
+    # Rendering camera (TinyRenderer), looking at the mean link position; the hand's defaults.
+    camera: dict[str, float] = field(default_factory=lambda: {"distance": 0.5, "yaw": 90.0, "pitch": -10.0})
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "EnvSpec":
@@ -123,7 +126,11 @@ class ImitationEnv(gym.Env):
         data_root: str | os.PathLike | None = None,
         render_mode: str | None = None,
         render_size: tuple[int, int] = (320, 320),
+        complete_configs: bool = False,
     ) -> None:
+        """Group values are names, partial dicts merged over the group default, or None; with
+        ``complete_configs`` dicts are taken as they are (the jobs pass Hydra-composed groups,
+        which merged over another body's default file would gain its keys and reward terms)."""
         super().__init__()
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -136,12 +143,15 @@ class ImitationEnv(gym.Env):
         self.data_root = Path(data_root)
 
         # -- configuration ----------------------------------------------------------------
-        defaults = self.GROUP_DEFAULTS
-        self.body_spec = BodySpec.from_dict(resolve_group("body", body, defaults["body"]))
-        self.controller_spec = ControllerSpec.from_dict(resolve_group("controller", controller,
-                                                                      defaults["controller"]))
-        self.reward_spec = RewardSpec.from_dict(resolve_group("reward", reward, defaults["reward"]))
-        self.spec_env = EnvSpec.from_dict(resolve_group("env", env, defaults["env"]))
+        def group(name: str, value):
+            if complete_configs and isinstance(value, dict):
+                return value
+            return resolve_group(name, value, self.GROUP_DEFAULTS[name])
+
+        self.body_spec = BodySpec.from_dict(group("body", body))
+        self.controller_spec = ControllerSpec.from_dict(group("controller", controller))
+        self.reward_spec = RewardSpec.from_dict(group("reward", reward))
+        self.spec_env = EnvSpec.from_dict(group("env", env))
         self.urdf, self.layout = load_layout(self.body_spec, self.data_root)
 
         if isinstance(motion, Motion):
@@ -174,7 +184,8 @@ class ImitationEnv(gym.Env):
             raise ValueError(f"controller {self.controller_spec.name}: target_rate physics re-samples the "
                              f"reference under the policy's correction and needs env action_mode residual, "
                              f"got {self.spec_env.action_mode!r}")
-        self._thesis_pd = False  # set by thesis_pd(): the baselines use the thesis' targets
+        self._thesis_pd = False  # set by thesis_pd(): the baselines use the thesis' controller
+        self._default_controller: PDController | None = None
         self.reward_fn = ImitationReward(self.reward_spec, self.layout)
 
         # -- spaces ---------------------------------------------------------------------------
@@ -194,9 +205,19 @@ class ImitationEnv(gym.Env):
         else:
             r = float(self.spec_env.residual_range)
             self.action_space = gym.spaces.Box(-r, r, shape=(self.layout.action_size,), dtype=np.float32)
+        self.velocity_size = sum(1 if j.dof == 1 else 3 for j in self.layout.joints)
+        rv = float(self.spec_env.residual_velocity_range)
+        if rv > 0:  # [position part, velocity-target corrections added to the motors' velocity targets]
+            self.action_space = gym.spaces.Box(
+                np.concatenate([self.action_space.low, np.full(self.velocity_size, -rv, np.float32)]),
+                np.concatenate([self.action_space.high, np.full(self.velocity_size, rv, np.float32)]),
+                dtype=np.float32)
         self.observed_links = self._select_links(self.spec_env.observe_links)
+        # Links read from PyBullet each step: the observed ones and the end effectors (None: all).
+        self._state_links = (None if self.spec_env.observe_links is None else
+                             sorted(set(self.observed_links.tolist()) | set(self.sim.end_effector_links)))
         obs_size = 1 + 13 * len(self.observed_links) + len(self.spec_env.observe_future) * self.layout.action_size
-        velocity_size = sum(1 if j.dof == 1 else 3 for j in self.layout.joints)
+        velocity_size = self.velocity_size
         if self.spec_env.observe_future_velocities:
             obs_size += len(self.spec_env.observe_future) * velocity_size
         if self.spec_env.observe_joints:
@@ -233,30 +254,50 @@ class ImitationEnv(gym.Env):
         target = self.reference_targets(lookahead)
         if self.spec_env.action_mode == "residual":
             target = target - self.reference_targets(self.spec_env.reference_lookahead)
+        if self.spec_env.residual_velocity_range > 0:
+            target = np.concatenate([target, np.zeros(self.velocity_size)])
         return target.astype(np.float32)
 
     @contextmanager
     def thesis_pd(self):
-        """Within the block the motors get the thesis' targets (held positions, zero velocity)
-        whatever the controller's target options: the reference-driven baselines are defined so."""
-        previous, self._thesis_pd = self._thesis_pd, True
+        """Within the block a controller with target options (reference velocity, physics rate)
+        is replaced by the body's default controller (``GROUP_DEFAULTS``: the thesis gains, held
+        positions, zero velocity targets): the reference-driven baselines are defined with it,
+        so a tuned controller cannot lower the bar it is compared with. A plain controller stays."""
+        if self.controller_spec.is_thesis_pd:
+            yield self
+            return
+        if self._default_controller is None:
+            spec = ControllerSpec.from_dict(resolve_group("controller", None, self.GROUP_DEFAULTS["controller"]))
+            if not spec.is_thesis_pd:
+                raise ValueError(f"default controller {spec.name!r} has target options; baselines need a plain one")
+            self._default_controller = PDController(spec, self.layout)
+        previous = self._thesis_pd, self.controller
+        self._thesis_pd, self.controller = True, self._default_controller
         try:
             yield self
         finally:
-            self._thesis_pd = previous
+            self._thesis_pd, self.controller = previous
 
     def _drive(self, action: np.ndarray) -> None:
         """Set the motors from the action and step the physics through one control step."""
         spec, n = self.controller_spec, self.spec_env.substeps
         plain = self._thesis_pd or spec.is_thesis_pd
         feed_velocity = spec.target_velocity == "reference" and not plain
+        action, velocity_correction = action[:self.layout.action_size], action[self.layout.action_size:]
+
+        def velocity_targets(t: float) -> np.ndarray | None:
+            velocity = spec.velocity_scale * self.reference.joint_velocities(t) if feed_velocity else None
+            if len(velocity_correction):
+                velocity = velocity_correction if velocity is None else velocity + velocity_correction
+            return velocity
+
         if spec.target_rate == "physics" and not plain:
             substep = self.control_dt / n
             for i in range(n):
                 t = self.time + (i + 1) * substep
                 targets = np.clip(self.reference.joints(t) + action, self.joint_lower, self.joint_upper)
-                velocities = spec.velocity_scale * self.reference.joint_velocities(t) if feed_velocity else None
-                self.controller.apply(self.sim, targets, velocities)
+                self.controller.apply(self.sim, targets, velocity_targets(t))
                 self.sim_world.step(1)
             return
         target_time = self.time + self.spec_env.reference_lookahead * self.control_dt
@@ -265,8 +306,7 @@ class ImitationEnv(gym.Env):
         else:
             targets = action
         targets = np.clip(targets, self.joint_lower, self.joint_upper)
-        velocities = spec.velocity_scale * self.reference.joint_velocities(target_time) if feed_velocity else None
-        self.controller.apply(self.sim, targets, velocities)
+        self.controller.apply(self.sim, targets, velocity_targets(target_time))
         self.sim_world.step(n)
 
     def _reference_snapshot(self, t: float) -> PoseSnapshot:
@@ -321,25 +361,26 @@ class ImitationEnv(gym.Env):
         qd = self.reference.joint_velocities(self.time)
         self.sim.set_state(q, qd)
         self._reference_snapshot(self.time)
-        links = self.sim.link_states()
+        links = self.sim.link_states(links=self._state_links)
         self.counters["episodes"] += 1
         return self._observation(links), {"time": self.time}
 
     def step(self, action):
         action = np.asarray(action, dtype=np.float64).reshape(-1)
-        if action.shape[0] != self.layout.action_size or not np.all(np.isfinite(action)):
-            if action.shape[0] != self.layout.action_size:
-                raise ValueError(f"action has {action.shape[0]} values, expected {self.layout.action_size}")
+        size = self.action_space.shape[0]
+        if action.shape[0] != size or not np.all(np.isfinite(action)):
+            if action.shape[0] != size:
+                raise ValueError(f"action has {action.shape[0]} values, expected {size}")
             # A NaN action ends the episode (flagged, counted); the physics is never fed it.
             self.counters["nan_actions"] += 1
-            links = self.sim.link_states()
+            links = self.sim.link_states(links=self._state_links)
             return self._observation(links), 0.0, True, False, {"nan_action": True, "diverged": False}
 
         self._drive(action)
         self.time += self.control_dt
         self.steps += 1
 
-        links = self.sim.link_states()
+        links = self.sim.link_states(links=self._state_links)
         sim_state = self._sim_snapshot(links)
         if (not np.all(np.isfinite(links)) or not np.all(np.isfinite(sim_state.qd))
                 or np.max(np.abs(sim_state.qd)) > self.spec_env.max_joint_velocity):
@@ -374,8 +415,9 @@ class ImitationEnv(gym.Env):
         """Reference (left) and simulation (right) side by side, PyBullet's TinyRenderer."""
         if self.render_mode != "rgb_array":
             return None
-        return np.concatenate([_snapshot(self.ref_world, self.ref, self.render_size),
-                               _snapshot(self.sim_world, self.sim, self.render_size)], axis=1)
+        camera = {"distance": 0.5, "yaw": 90.0, "pitch": -10.0, **(self.spec_env.camera or {})}
+        return np.concatenate([_snapshot(self.ref_world, self.ref, self.render_size, camera),
+                               _snapshot(self.sim_world, self.sim, self.render_size, camera)], axis=1)
 
     def close(self) -> None:
         self.sim_world.close()
@@ -390,14 +432,17 @@ def _colour(character: Character, rgb: tuple[float, float, float]) -> None:
         pb.changeVisualShape(character.id, link, rgbaColor=[min(c * shade, 1.0) for c in rgb] + [1.0])
 
 
-def _snapshot(world: World, character: Character, size: tuple[int, int]) -> np.ndarray:
+def _snapshot(world: World, character: Character, size: tuple[int, int],
+              camera: dict[str, float] | None = None) -> np.ndarray:
+    camera = camera or {"distance": 0.5, "yaw": 90.0, "pitch": -10.0}
     pb = world.client
     base, _ = pb.getBasePositionAndOrientation(character.id)
     links = character.link_states(velocities=False)
     target = links[:, 0:3].mean(axis=0) if len(links) else np.asarray(base)
     width, height = size
-    view = pb.computeViewMatrixFromYawPitchRoll(cameraTargetPosition=list(target), distance=0.5,
-                                                yaw=90, pitch=-10, roll=0, upAxisIndex=1)
+    view = pb.computeViewMatrixFromYawPitchRoll(cameraTargetPosition=list(target),
+                                                distance=float(camera["distance"]), yaw=float(camera["yaw"]),
+                                                pitch=float(camera["pitch"]), roll=0, upAxisIndex=1)
     proj = pb.computeProjectionMatrixFOV(fov=60, aspect=width / height, nearVal=0.01, farVal=10.0)
     _, _, rgba, _, _ = pb.getCameraImage(width, height, view, proj, renderer=pb.ER_TINY_RENDERER)
     return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]

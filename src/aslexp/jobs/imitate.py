@@ -35,7 +35,8 @@ def build_envs(cfg: dict[str, Any], data_root: Path):
     from aslexp.envs.config import deep_merge
     from aslexp.envs.imitation import ImitationEnv
 
-    common = dict(body=cfg["body"], controller=cfg["controller"], reward=cfg["reward"], data_root=data_root)
+    common = dict(body=cfg["body"], controller=cfg["controller"], reward=cfg["reward"], data_root=data_root,
+                  complete_configs=True)  # Hydra composed every group: no merge over the hand's files
     train_env = ImitationEnv(cfg["motion"]["file"], env=cfg["env"], **common)
     eval_cfg = deep_merge(cfg["env"], {"early_termination": {"min_reward": None}})
     render = cfg.get("render") or {}
@@ -100,6 +101,9 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None) -> dict[str, Any]
                      frames_every=frames_every)
     look = evaluate(eval_env, lambda obs, env: env.reference_action(1), ppo.eval_steps, record=True)
     joint_names = [j.name for j in eval_env.layout.joints]
+    if not eval_env.layout.all_revolute:  # spherical joints: rotation angle and angular speed
+        final.trajectory = report.per_joint_trajectory(final.trajectory, eval_env.layout)
+        look.trajectory = report.per_joint_trajectory(look.trajectory, eval_env.layout)
     if cfg.get("plots", True):
         report.plot_tracking(final.trajectory, joint_names, out_dir / "tracking.png",
                              f"{cfg['motion']['name']}: learned policy (reward {final.mean_reward:.3f})")
@@ -154,6 +158,20 @@ class LettersSummary(Callback):
             log.info("letters summary in %s\n%s", sweep_dir, summary["table"])
         except FileNotFoundError as exc:
             log.warning("no letters summary: %s", exc)
+
+
+class SignsSummary(Callback):
+    """Hydra callback of the signs experiment: curves and the table beside thesis table 6.7."""
+
+    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        from aslexp.rl.upper_body_report import summarize_signs
+
+        sweep_dir = Path(config.hydra.sweep.dir)
+        try:
+            summary = summarize_signs(sweep_dir)
+            log.info("signs summary in %s\n%s", sweep_dir, summary["table"])
+        except FileNotFoundError as exc:
+            log.warning("no signs summary: %s", exc)
 
 
 if __name__ == "__main__":

@@ -55,7 +55,7 @@ def tune_pd(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     env_cfg = deep_merge(cfg["env"], {"early_termination": {"min_reward": None}, "action_mode": "absolute",
                                       "reference_state_init": False})
     env = ImitationEnv(motion, body=cfg["body"], controller=controller, reward=cfg["reward"], env=env_cfg,
-                       data_root=data_root)
+                       data_root=data_root, complete_configs=True)  # Hydra composed every group
     result = pd_tracking_error(env, tuning.get("steps"), int(tuning.get("lookahead", 1)))
     env.close()
     with open(out_dir / "controller.yaml", "w", encoding="utf-8") as fh:

@@ -72,11 +72,12 @@ def reference_policy(lookahead: int) -> Callable[[np.ndarray, ImitationEnv], np.
 def baselines(env: ImitationEnv, steps: int | None = None) -> dict[str, float]:
     """Mean reward of the reference-tracking baselines.
 
-    ``reference`` and ``lookahead`` (the reference now / one control step ahead as held PD
-    targets, zero velocity targets) always use the thesis' targets, whatever the env's controller
-    options. When the controller has target options on (reference velocity targets, physics-rate
-    reference), ``reference_velocity_pd`` is that controller with no policy correction: a
-    stronger no-learning baseline, reported beside the others, not instead of them.
+    ``reference`` and ``lookahead``: the reference now / one control step ahead as held PD
+    targets with zero velocity targets. When the env's controller has target options on
+    (reference velocity targets, physics-rate reference) they are measured with the env's
+    default controller (``env.thesis_pd()``: thesis gains and targets), and
+    ``reference_velocity_pd`` is the env's own controller with no policy correction: a stronger
+    no-learning baseline, reported beside the others, not instead of them.
     """
     thesis_pd = getattr(env, "thesis_pd", contextlib.nullcontext)
     with thesis_pd():

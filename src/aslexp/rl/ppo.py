@@ -58,6 +58,9 @@ class PPOConfig:
     eval_steps: int = 300
     max_minutes: float | None = None
     target_reward: float | None = None  # stop once the evaluation reward exceeds this
+    # Environment steps during which only the critic learns: a policy that starts near a good
+    # controller (residual actions) is otherwise moved by advantages that are mostly critic error.
+    critic_warmup_steps: int = 0
     torch_threads: int = 1
 
     @classmethod
@@ -202,9 +205,12 @@ class PPOTrainer:
             for start in range(0, len(batch), cfg.minibatch_size):
                 minibatch = batch[order[start:start + cfg.minibatch_size]]
                 losses = self.loss(minibatch)
-                total = losses["loss_objective"] + losses["loss_critic"]
-                if "loss_entropy" in losses.keys():
-                    total = total + losses["loss_entropy"]
+                if self.steps <= cfg.critic_warmup_steps:
+                    total = losses["loss_critic"]
+                else:
+                    total = losses["loss_objective"] + losses["loss_critic"]
+                    if "loss_entropy" in losses.keys():
+                        total = total + losses["loss_entropy"]
                 self.optimizer.zero_grad()
                 total.backward()
                 torch.nn.utils.clip_grad_norm_(self.loss.parameters(), cfg.max_grad_norm)
@@ -235,7 +241,8 @@ class PPOTrainer:
         start, elapsed_before = time.perf_counter(), self.elapsed
         next_eval = (self.steps // cfg.eval_interval + 1) * cfg.eval_interval
         stopped = "total_steps"
-        last_eval = self.history[-1]["eval_reward"] if self.history else float("nan")
+        # The last row may be a rollout without an evaluation (a run stopped by max_minutes).
+        last_eval = next((h["eval_reward"] for h in reversed(self.history) if "eval_reward" in h), float("nan"))
         progress_path = self.out_dir / "progress.csv"
         while self.steps < cfg.total_steps:
             t0 = time.perf_counter()

@@ -25,6 +25,26 @@ def _pyplot():
     return plt
 
 
+def per_joint_trajectory(trajectory: dict[str, np.ndarray], layout) -> dict[str, np.ndarray]:
+    """One column per joint for :func:`plot_tracking`: a revolute joint's angle and speed, a
+    spherical joint's rotation angle from the identity, 2 acos|w| (rad), and angular speed |w|."""
+    out = dict(trajectory)
+    for q_key, v_key in (("q_sim", "qd_sim"), ("q_ref", "qd_ref")):
+        q, qd = np.asarray(trajectory[q_key]), np.asarray(trajectory[v_key])
+        pos, vel, offset, voffset = [], [], 0, 0
+        for joint in layout.joints:
+            if joint.dof == 1:
+                pos.append(q[:, offset])
+                vel.append(qd[:, voffset])
+                offset, voffset = offset + 1, voffset + 1
+            else:
+                pos.append(2.0 * np.arccos(np.clip(np.abs(q[:, offset]), 0.0, 1.0)))
+                vel.append(np.linalg.norm(qd[:, voffset:voffset + 3], axis=1))
+                offset, voffset = offset + 4, voffset + 3
+        out[q_key], out[v_key] = np.stack(pos, axis=1), np.stack(vel, axis=1)
+    return out
+
+
 def plot_tracking(trajectory: dict[str, np.ndarray], joint_names: list[str], path: str | Path,
                   title: str = "") -> Path:
     """Per-joint reference vs simulated position and velocity (thesis figures 5.6 and 5.10)."""

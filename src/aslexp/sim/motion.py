@@ -129,6 +129,19 @@ class Motion:
 
     def sample(self, t: float) -> np.ndarray:
         """The frame at time ``t`` (seconds), linearly interpolated; quaternions nlerp'd."""
+        # An environment step asks for the same few times several times (targets, reward,
+        # observation): a small cache of the last frames (a copy is returned, the cache stays).
+        cache = self.__dict__.setdefault("_sample_cache", {})
+        hit = cache.get(t)
+        if hit is not None:
+            return hit.copy()
+        out = self._sample(t)
+        if len(cache) >= 8:
+            cache.pop(next(iter(cache)))
+        cache[t] = out
+        return out.copy()
+
+    def _sample(self, t: float) -> np.ndarray:
         i, frac = self._locate(t)
         if self.num_frames == 1:
             return self.frames[0].copy()

@@ -50,7 +50,7 @@ class ReferenceMotion:
         and writes it (``getJointStateMultiDof``): log(conj(q_i) q_i+1) / dt_i.
         """
         i, _ = self.motion._locate(t)
-        return self._joint_velocity[i]
+        return self._joint_velocity[i].copy()
 
     def _joint_velocity_table(self) -> np.ndarray:
         motion, layout = self.motion, self.layout

@@ -184,16 +184,19 @@ class Character:
         return (np.asarray(pos), np.asarray([orn[3], orn[0], orn[1], orn[2]]),
                 np.asarray(lin), np.asarray(ang))
 
-    def link_states(self, velocities: bool = True) -> np.ndarray:
+    def link_states(self, velocities: bool = True, links: list[int] | None = None) -> np.ndarray:
         """Per link (all non-base links): world position, orientation (w x y z), lin/ang velocity.
 
-        Shape (num_links, 13); the orientation is the link frame's, positions its origin.
+        Shape (num_links, 13); the orientation is the link frame's, positions its origin. With
+        ``links`` only those rows are read from PyBullet (the others stay zero): the environment
+        asks for the links it observes and rewards, not all of them.
         """
         pb = self.world.client
-        states = pb.getLinkStates(self.id, list(range(self.num_links)),
+        indices = list(range(self.num_links)) if links is None else list(links)
+        states = pb.getLinkStates(self.id, indices,
                                   computeLinkVelocity=int(velocities), computeForwardKinematics=1)
         out = np.zeros((self.num_links, 13))
-        for i, s in enumerate(states):
+        for i, s in zip(indices, states):
             out[i, 0:3] = s[4]
             x, y, z, w = s[5]
             out[i, 3:7] = (w, x, y, z)
@@ -204,8 +207,8 @@ class Character:
 
     def end_effector_positions(self, links: np.ndarray | None = None) -> np.ndarray:
         """World positions of the end-effector tips, shape (num_end_effectors, 3)."""
-        if links is None:
-            links = self.link_states(velocities=False)
+        if links is None:  # only the end-effector links (the reference character's question)
+            links = self.link_states(velocities=False, links=self.end_effector_links)
         tips = links[self.end_effector_links]
         return tips[:, 0:3] + quat_rotate(tips[:, 3:7], self.end_effector_offset)
 

@@ -37,8 +37,8 @@ _RNN_DEFAULTS = {"hidden_size": 128, "num_layers": 2, "bidirectional": True, "dr
 DEFAULT_PARAMS: dict[str, dict[str, Any]] = {
     "majority": {},
     "stratified": {},
-    "logreg": {"C": 1.0, "max_iter": 2000, "pooling": "none", "standardize": True},
-    "svm": {"C": 1.0, "kernel": "rbf", "gamma": "scale", "pooling": "none", "standardize": True},
+    "logreg": {"C": 1.0, "max_iter": 2000, "pooling": "mean_std", "standardize": True},
+    "svm": {"C": 1.0, "kernel": "rbf", "gamma": "scale", "pooling": "mean_std", "standardize": True},
     "mlp": {"hidden_sizes": [256, 128], "dropout": 0.3},
     "lstm": dict(_RNN_DEFAULTS),
     "gru": dict(_RNN_DEFAULTS),
@@ -55,11 +55,11 @@ DEFAULT_PARAMS: dict[str, dict[str, Any]] = {
     "cnn3d": {
         "channels": [16, 32, 64],
         "dropout": 0.3,
-        "heatmap_size": 32,
+        "heatmap_size": 20,
         "sigma": 0.08,
         "sum_joints": False,
         "xy_channels": [0, 1],
-        "frame_stride": 2,
+        "frame_stride": 4,
     },
 }
 
