@@ -184,7 +184,8 @@ def _assert_each_trial_ran_once(sweep: Path, study, n_trials: int) -> set[int]:
 def test_two_workers_started_by_hand_share_one_journal(tmp_path: Path) -> None:
     sweep = tmp_path / "sweep"
     sweep.mkdir()
-    procs = [subprocess.Popen(sweep_command(sweep, "hydra.sweeper.n_trials=8", "sleep=0.25"),
+    # Trials long enough (1 s) that a worker still starting up on a loaded 2-core machine gets some.
+    procs = [subprocess.Popen(sweep_command(sweep, "hydra.sweeper.n_trials=8", "sleep=1.0"),
                               cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                               text=True) for _ in range(2)]
     for proc in procs:
@@ -196,7 +197,7 @@ def test_two_workers_started_by_hand_share_one_journal(tmp_path: Path) -> None:
 
 def test_n_workers_spawns_asynchronous_workers(tmp_path: Path) -> None:
     sweep = tmp_path / "sweep"
-    run_sweep(sweep, "hydra.sweeper.n_trials=6", "hydra.sweeper.n_workers=2", "sleep=0.25")
+    run_sweep(sweep, "hydra.sweeper.n_trials=6", "hydra.sweeper.n_workers=2", "sleep=1.0")
     pids = _assert_each_trial_ran_once(sweep, load_study(sweep), 6)
     assert len(pids) == 2
 
@@ -205,7 +206,7 @@ def test_two_workers_share_one_postgresql_study(tmp_path: Path, pg_url: str) -> 
     sweep = tmp_path / "sweep"
     name = f"test_{uuid.uuid4().hex[:10]}"
     overrides = [f"hydra.sweeper.storage='{pg_url}'", f"hydra.sweeper.study_name={name}",
-                 "hydra.sweeper.n_trials=6", "hydra.sweeper.n_workers=2", "sleep=0.25"]
+                 "hydra.sweeper.n_trials=6", "hydra.sweeper.n_workers=2", "sleep=1.0"]
     run_sweep(sweep, *overrides)
     study = load_study(sweep, storage=pg_url, name=name)
     assert len(_assert_each_trial_ran_once(sweep, study, 6)) == 2

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 import hydra
+from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
@@ -107,8 +108,12 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None) -> dict[str, Any]
     if cfg.get("plots", True):
         report.plot_tracking(final.trajectory, joint_names, out_dir / "tracking.png",
                              f"{cfg['motion']['name']}: learned policy (reward {final.mean_reward:.3f})")
+        # This run's controller driven by the reference one step ahead (the thesis-controller
+        # baselines in metrics.json are the bar; with controller options they differ).
+        controller = HydraConfig.get().runtime.choices.get("controller", "?") if HydraConfig.initialized() else "?"
         report.plot_tracking(look.trajectory, joint_names, out_dir / "tracking_baseline.png",
-                             f"{cfg['motion']['name']}: one-step-lookahead baseline (reward {look.mean_reward:.3f})")
+                             f"{cfg['motion']['name']}: reference one step ahead, controller {controller} "
+                             f"(reward {look.mean_reward:.3f})")
         report.plot_reward_curve(trainer.history, base, out_dir / "reward_curve.png",
                                  f"{cfg['motion']['name']} (seed {cfg.get('seed')})")
     if frames_every and "frames" in final.trajectory:
