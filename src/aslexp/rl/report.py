@@ -164,14 +164,20 @@ def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None) 
     fig.tight_layout()
     fig.savefig(out_dir / "letters_curves.png", dpi=90)
     plt.close(fig)
-    with open(out_dir / "letters_table.csv", "w", newline="", encoding="utf-8") as fh:
+    table = write_table(rows, out_dir, "letters_table")
+    return {"rows": rows, "table": table}
+
+
+def write_table(rows: list[dict], out_dir: Path, stem: str) -> str:
+    """Write ``rows`` as ``<stem>.csv`` and ``<stem>.md`` in ``out_dir``; return the Markdown."""
+    with open(out_dir / f"{stem}.csv", "w", newline="", encoding="utf-8") as fh:
         writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
     header = "| " + " | ".join(rows[0]) + " |\n|" + "---|" * len(rows[0]) + "\n"
     table = header + "".join("| " + " | ".join(str(v) for v in r.values()) + " |\n" for r in rows)
-    (out_dir / "letters_table.md").write_text(table, encoding="utf-8")
-    return {"rows": rows, "table": table}
+    (out_dir / f"{stem}.md").write_text(table, encoding="utf-8")
+    return table
 
 
 def finite_or_none(value: float | None) -> float | None:

@@ -9,11 +9,10 @@ and adds the thesis column; writes ``signs_table.{md,csv}`` beside ``letters_cur
 
 from __future__ import annotations
 
-import csv
 from pathlib import Path
 from typing import Any
 
-from aslexp.rl.report import summarize_letters
+from aslexp.rl.report import summarize_letters, write_table
 
 # Thesis table 6.7, run 2: mean reward of the trained policies (multiplicative reward).
 THESIS_TABLE_6_7 = {"00433": 0.868, "52861": 0.853, "69318": 0.745, "69546": 0.842}
@@ -31,13 +30,7 @@ def summarize_signs(sweep_dir: str | Path, out_dir: str | Path | None = None) ->
         rows.append({"sign": f"{motion} ({GLOSSES.get(motion, '?')})", **{k: v for k, v in row.items() if k != "motion"},
                      "thesis_table_6_7": thesis,
                      "reached_thesis": None if thesis is None else row["best_eval_mean"] >= thesis})
-    with open(out_dir / "signs_table.csv", "w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    header = "| " + " | ".join(rows[0]) + " |\n|" + "---|" * len(rows[0]) + "\n"
-    table = header + "".join("| " + " | ".join(str(v) for v in r.values()) + " |\n" for r in rows)
-    (out_dir / "signs_table.md").write_text(table, encoding="utf-8")
+    table = write_table(rows, out_dir, "signs_table")
     return {"rows": rows, "table": table}
 
 
