@@ -151,32 +151,43 @@ def main(cfg: DictConfig) -> float:
         return float(metrics["best_eval"])
 
 
-class LettersSummary(Callback):
-    """Hydra callback of the letters experiment: mean/std curves and the table after a multirun."""
+class _MultirunSummary(Callback):
+    """After a multirun: the experiment's summary table and curves in the sweep folder."""
+
+    kind = ""
+
+    def summarize(self, sweep_dir: Path) -> dict:
+        raise NotImplementedError
 
     def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+        sweep_dir = Path(config.hydra.sweep.dir)
+        try:
+            summary = self.summarize(sweep_dir)
+            log.info("%s summary in %s\n%s", self.kind, sweep_dir, summary["table"])
+        except FileNotFoundError as exc:
+            log.warning("no %s summary: %s", self.kind, exc)
+
+
+class LettersSummary(_MultirunSummary):
+    """The letters experiment: mean/std curves per letter and the results table."""
+
+    kind = "letters"
+
+    def summarize(self, sweep_dir: Path) -> dict:
         from aslexp.rl.report import summarize_letters
 
-        sweep_dir = Path(config.hydra.sweep.dir)
-        try:
-            summary = summarize_letters(sweep_dir)
-            log.info("letters summary in %s\n%s", sweep_dir, summary["table"])
-        except FileNotFoundError as exc:
-            log.warning("no letters summary: %s", exc)
+        return summarize_letters(sweep_dir)
 
 
-class SignsSummary(Callback):
-    """Hydra callback of the signs experiment: curves and the table beside thesis table 6.7."""
+class SignsSummary(_MultirunSummary):
+    """The signs experiment: curves and the table beside thesis table 6.7."""
 
-    def on_multirun_end(self, config: DictConfig, **kwargs: Any) -> None:
+    kind = "signs"
+
+    def summarize(self, sweep_dir: Path) -> dict:
         from aslexp.rl.upper_body_report import summarize_signs
 
-        sweep_dir = Path(config.hydra.sweep.dir)
-        try:
-            summary = summarize_signs(sweep_dir)
-            log.info("signs summary in %s\n%s", sweep_dir, summary["table"])
-        except FileNotFoundError as exc:
-            log.warning("no signs summary: %s", exc)
+        return summarize_signs(sweep_dir)
 
 
 if __name__ == "__main__":
