@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from aslexp.sim.urdf import HandProportions, _link, _vec, finger_chains_urdf
+from aslexp.sim.urdf import HandProportions, _link, _vec, finger_chains_urdf, write_urdf_text
 
 PYBULLET_DATA_PREFIX = "pybullet_data:"
 
@@ -123,9 +123,4 @@ def build_upper_body_urdf(proportions: UpperBodyProportions | None = None) -> st
 
 def write_upper_body_urdf(path: str | os.PathLike, proportions: UpperBodyProportions | None = None) -> Path:
     """Write the built upper body to ``path`` (atomically) and return the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(build_upper_body_urdf(proportions), encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return write_urdf_text(path, build_upper_body_urdf(proportions))

@@ -167,14 +167,19 @@ def finger_chains_urdf(hp: HandProportions, parent: str, prefix: str = "",
     return "".join(parts)
 
 
-def write_hand_urdf(path: str | os.PathLike, proportions: HandProportions | None = None) -> Path:
-    """Write the built hand to ``path`` (atomically) and return the path."""
+def write_urdf_text(path: str | os.PathLike, text: str) -> Path:
+    """Write URDF text to ``path`` atomically (a crash never leaves half a model) and return it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(build_hand_urdf(proportions), encoding="utf-8")
+    tmp.write_text(text, encoding="utf-8")
     os.replace(tmp, path)
     return path
+
+
+def write_hand_urdf(path: str | os.PathLike, proportions: HandProportions | None = None) -> Path:
+    """Write the built hand to ``path`` (atomically) and return the path."""
+    return write_urdf_text(path, build_hand_urdf(proportions))
 
 
 def read_joints(urdf: str | os.PathLike) -> list[JointInfo]:
