@@ -47,6 +47,7 @@ class EnvSpec:
     control_hz: float = 30.0
     gravity: tuple[float, float, float] = (0.0, -9.8, 0.0)
     solver_iterations: int = 10
+    non_contact_inner_iterations: int = 1
     episode_steps: int = 300
     reference_state_init: bool = True
     early_termination: dict[str, Any] = field(default_factory=lambda: {"min_reward": None})
@@ -169,7 +170,8 @@ class ImitationEnv(gym.Env):
         self.control_dt = 1.0 / self.spec_env.control_hz
 
         # -- engine: a simulated character and a kinematic reference in separate worlds ----
-        physics = PhysicsConfig(self.spec_env.physics_hz, self.spec_env.gravity, self.spec_env.solver_iterations)
+        physics = PhysicsConfig(self.spec_env.physics_hz, self.spec_env.gravity, self.spec_env.solver_iterations,
+                                self.spec_env.non_contact_inner_iterations)
         root_pos, root_rot, _, _ = self.reference.root(0.0)
         self.sim_world = World(physics)
         self.ref_world = World(physics)

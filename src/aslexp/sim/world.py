@@ -29,6 +29,10 @@ class PhysicsConfig:
     physics_hz: float = 240.0
     gravity: tuple[float, float, float] = (0.0, -9.8, 0.0)
     solver_iterations: int = 10
+    # PyBullet's numNonContactInnerIterations: sweeps over the joint motors and limits inside each
+    # solver iteration. For long articulated chains (the upper body) 10 x 10 converges where 100 x 1
+    # does not (docs/imitation_upper_body.md, "Solver convergence").
+    non_contact_inner_iterations: int = 1
 
 
 @contextlib.contextmanager
@@ -58,7 +62,10 @@ class World:
             self.client = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
         self.client.setTimeStep(1.0 / self.physics.physics_hz)
         self.client.setGravity(*self.physics.gravity)
-        self.client.setPhysicsEngineParameter(numSolverIterations=int(self.physics.solver_iterations))
+        self.client.setPhysicsEngineParameter(
+            numSolverIterations=int(self.physics.solver_iterations),
+            numNonContactInnerIterations=int(self.physics.non_contact_inner_iterations),
+        )
 
     @property
     def timestep(self) -> float:
