@@ -27,14 +27,16 @@ def test_critic_warmup_trains_only_the_critic(tmp_path, motion_a):
     eval_env.close()
 
 
-def test_resume_after_a_rollout_without_evaluation(tmp_path, motion_a):
-    # A run stopped by max_minutes can end on a rollout row that has no evaluation.
+def test_a_run_stopped_by_the_clock_is_evaluated_and_resumes(tmp_path, motion_a):
+    # max_minutes can stop a run between evaluations: it is evaluated at the stop, so its best
+    # reward is defined, and a resumed run continues from there.
     env_cfg = {"action_mode": "residual", "residual_range": 0.2, "episode_steps": 40}
     env = ImitationEnv(motion_a, env=env_cfg)
     eval_env = ImitationEnv(motion_a, env={**env_cfg, "early_termination": {"min_reward": None}})
     first = PPOTrainer(env, eval_env, PPOConfig(**{**TINY, "max_minutes": 1e-9}), tmp_path, seed=0)
-    assert first.train().stopped == "max_minutes"
-    assert first.steps == 128 and "eval_reward" not in first.history[-1]
+    result = first.train()
+    assert result.stopped == "max_minutes" and first.steps == 128
+    assert "eval_reward" in first.history[-1] and 0.0 < result.best_eval <= 1.0
     second = PPOTrainer(env, eval_env, PPOConfig(**TINY), tmp_path, seed=0)
     second.restore(tmp_path / "checkpoints" / "last.pt")
     result = second.train()

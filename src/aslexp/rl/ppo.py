@@ -263,8 +263,10 @@ class PPOTrainer:
             }
             counters = getattr(self.env, "counters", {})
             row.update({f"count_{k}": v for k, v in counters.items()})
-            if self.steps >= next_eval or self.steps >= cfg.total_steps:
-                next_eval += cfg.eval_interval
+            time_up = cfg.max_minutes is not None and elapsed > 60 * cfg.max_minutes
+            # A run stopped by the clock is evaluated too: its best reward is never left undefined.
+            if self.steps >= next_eval or self.steps >= cfg.total_steps or time_up:
+                next_eval = (self.steps // cfg.eval_interval + 1) * cfg.eval_interval
                 last_eval, eval_terms = self.evaluate()
                 row["eval_reward"] = round(last_eval, 5)
                 row.update({f"eval_{k}": round(v, 5) for k, v in eval_terms.items()})
@@ -286,7 +288,7 @@ class PPOTrainer:
             if cfg.target_reward is not None and last_eval > cfg.target_reward:
                 stopped = "target_reward"
                 break
-            if cfg.max_minutes is not None and elapsed > 60 * cfg.max_minutes:
+            if time_up:
                 stopped = "max_minutes"
                 break
         self.elapsed = elapsed_before + time.perf_counter() - start

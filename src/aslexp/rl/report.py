@@ -114,11 +114,26 @@ def read_progress(run_dir: str | Path) -> list[dict[str, float]]:
         return [{k: float(v) for k, v in row.items() if v not in ("", None)} for row in csv.DictReader(fh)]
 
 
-def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None) -> dict[str, Any]:
+def first_above(progress: list[dict[str, Any]], value: float) -> tuple[int, float] | None:
+    """(steps, seconds) of the first evaluation whose reward is above ``value``, or None."""
+    for row in progress:
+        if "eval_reward" in row and row["eval_reward"] > value:
+            return int(row["step"]), float(row["seconds"])
+    return None
+
+
+# The hand's time-to-imitate goal (issue 3): every letter above 0.95 within 30 minutes and 2M steps.
+LETTERS_TARGET = 0.95
+
+
+def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None,
+                      targets: float | dict[str, float] | None = LETTERS_TARGET) -> dict[str, Any]:
     """Mean and std evaluation-reward curves per letter over seeds (thesis figure 5.9) and a table.
 
     Reads every run folder under ``sweep_dir`` holding ``metrics.json``; writes
     ``letters_curves.png``, ``letters_table.csv`` and ``letters_table.md`` to ``out_dir``.
+    ``targets`` (one value or one per motion) adds how many seeds passed it and the median steps
+    and seconds until they did.
     """
     sweep_dir = Path(sweep_dir)
     out_dir = Path(out_dir or sweep_dir)
@@ -157,6 +172,17 @@ def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None) 
             "minutes_mean": round(float(np.mean([m["seconds"] for m in items])) / 60, 1),
             "passed_lookahead": f"{sum(1 for m in items if m.get('steps_to_lookahead') is not None)}/{len(items)}",
         })
+        strong = [m["baselines"]["reference_velocity_pd"] for m in items if "reference_velocity_pd" in m["baselines"]]
+        if strong:
+            rows[-1]["baseline_reference_velocity_pd"] = round(float(np.mean(strong)), 4)
+        target = targets.get(str(letter)) if isinstance(targets, dict) else targets
+        if target is not None:
+            passed = [p for p in (first_above(m["progress"], target) for m in items) if p is not None]
+            rows[-1].update({
+                "target": target, "passed_target": f"{len(passed)}/{len(items)}",
+                "median_steps_to_target": int(np.median([p[0] for p in passed])) if passed else None,
+                "median_minutes_to_target": round(float(np.median([p[1] for p in passed])) / 60, 2) if passed else None,
+            })
     ax.set_xlabel("environment steps")
     ax.set_ylabel("evaluation reward (mean ± std over seeds)")
     ax.set_title("imitation per letter (dotted: one-step-lookahead baseline)")
@@ -170,8 +196,10 @@ def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None) 
 
 def write_table(rows: list[dict], out_dir: Path, stem: str) -> str:
     """Write ``rows`` as ``<stem>.csv`` and ``<stem>.md`` in ``out_dir``; return the Markdown."""
+    keys = list(dict.fromkeys(k for row in rows for k in row))  # rows may lack optional columns
+    rows = [{k: row.get(k) for k in keys} for row in rows]
     with open(out_dir / f"{stem}.csv", "w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer = csv.DictWriter(fh, fieldnames=keys)
         writer.writeheader()
         writer.writerows(rows)
     header = "| " + " | ".join(rows[0]) + " |\n|" + "---|" * len(rows[0]) + "\n"
