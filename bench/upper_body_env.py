@@ -1,16 +1,22 @@
 """Upper-body imitation environment speed: where the time goes, naive loop vs the environment.
 
     nice -n 19 python bench/upper_body_env.py [--steps 300] [--motion motions/upper_body/00433.txt]
+    nice -n 19 python bench/upper_body_env.py --convergence [--steps 300]
 
-Prints control steps/s (8 physics substeps each) for
+Speed (default) prints control steps/s (8 physics substeps each) for
   * raw physics: the thesis model PD-driven through the motion (targets precomputed, array motor
     calls), with the components switched off one at a time (self collision, motors, solver
     iterations) to show what each costs;
   * a naive loop: the environment's work done the way the DeepMimic/thesis code does it (one
     PyBullet call per joint for motors, resets and joint states, one per link for link states,
-    all links of both characters read every step);
+    all links of both characters read every step), once with the configured solver and once with
+    200 plain iterations (what a plain solver needs to converge, giving the same rewards);
   * the environment (array calls, only the links it observes and rewards, cached motion samples);
-and checks that the naive loop and the environment produce the same rewards (same physics).
+and checks that the naive loops and the environment produce the same rewards.
+``--convergence`` prints the no-learning baselines (thesis controller one step ahead; the
+reference-velocity controller with no correction) on the four signs for several solver settings
+(iterations x non-contact inner iterations): the rewards a converged solve gives, and which
+settings reach them.
 One process, torch threads 1; the machine's load is printed (other jobs share the 2 cores).
 """
 
@@ -31,11 +37,12 @@ from aslexp.sim.world import Character, PhysicsConfig, World  # noqa: E402
 
 
 def raw_physics(env: UpperBodyImitationEnv, steps: int, self_collision: bool = True, motors: bool = True,
-                solver_iterations: int | None = None) -> float:
-    """Control steps/s of the physics alone (PD targets precomputed, array motor calls)."""
+                solver: tuple[int, int] | None = None) -> float:
+    """Control steps/s of the physics alone (PD targets precomputed, array motor calls);
+    ``solver``: (iterations, non-contact inner iterations), default the env's."""
     spec = env.spec_env
-    iterations = solver_iterations or spec.solver_iterations
-    world = World(PhysicsConfig(spec.physics_hz, spec.gravity, iterations))
+    iterations, inner = solver or (spec.solver_iterations, spec.non_contact_inner_iterations)
+    world = World(PhysicsConfig(spec.physics_hz, spec.gravity, iterations, inner))
     body = type(env.body_spec)(**{**env.body_spec.__dict__, "self_collision": self_collision})
     char = Character(world, env.urdf, body, env.layout, *env.reference.root(0.0)[:2])
     char.set_state(env.reference.joints(0.0))
@@ -144,39 +151,81 @@ def env_loop(env: UpperBodyImitationEnv, steps: int) -> tuple[float, list[float]
     return steps / (time.perf_counter() - start), rewards
 
 
+SIGNS = ("00433", "52861", "69318", "69546")
+SOLVERS = ((10, 1), (50, 1), (200, 1), (5, 10), (10, 10))
+
+
+def convergence(args: argparse.Namespace) -> None:
+    """No-learning baselines per solver setting: which settings give the converged rewards."""
+    from aslexp.rl.evaluate import evaluate, reference_policy
+
+    print(f"mean reward over {args.steps} control steps from phase 0 (multiplicative reward), "
+          f"thesis controller one step ahead | reference-velocity controller, no correction")
+    print("| solver (iterations x inner) | controller | " + " | ".join(SIGNS) + " | control steps/s (median) |")
+    print("|---|---|" + "---|" * len(SIGNS) + "---|")
+    for iterations, inner in SOLVERS:
+        for controller in ("upper_body", "upper_body_reference_velocity"):
+            rewards, rates = [], []
+            for sign in SIGNS:
+                env = UpperBodyImitationEnv(
+                    f"motions/upper_body/{sign}.txt", body=args.body, controller=controller,
+                    env={"action_mode": "residual", "residual_range": 0.2, "reference_lookahead": 1,
+                         "early_termination": {"min_reward": None}, "solver_iterations": iterations,
+                         "non_contact_inner_iterations": inner})
+                start = time.perf_counter()
+                rewards.append(evaluate(env, reference_policy(1), args.steps).mean_reward)
+                rates.append(args.steps / (time.perf_counter() - start))
+                env.close()
+            print(f"| {iterations} x {inner} | {controller} | " + " | ".join(f"{r:.3f}" for r in rewards)
+                  + f" | {np.median(rates):.0f} |", flush=True)
+    print(f"(load {os.getloadavg()[0]:.1f})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--motion", default="motions/upper_body/00433.txt")
     parser.add_argument("--body", default="upper_body_thesis")
-    parser.add_argument("--solver-iterations", type=int, default=None, help="override conf/env/upper_body")
+    parser.add_argument("--convergence", action="store_true", help="rewards per solver setting (see above)")
     args = parser.parse_args()
     import torch
 
     torch.set_num_threads(1)
+    if args.convergence:
+        convergence(args)
+        return
     overrides = {"episode_steps": args.steps + 1, "reference_state_init": False}
-    if args.solver_iterations:
-        overrides["solver_iterations"] = args.solver_iterations
     env = UpperBodyImitationEnv(args.motion, body=args.body, env=overrides)
-    n, sub = args.steps, env.spec_env.substeps
+    plain = UpperBodyImitationEnv(args.motion, body=args.body,
+                                  env={**overrides, "solver_iterations": 200, "non_contact_inner_iterations": 1})
+    n, sub, spec = args.steps, env.spec_env.substeps, env.spec_env
+    solver = (spec.solver_iterations, spec.non_contact_inner_iterations)
     print(f"body {args.body}: {env.sim.num_links} links, {env.layout.num_joints} actuated joints, "
-          f"{env.spec_env.physics_hz:g} Hz physics, {sub} substeps, {env.spec_env.solver_iterations} solver "
-          f"iterations; control steps/s (physics steps/s = x {sub})")
-    rows = [("raw physics (thesis flags)", raw_physics(env, n)),
+          f"{spec.physics_hz:g} Hz physics, {sub} substeps, solver {solver[0]} iterations x {solver[1]} "
+          f"non-contact inner iterations; control steps/s (physics steps/s = x {sub})")
+    rows = [(f"raw physics, solver {solver[0]} x {solver[1]} (thesis flags)", raw_physics(env, n)),
             ("raw physics, no self collision", raw_physics(env, n, self_collision=False)),
             ("raw physics, no motors", raw_physics(env, n, motors=False)),
-            ("raw physics, 10 solver iterations", raw_physics(env, n, solver_iterations=10))]
+            ("raw physics, solver 1 x 1", raw_physics(env, n, solver=(1, 1))),
+            ("raw physics, solver 200 x 1", raw_physics(env, n, solver=(200, 1)))]
     naive_rate, naive_rewards = NaiveLoop(env).run(n)
+    plain_rate, plain_rewards = NaiveLoop(plain).run(n)
     env_rate, env_rewards = env_loop(env, n)
-    rows += [("naive loop (per-joint/per-link calls)", naive_rate), ("environment", env_rate)]
+    rows += [(f"naive loop, solver {solver[0]} x {solver[1]}", naive_rate),
+             ("naive loop, solver 200 x 1 (converged)", plain_rate),
+             (f"environment, solver {solver[0]} x {solver[1]}", env_rate)]
     for label, rate in rows:
-        print(f"  {label:42s} {rate:8.1f} control steps/s  ({rate * sub:8.0f} physics steps/s)")
-    diff = np.max(np.abs(np.asarray(naive_rewards) - np.asarray(env_rewards)))
-    print(f"environment / naive: {env_rate / naive_rate:.2f}x; max |reward difference| over {n} steps: {diff:.2e} "
-          f"(mean reward {np.mean(env_rewards):.4f})")
+        print(f"  {label:46s} {rate:8.1f} control steps/s  ({rate * sub:8.0f} physics steps/s)")
+    same = np.max(np.abs(np.asarray(naive_rewards) - np.asarray(env_rewards)))
+    converged = np.abs(np.mean(plain_rewards) - np.mean(env_rewards))
+    print(f"environment / naive loop, same solver: {env_rate / naive_rate:.2f}x; max |reward difference| per step "
+          f"{same:.2e}")
+    print(f"environment / naive loop with the 200-iteration solve: {env_rate / plain_rate:.2f}x; mean reward "
+          f"{np.mean(env_rewards):.4f} vs {np.mean(plain_rewards):.4f} (|difference| {converged:.4f})")
     print(f"(one process, torch threads 1, cpu count {os.cpu_count()}, load {os.getloadavg()[0]:.1f}, "
           f"pybullet API {pybullet.getAPIVersion()})")
     env.close()
+    plain.close()
 
 
 if __name__ == "__main__":
