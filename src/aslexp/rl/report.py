@@ -185,7 +185,7 @@ def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None,
             })
     ax.set_xlabel("environment steps")
     ax.set_ylabel("evaluation reward (mean ± std over seeds)")
-    ax.set_title("imitation per letter (dotted: one-step-lookahead baseline)")
+    ax.set_title("evaluation reward per motion (dotted: one-step-lookahead baseline)")
     ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(out_dir / "letters_curves.png", dpi=90)
