@@ -147,9 +147,12 @@ def test_sigint_marks_the_running_trial_interrupted_and_resume_completes(tmp_pat
     sweep = tmp_path / "sweep"
     # A budget the sweep cannot finish before the signal, however slowly this machine polls: with
     # 4 trials a late poll could see the last trial running and signal a process that had exited.
+    # SIG_DFL in the child: a shell's background job (`cmd &`, as CI runners may start the suite)
+    # ignores SIGINT, the ignore is inherited, and Python then installs no KeyboardInterrupt.
     proc = subprocess.Popen(sweep_command(sweep, "hydra.sweeper.n_trials=30", "sleep=0.8"),
                             cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
+                            text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     def job_running() -> bool:
         running = [t for t in load_study(sweep).trials if t.state == TrialState.RUNNING] \
             if _count(sweep, TrialState.COMPLETE) >= 1 else []
