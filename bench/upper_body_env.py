@@ -33,7 +33,7 @@ import pybullet  # noqa: E402
 
 from aslexp.envs.upper_body import UpperBodyImitationEnv  # noqa: E402
 from aslexp.sim.pd import PDController  # noqa: E402
-from aslexp.sim.world import Character, PhysicsConfig, World  # noqa: E402
+from aslexp.sim.world import Character, PhysicsConfig, World, pack_joint_states, pack_link_states  # noqa: E402
 
 
 def raw_physics(env: UpperBodyImitationEnv, steps: int, self_collision: bool = True, motors: bool = True,
@@ -77,25 +77,14 @@ class NaiveLoop:
                 offset, voffset = offset + 4, voffset + 3
 
     def _joint_state(self, char: Character) -> tuple[np.ndarray, np.ndarray]:
-        pb, q, qd = char.world.client, [], []
-        for joint in char.layout.joints:
-            pos, vel, *_ = pb.getJointStateMultiDof(char.id, joint.index)
-            if joint.dof == 1:
-                q.append(pos[0])
-                qd.append(vel[0])
-            else:
-                q.extend([pos[3], pos[0], pos[1], pos[2]])
-                qd.extend(vel)
-        return np.asarray(q), np.asarray(qd)
+        pb = char.world.client
+        return pack_joint_states(char.layout.joints,
+                                 [pb.getJointStateMultiDof(char.id, joint.index) for joint in char.layout.joints])
 
     def _links(self, char: Character) -> np.ndarray:
-        pb, out = char.world.client, np.zeros((char.num_links, 13))
-        for i in range(char.num_links):
-            s = pb.getLinkState(char.id, i, computeLinkVelocity=1, computeForwardKinematics=1)
-            out[i, 0:3] = s[4]
-            out[i, 3:7] = (s[5][3], s[5][0], s[5][1], s[5][2])
-            out[i, 7:10], out[i, 10:13] = s[6], s[7]
-        return out
+        pb, indices = char.world.client, range(char.num_links)
+        states = [pb.getLinkState(char.id, i, computeLinkVelocity=1, computeForwardKinematics=1) for i in indices]
+        return pack_link_states(states, indices, char.num_links)
 
     def _apply(self, char: Character, targets: np.ndarray) -> None:
         pb, ctl, offset = char.world.client, self.env.controller, 0

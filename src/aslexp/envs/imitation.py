@@ -39,6 +39,10 @@ from aslexp.sim.reference import ReferenceMotion
 from aslexp.sim.world import Character, PhysicsConfig, World, quat_conjugate, quat_multiply
 
 
+# Rendering camera (TinyRenderer) looking at the mean link position: the hand's view.
+DEFAULT_CAMERA = {"distance": 0.5, "yaw": 90.0, "pitch": -10.0}
+
+
 @dataclass(frozen=True)
 class EnvSpec:
     """``conf/env/*.yaml`` as plain values."""
@@ -61,8 +65,7 @@ class EnvSpec:
     residual_velocity_range: float = 0.0  # rad/s; > 0 appends velocity-target corrections to the action
     # Links in the observation (fnmatch patterns on link names, URDF order); None: every link.
     observe_links: tuple[str, ...] | None = None
-    # Rendering camera (TinyRenderer), looking at the mean link position; the hand's defaults.
-    camera: dict[str, float] = field(default_factory=lambda: {"distance": 0.5, "yaw": 90.0, "pitch": -10.0})
+    camera: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_CAMERA))
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "EnvSpec":
@@ -219,11 +222,10 @@ class ImitationEnv(gym.Env):
         self._state_links = (None if self.spec_env.observe_links is None else
                              sorted(set(self.observed_links.tolist()) | set(self.sim.end_effector_links)))
         obs_size = 1 + 13 * len(self.observed_links) + len(self.spec_env.observe_future) * self.layout.action_size
-        velocity_size = self.velocity_size
         if self.spec_env.observe_future_velocities:
-            obs_size += len(self.spec_env.observe_future) * velocity_size
+            obs_size += len(self.spec_env.observe_future) * self.velocity_size
         if self.spec_env.observe_joints:
-            obs_size += self.layout.action_size + velocity_size
+            obs_size += self.layout.action_size + self.velocity_size
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(obs_size,), dtype=np.float32)
 
         # -- episode state and counters --------------------------------------------------
@@ -417,7 +419,7 @@ class ImitationEnv(gym.Env):
         """Reference (left) and simulation (right) side by side, PyBullet's TinyRenderer."""
         if self.render_mode != "rgb_array":
             return None
-        camera = {"distance": 0.5, "yaw": 90.0, "pitch": -10.0, **(self.spec_env.camera or {})}
+        camera = {**DEFAULT_CAMERA, **(self.spec_env.camera or {})}
         return np.concatenate([_snapshot(self.ref_world, self.ref, self.render_size, camera),
                                _snapshot(self.sim_world, self.sim, self.render_size, camera)], axis=1)
 
@@ -436,7 +438,7 @@ def _colour(character: Character, rgb: tuple[float, float, float]) -> None:
 
 def _snapshot(world: World, character: Character, size: tuple[int, int],
               camera: dict[str, float] | None = None) -> np.ndarray:
-    camera = camera or {"distance": 0.5, "yaw": 90.0, "pitch": -10.0}
+    camera = camera or DEFAULT_CAMERA
     pb = world.client
     base, _ = pb.getBasePositionAndOrientation(character.id)
     links = character.link_states(velocities=False)

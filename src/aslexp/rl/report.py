@@ -15,6 +15,10 @@ from typing import Any
 
 import numpy as np
 
+from aslexp.sim.world import quat_angle
+
+IDENTITY_WXYZ = np.array([1.0, 0.0, 0.0, 0.0])
+
 
 def _pyplot():
     import matplotlib
@@ -38,7 +42,7 @@ def per_joint_trajectory(trajectory: dict[str, np.ndarray], layout) -> dict[str,
                 vel.append(qd[:, voffset])
                 offset, voffset = offset + 1, voffset + 1
             else:
-                pos.append(2.0 * np.arccos(np.clip(np.abs(q[:, offset]), 0.0, 1.0)))
+                pos.append(quat_angle(q[:, offset:offset + 4], IDENTITY_WXYZ))
                 vel.append(np.linalg.norm(qd[:, voffset:voffset + 3], axis=1))
                 offset, voffset = offset + 4, voffset + 3
         out[q_key], out[v_key] = np.stack(pos, axis=1), np.stack(vel, axis=1)

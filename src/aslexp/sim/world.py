@@ -172,16 +172,7 @@ class Character:
             states = pb.getJointStates(self.id, self.joint_indices)
             return (np.fromiter((s[0] for s in states), np.float64, len(states)),
                     np.fromiter((s[1] for s in states), np.float64, len(states)))
-        q, qd = [], []
-        for joint, (pos, vel, *_rest) in zip(self.layout.joints,
-                                             pb.getJointStatesMultiDof(self.id, self.joint_indices)):
-            if joint.dof == 1:
-                q.append(pos[0])
-                qd.append(vel[0])
-            else:
-                q.extend([pos[3], pos[0], pos[1], pos[2]])
-                qd.extend(vel)
-        return np.asarray(q), np.asarray(qd)
+        return pack_joint_states(self.layout.joints, pb.getJointStatesMultiDof(self.id, self.joint_indices))
 
     def base_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Root position, orientation (w x y z), linear and angular velocity (world frame)."""
@@ -202,15 +193,7 @@ class Character:
         indices = list(range(self.num_links)) if links is None else list(links)
         states = pb.getLinkStates(self.id, indices,
                                   computeLinkVelocity=int(velocities), computeForwardKinematics=1)
-        out = np.zeros((self.num_links, 13))
-        for i, s in zip(indices, states):
-            out[i, 0:3] = s[4]
-            x, y, z, w = s[5]
-            out[i, 3:7] = (w, x, y, z)
-            if velocities:
-                out[i, 7:10] = s[6]
-                out[i, 10:13] = s[7]
-        return out
+        return pack_link_states(states, indices, self.num_links, velocities)
 
     def end_effector_positions(self, links: np.ndarray | None = None) -> np.ndarray:
         """World positions of the end-effector tips, shape (num_end_effectors, 3)."""
@@ -218,6 +201,34 @@ class Character:
             links = self.link_states(velocities=False, links=self.end_effector_links)
         tips = links[self.end_effector_links]
         return tips[:, 0:3] + quat_rotate(tips[:, 3:7], self.end_effector_offset)
+
+
+def pack_joint_states(joints, states) -> tuple[np.ndarray, np.ndarray]:
+    """PyBullet multi-DoF joint states (one per joint of ``joints``) as the motion layout's vectors:
+    positions (a spherical joint's quaternion as w x y z) and velocities (1 or 3 per joint)."""
+    q, qd = [], []
+    for joint, (pos, vel, *_rest) in zip(joints, states):
+        if joint.dof == 1:
+            q.append(pos[0])
+            qd.append(vel[0])
+        else:
+            q.extend([pos[3], pos[0], pos[1], pos[2]])
+            qd.extend(vel)
+    return np.asarray(q), np.asarray(qd)
+
+
+def pack_link_states(states, indices, num_links: int, velocities: bool = True) -> np.ndarray:
+    """PyBullet link states of the links ``indices`` as rows of a (num_links, 13) array: world
+    position, orientation (w x y z), linear and angular velocity; rows not read stay zero."""
+    out = np.zeros((num_links, 13))
+    for i, s in zip(indices, states):
+        out[i, 0:3] = s[4]
+        x, y, z, w = s[5]
+        out[i, 3:7] = (w, x, y, z)
+        if velocities:
+            out[i, 7:10] = s[6]
+            out[i, 10:13] = s[7]
+    return out
 
 
 def quat_rotate(q_wxyz: np.ndarray, v: np.ndarray) -> np.ndarray:
