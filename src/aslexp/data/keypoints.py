@@ -13,6 +13,7 @@ import numpy as np
 
 from aslexp.data.dataset import DataError, KeypointLayout
 from aslexp.data.root import resolve_data_root
+from aslexp.files import atomic_write_text
 from aslexp.pose.base import KeypointSource, check_clip
 from aslexp.pose.layouts import register_subsets, MEDIAPIPE_POSE
 
@@ -81,12 +82,10 @@ class MediaPipePoseNpySource:
 def write_layout(directory: str | Path, layout: KeypointLayout) -> Path:
     """Write ``layout.json`` so a folder of (T, V, C) arrays describes itself."""
     path = Path(directory) / LAYOUT_FILE
-    path.parent.mkdir(parents=True, exist_ok=True)
     payload = {"name": layout.name, "names": list(layout.names),
                "edges": [list(edge) for edge in layout.edges], "center": layout.center,
                "channels": list(layout.channels)}  # fmt: skip
-    path.write_text(json.dumps(payload, indent=1), encoding="utf-8")
-    return path
+    return atomic_write_text(path, json.dumps(payload, indent=1))
 
 
 def read_layout(path: str | Path) -> KeypointLayout:

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from aslexp.files import atomic_path
 
 FORMAT = "aslexp-ppo-1"
 
@@ -19,12 +20,10 @@ class CheckpointError(RuntimeError):
 def save_checkpoint(path: str | os.PathLike, payload: dict[str, Any]) -> Path:
     """Write ``payload`` to ``path`` via a temporary file; the old file becomes ``<name>.prev``."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save({"format": FORMAT, **payload}, tmp)
-    if path.exists():
-        shutil.copy2(path, path.with_suffix(path.suffix + ".prev"))
-    os.replace(tmp, path)
+    with atomic_path(path) as tmp:
+        torch.save({"format": FORMAT, **payload}, tmp)
+        if path.exists():
+            shutil.copy2(path, path.with_suffix(path.suffix + ".prev"))
     return path
 
 

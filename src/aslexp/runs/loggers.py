@@ -11,6 +11,7 @@ import logging
 import os
 from pathlib import Path
 from typing import Any, Protocol
+from aslexp.files import atomic_path
 
 log = logging.getLogger(__name__)
 
@@ -41,12 +42,10 @@ class CsvLogger:
         fields: list[str] = []
         for row in self.rows:
             fields += [k for k in row if k not in fields]
-        tmp = self.path.with_suffix(".csv.tmp")
-        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+        with atomic_path(self.path, make_parents=False) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:
             writer = csv.DictWriter(fh, fieldnames=fields)
             writer.writeheader()
             writer.writerows(self.rows)
-        os.replace(tmp, self.path)
 
     def close(self) -> None:
         return None

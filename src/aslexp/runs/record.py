@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
 from typing import Any
+from aslexp.files import atomic_path
 
 RUN_FILE = "run.json"
 METRICS_FILE = "metrics.json"
@@ -93,12 +94,9 @@ def _json_default(obj: Any) -> Any:
 
 def write_json(path: str | os.PathLike, payload: Any) -> None:
     """Write JSON atomically (a crash never leaves half a file)."""
-    path = Path(path)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
+    with atomic_path(path, make_parents=False) as tmp, open(tmp, "w", encoding="utf-8") as fh:
         json.dump(payload, fh, indent=2, default=_json_default, allow_nan=True)
         fh.write("\n")
-    os.replace(tmp, path)
 
 
 def read_json(path: str | os.PathLike) -> Any:

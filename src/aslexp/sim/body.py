@@ -18,6 +18,7 @@ from typing import Any
 
 from aslexp.sim.motion import ROOT_COLUMNS
 from aslexp.sim.urdf import HandProportions, JointInfo, read_joints
+from aslexp.files import atomic_write_text
 
 BUILDERS = ("hand15", "upper_body")
 
@@ -171,10 +172,7 @@ def resolve_urdf(spec: BodySpec, data_root: str | os.PathLike | None = None,
     folder = Path(cache_dir) if cache_dir else Path(tempfile.gettempdir()) / "aslexp-urdf"
     target = folder / f"{spec.builder}-{digest}.urdf"
     if not target.is_file():
-        folder.mkdir(parents=True, exist_ok=True)
-        tmp = target.with_suffix(f".{os.getpid()}.tmp")
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, target)
+        atomic_write_text(target, text)
     return target
 
 

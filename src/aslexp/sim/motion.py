@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+from aslexp.files import atomic_path
 
 log = logging.getLogger("aslexp.motion")
 LOOP_MODES = ("wrap", "none")
@@ -191,11 +192,8 @@ class Motion:
 def save_motion(motion: Motion, path: str | os.PathLike) -> Path:
     """Write ``motion`` to ``path`` in the DeepMimic JSON format; returns the path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8") as fh:
         json.dump(motion.to_dict(), fh)
-    os.replace(tmp, path)
     return path
 
 

@@ -12,6 +12,7 @@ import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
+from aslexp.files import atomic_write_text
 
 FINGERS = ("thumb", "index", "middle", "ring", "pinkie")
 PHALANGES = ("prox", "inter", "dist")
@@ -169,12 +170,7 @@ def finger_chains_urdf(hp: HandProportions, parent: str, prefix: str = "",
 
 def write_urdf_text(path: str | os.PathLike, text: str) -> Path:
     """Write URDF text to ``path`` atomically (a crash never leaves half a model) and return it."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return atomic_write_text(path, text)
 
 
 def write_hand_urdf(path: str | os.PathLike, proportions: HandProportions | None = None) -> Path:
