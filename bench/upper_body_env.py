@@ -6,7 +6,7 @@
 Speed (default) prints control steps/s (8 physics substeps each) for
   * raw physics: the thesis model PD-driven through the motion (targets precomputed, array motor
     calls), with the components switched off one at a time (self collision, motors, solver
-    iterations) to show what each costs;
+    iterations, collision detection) to show what each costs;
   * a naive loop: the environment's work done the way the DeepMimic/thesis code does it (one
     PyBullet call per joint for motors, resets and joint states, one per link for link states,
     all links of both characters read every step), once with the configured solver and once with
@@ -37,15 +37,19 @@ from aslexp.sim.world import Character, PhysicsConfig, World, pack_joint_states,
 
 
 def raw_physics(env: UpperBodyImitationEnv, steps: int, self_collision: bool = True, motors: bool = True,
-                solver: tuple[int, int] | None = None) -> float:
+                solver: tuple[int, int] | None = None, collision_detection: bool = True) -> float:
     """Control steps/s of the physics alone (PD targets precomputed, array motor calls);
-    ``solver``: (iterations, non-contact inner iterations), default the env's."""
+    ``solver``: (iterations, non-contact inner iterations), default the env's;
+    ``collision_detection=False`` takes every link out of collision detection (filter mask 0)."""
     spec = env.spec_env
     iterations, inner = solver or (spec.solver_iterations, spec.non_contact_inner_iterations)
     world = World(PhysicsConfig(spec.physics_hz, spec.gravity, iterations, inner))
     body = type(env.body_spec)(**{**env.body_spec.__dict__, "self_collision": self_collision})
     char = Character(world, env.urdf, body, env.layout, *env.reference.root(0.0)[:2])
     char.set_state(env.reference.joints(0.0))
+    if not collision_detection:
+        for link in range(-1, char.num_links):
+            world.client.setCollisionFilterGroupMask(char.id, link, 0, 0)
     controller = PDController(env.controller_spec, env.layout)
     targets = [env.reference.joints((k + 1) * env.control_dt) for k in range(steps)]
     start = time.perf_counter()
@@ -196,6 +200,9 @@ def main() -> None:
             ("raw physics, no self collision", raw_physics(env, n, self_collision=False)),
             ("raw physics, no motors", raw_physics(env, n, motors=False)),
             ("raw physics, solver 1 x 1", raw_physics(env, n, solver=(1, 1))),
+            ("raw physics, no motors, solver 1 x 1", raw_physics(env, n, motors=False, solver=(1, 1))),
+            ("raw physics, no motors, 1 x 1, no collision detection",
+             raw_physics(env, n, motors=False, solver=(1, 1), collision_detection=False)),
             ("raw physics, solver 200 x 1", raw_physics(env, n, solver=(200, 1)))]
     naive_rate, naive_rewards = NaiveLoop(env).run(n)
     plain_rate, plain_rewards = NaiveLoop(plain).run(n)
@@ -204,7 +211,7 @@ def main() -> None:
              ("naive loop, solver 200 x 1 (converged)", plain_rate),
              (f"environment, solver {solver[0]} x {solver[1]}", env_rate)]
     for label, rate in rows:
-        print(f"  {label:46s} {rate:8.1f} control steps/s  ({rate * sub:8.0f} physics steps/s)")
+        print(f"  {label:54s} {rate:8.1f} control steps/s  ({rate * sub:8.0f} physics steps/s)")
     same = np.max(np.abs(np.asarray(naive_rewards) - np.asarray(env_rewards)))
     converged = np.abs(np.mean(plain_rewards) - np.mean(env_rewards))
     print(f"environment / naive loop, same solver: {env_rate / naive_rate:.2f}x; max |reward difference| per step "
