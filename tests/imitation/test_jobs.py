@@ -67,3 +67,19 @@ def test_tune_pd_with_thesis_gains_tracks_well(tmp_path):
     run_job("tune_pd", "tuning.motion=motions/hand/tuning_motion.txt", f"hydra.run.dir={tmp_path}")
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["pose_error"] < 0.05 and not metrics["diverged"]
+
+
+def test_tune_pd_measures_a_controller_with_target_options(tmp_path):
+    # The reference-velocity controller builds its own targets from the reference (it needs a
+    # residual action): tune_pd runs it with no correction and sweeps its velocity scale.
+    run_job("tune_pd", "controller=reference_velocity", "tuning.kp=0.4", "tuning.kd=1.0",
+            "tuning.velocity_scale=0.8", "tuning.random.seconds=1.0", f"hydra.run.dir={tmp_path / 'rv'}")
+    run_job("tune_pd", "tuning.random.seconds=1.0", f"hydra.run.dir={tmp_path / 'thesis'}")
+    rv = json.loads((tmp_path / "rv" / "metrics.json").read_text())
+    thesis = json.loads((tmp_path / "thesis" / "metrics.json").read_text())
+    assert rv["controller_options"] and not thesis["controller_options"]
+    assert rv["velocity_scale"] == 0.8 and rv["gains"]["default"]["kp"] == 0.4
+    # Same random reference: feeding the reference velocity tracks it far better than held targets.
+    assert rv["objective"] < 0.5 * thesis["objective"] and not rv["diverged"]
+    saved = (tmp_path / "rv" / "controller.yaml").read_text()
+    assert "velocity_scale: 0.8" in saved and "target_rate: physics" in saved

@@ -4,10 +4,16 @@
     aslexp tune_pd tuning.kp=0.5 tuning.kd=1.0       # other gains
     aslexp tune_pd -m +sweeps=pd_gains_1             # Optuna (TPE) over kp, kd in [0, 1]
 
+    aslexp tune_pd -m +sweeps=pd_gains_reference_velocity   # kp, kd, velocity_scale of the
+                                                            # reference-velocity controller
+
 The objective (minimised) is mean |position error| + mean |velocity error| while the PD targets
-follow the reference one control step ahead; the reference is a random smooth motion
-(``tuning.motion: random``) or a motion file. Each run writes ``controller.yaml``: the gains as
-a `controller` config, ready to copy into conf/controller/ when it is the sweep's best.
+follow the reference: one control step ahead for the thesis controller; for a controller with
+target options (``target_velocity: reference``, ``target_rate: physics``) the environment runs
+with ``action_mode: residual`` and no correction, so the controller's own targets are what is
+measured. The reference is a random smooth motion (``tuning.motion: random``) or a motion file.
+Each run writes ``controller.yaml``: the gains as a `controller` config, ready to copy into
+conf/controller/ when it is the sweep's best.
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ def tune_pd(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     from aslexp.envs.tracking import pd_tracking_error
     from aslexp.sim.body import BodySpec, load_layout
     from aslexp.sim.motion import random_motion
+    from aslexp.sim.pd import ControllerSpec
 
     tuning = cfg["tuning"]
     data_root = resolve_data_root(cfg.get("data_root"))
@@ -43,6 +50,9 @@ def tune_pd(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     controller = deep_merge(controller, {"name": "tuned", "groups": {"default": default | overrides}})
     if overrides:  # the swept gains apply to every group
         controller["groups"] = {g: v | overrides for g, v in controller["groups"].items()}
+    if tuning.get("velocity_scale") is not None:
+        controller["velocity_scale"] = float(tuning["velocity_scale"])
+    plain = ControllerSpec.from_dict(controller).is_thesis_pd
     if tuning["motion"] == "random":
         _, layout = load_layout(BodySpec.from_dict(cfg["body"]), data_root)
         rnd = tuning.get("random") or {}
@@ -52,16 +62,21 @@ def tune_pd(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
                                seed=int(rnd.get("seed", 0)))
     else:
         motion = tuning["motion"]
-    env_cfg = deep_merge(cfg["env"], {"early_termination": {"min_reward": None}, "action_mode": "absolute",
-                                      "reference_state_init": False})
+    # The thesis controller gets absolute targets `lookahead` steps ahead; a controller with target
+    # options builds its targets from the reference itself, under a zero residual correction.
+    env_cfg = deep_merge(cfg["env"], {"early_termination": {"min_reward": None},
+                                      "action_mode": "absolute" if plain else "residual",
+                                      "residual_velocity_range": 0.0, "reference_state_init": False})
     env = ImitationEnv(motion, body=cfg["body"], controller=controller, reward=cfg["reward"], env=env_cfg,
                        data_root=data_root, complete_configs=True)  # Hydra composed every group
-    result = pd_tracking_error(env, tuning.get("steps"), int(tuning.get("lookahead", 1)))
+    lookahead = int(tuning.get("lookahead", 1)) if plain else env.spec_env.reference_lookahead
+    result = pd_tracking_error(env, tuning.get("steps"), lookahead)
     env.close()
     with open(out_dir / "controller.yaml", "w", encoding="utf-8") as fh:
         fh.write(f"# from aslexp tune_pd: objective {result['objective']:.5f}\n")
         yaml.safe_dump(controller, fh, sort_keys=False)
-    return {**result, "gains": controller["groups"]}
+    return {**result, "gains": controller["groups"], "velocity_scale": controller.get("velocity_scale", 1.0),
+            "controller_options": not plain}
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="tune_pd")
