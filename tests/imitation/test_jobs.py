@@ -8,7 +8,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import optuna
 import pytest
+
+from aslexp.tuning.storage import open_storage
 
 ROOT = Path(__file__).resolve().parents[2]
 SMALL = ["env=residual", "ppo=fast", "ppo.hidden_sizes=[32,32]", "ppo.steps_per_rollout=256",
@@ -52,10 +55,15 @@ def test_imitate_trains_writes_figures_and_resumes(tmp_path):
 
 def test_tune_pd_sweep_runs_a_few_trials(tmp_path):
     sweep = tmp_path / "sweep"
-    run_job("tune_pd", "-m", "+sweeps=pd_gains_1", "hydra.sweeper.n_trials=3", "tuning.random.seconds=1.0",
+    run_job("tune_pd", "-m", "+sweeps=pd_gains_1", "hydra.sweeper.n_trials=7", "tuning.random.seconds=1.0",
             f"hydra.sweep.dir={sweep}")
     trials = sorted(p for p in sweep.iterdir() if p.is_dir() and (p / "metrics.json").is_file())
-    assert len(trials) == 3
+    assert len(trials) == 7
+    # One objective value at the end of each trial, no intermediate report: a pruner never
+    # discards a finished trial (past the median pruner's 5 startup trials it would).
+    study = optuna.load_study(study_name="pd_gains_1", storage=open_storage(str(sweep / "optuna.journal")))
+    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 7
+    assert all(t.intermediate_values == {} for t in study.trials)
     for trial in trials:
         metrics = json.loads((trial / "metrics.json").read_text())
         gains = metrics["gains"]["default"]

@@ -28,7 +28,6 @@ from omegaconf import DictConfig
 
 from aslexp.data.root import resolve_data_root
 from aslexp.jobs._common import CONF_DIR, begin, run_dir, seed_everything, to_dict
-from aslexp.tuning.context import trial_reporter
 
 log = logging.getLogger("aslexp.tune_pd")
 
@@ -87,7 +86,8 @@ def main(cfg: DictConfig) -> float:
         metrics = tune_pd(to_dict(cfg), run_dir())
         run.save_metrics(metrics)
         run.set_main_metric("tracking_error", metrics["objective"], "minimize")
-        trial_reporter(cfg).report(metrics["objective"], 0)
+        # No trial_reporter here: the objective is one value at the end, so a pruner could only
+        # discard a finished trial (a median pruner marked 26 of 40 as pruned before this).
         log.info("kp/kd %s: objective %.5f (pose %.5f rad, velocity %.5f rad/s, reward %.4f)",
                  metrics["gains"].get("default"), metrics["objective"], metrics["pose_error"],
                  metrics["velocity_error"], metrics["reward"])
