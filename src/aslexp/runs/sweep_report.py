@@ -75,6 +75,8 @@ def write_report(study: optuna.Study, sweep_dir: Path, out_dir: Path | None = No
     import matplotlib.pyplot as plt
     from optuna.visualization import matplotlib as ovm
 
+    # choice() values reach matplotlib as strings; it logs one INFO line per such axis.
+    logging.getLogger("matplotlib.category").setLevel(logging.WARNING)
     out_dir = Path(out_dir) if out_dir else Path(sweep_dir) / REPORT_DIR
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
