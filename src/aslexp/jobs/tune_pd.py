@@ -51,7 +51,8 @@ def tune_pd(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
         controller["groups"] = {g: v | overrides for g, v in controller["groups"].items()}
     if tuning.get("velocity_scale") is not None:
         controller["velocity_scale"] = float(tuning["velocity_scale"])
-    plain = ControllerSpec.from_dict(controller).is_thesis_pd
+    spec = ControllerSpec.from_dict(controller)
+    plain = spec.is_thesis_pd
     if tuning["motion"] == "random":
         _, layout = load_layout(BodySpec.from_dict(cfg["body"]), data_root)
         rnd = tuning.get("random") or {}
@@ -74,7 +75,7 @@ def tune_pd(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     with open(out_dir / "controller.yaml", "w", encoding="utf-8") as fh:
         fh.write(f"# from aslexp tune_pd: objective {result['objective']:.5f}\n")
         yaml.safe_dump(controller, fh, sort_keys=False)
-    return {**result, "gains": controller["groups"], "velocity_scale": controller.get("velocity_scale", 1.0),
+    return {**result, "gains": controller["groups"], "velocity_scale": spec.velocity_scale,
             "controller_options": not plain}
 
 

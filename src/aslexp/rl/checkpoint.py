@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+
 from aslexp.files import atomic_path
 
 FORMAT = "aslexp-ppo-1"

@@ -11,6 +11,7 @@ import logging
 import os
 from pathlib import Path
 from typing import Any, Protocol
+
 from aslexp.files import atomic_path
 
 log = logging.getLogger(__name__)

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
 from typing import Any
+
 from aslexp.files import atomic_path
 
 RUN_FILE = "run.json"

@@ -16,9 +16,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from aslexp.files import atomic_write_text
 from aslexp.sim.motion import ROOT_COLUMNS
 from aslexp.sim.urdf import HandProportions, JointInfo, read_joints
-from aslexp.files import atomic_write_text
 
 BUILDERS = ("hand15", "upper_body")
 

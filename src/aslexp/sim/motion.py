@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
+
 from aslexp.files import atomic_path
 
 log = logging.getLogger("aslexp.motion")

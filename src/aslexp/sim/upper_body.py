@@ -17,7 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from aslexp.sim.urdf import HandProportions, _link, _vec, finger_chains_urdf, write_urdf_text
+from aslexp.files import atomic_write_text
+from aslexp.sim.urdf import HandProportions, _link, _vec, finger_chains_urdf
 
 PYBULLET_DATA_PREFIX = "pybullet_data:"
 
@@ -123,4 +124,4 @@ def build_upper_body_urdf(proportions: UpperBodyProportions | None = None) -> st
 
 def write_upper_body_urdf(path: str | os.PathLike, proportions: UpperBodyProportions | None = None) -> Path:
     """Write the built upper body to ``path`` (atomically) and return the path."""
-    return write_urdf_text(path, build_upper_body_urdf(proportions))
+    return atomic_write_text(path, build_upper_body_urdf(proportions))

@@ -12,6 +12,7 @@ import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
+
 from aslexp.files import atomic_write_text
 
 FINGERS = ("thumb", "index", "middle", "ring", "pinkie")
@@ -168,14 +169,9 @@ def finger_chains_urdf(hp: HandProportions, parent: str, prefix: str = "",
     return "".join(parts)
 
 
-def write_urdf_text(path: str | os.PathLike, text: str) -> Path:
-    """Write URDF text to ``path`` atomically (a crash never leaves half a model) and return it."""
-    return atomic_write_text(path, text)
-
-
 def write_hand_urdf(path: str | os.PathLike, proportions: HandProportions | None = None) -> Path:
     """Write the built hand to ``path`` (atomically) and return the path."""
-    return write_urdf_text(path, build_hand_urdf(proportions))
+    return atomic_write_text(path, build_hand_urdf(proportions))
 
 
 def read_joints(urdf: str | os.PathLike) -> list[JointInfo]:
