@@ -4,7 +4,7 @@
     aslexp imitate motion=A env=residual ppo=fast seed=1      # fast settings for this hardware
     aslexp imitate motion=A ppo.total_steps=0                 # baselines and plots only
     aslexp imitate hydra.run.dir=outputs/imitate/X +resume=outputs/imitate/X   # continue a run
-    aslexp imitate -m +experiment=letters                     # letters x seeds (figure 5.9)
+    aslexp imitate -m experiment=letters                     # letters x seeds (figure 5.9)
 
 The run folder gets: metrics.json (baselines, best/last evaluation, steps, seconds, steps per
 second, counts of NaN actions / divergences / early ends, steps and seconds to pass the
