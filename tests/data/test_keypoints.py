@@ -5,11 +5,10 @@ import numpy as np
 import pytest
 
 from aslexp.data.dataset import DataError
-from aslexp.data.keypoints import (DirectoryKeypointSource, MediaPipePoseNpySource,
-                                   open_keypoint_source, write_layout)
-from aslexp.pose.base import KeypointSource, SubsetSource
-from aslexp.pose.importers import PublishedArraySource, write_published_arrays
-from aslexp.pose.layouts import MEDIAPIPE_POSE, SIGN27, induced_edges, subset_layout
+from aslexp.data.keypoints import open_keypoint_source
+from aslexp.keypoints import (MEDIAPIPE_POSE, SIGN27, DirectoryKeypointSource, KeypointSource, SubsetSource,
+                              induced_edges, subset_layout, write_layout)
+from aslexp.keypoints.published import PublishedArraySource, write_published_arrays
 
 KEYPOINT_DIR = "keypoints/wlasl-mediapipe-pose"
 
@@ -35,7 +34,7 @@ def test_mediapipe_source_marks_no_detection_frames(mediapipe):
 def test_mediapipe_bad_shapes(tmp_path, data_root):
     np.save(tmp_path / "wrong.npy", np.zeros((10, 99)))
     np.save(tmp_path / "empty.npy", np.zeros((0, 132)))
-    source = MediaPipePoseNpySource(tmp_path)
+    source = open_keypoint_source("mediapipe_pose_npy", path=tmp_path)
     with pytest.raises(DataError) as error:
         source.load("wrong")
     assert "wrong.npy" in str(error.value) and "(T, 132)" in str(error.value)

@@ -33,18 +33,18 @@ import numpy as np
 from tqdm import tqdm
 
 from aslexp.data.dataset import DataError, KeypointLayout, RecognitionDataset
-from aslexp.data.keypoints import open_keypoint_source, read_layout, write_layout
+from aslexp.data.keypoints import open_keypoint_source
 from aslexp.data.lexicon import check_property, lexicon_spec, load_lexicon
 from aslexp.data.matching import match_glosses
 from aslexp.data.preprocess import PADDINGS, preprocess_clips
 from aslexp.data.root import resolve_data_root
 from aslexp.data.splits import RARE_RULES, SPLIT_KINDS, make_splits
 from aslexp.data.wlasl import load_wlasl
-from aslexp.pose.base import SubsetSource
+from aslexp.keypoints import SubsetSource, read_layout, write_layout
 
 log = logging.getLogger(__name__)
 
-# Bump when the artefacts or the built-in layouts (pose/layouts.py) change: cached builds are keyed on it.
+# Bump when the artefacts or the built-in layouts (keypoints/layouts.py) change: cached builds are keyed on it.
 FORMAT_VERSION = 2
 SPLIT_FILES = ("train", "val", "train+val", "test")
 MANIFEST = "manifest.json"
@@ -58,10 +58,10 @@ class WlaslLexParams:
 
     lexicon: str = "asllex2"  # asllex1 | asllex2
     property: str = "sign_type"  # one of lexicon.PROPERTIES
-    source: str = "mediapipe_pose_npy"  # mediapipe_pose_npy | directory | published
+    source: str = "mediapipe_pose_npy"  # a registered source: aslexp.keypoints.source_names()
     source_path: str | None = None  # folder or array; None = the default of the source
     source_options: dict = field(default_factory=dict)  # e.g. {"ids": ..., "layout": ...}
-    subset: str = "all"  # keypoint subset of the layout (pose.layouts.SUBSETS)
+    subset: str = "all"  # keypoint subset of the layout (aslexp.keypoints.subset_names)
     channels: tuple[str, ...] | None = None  # None = all channels of the source
     split: str = "phoneme"  # phoneme | gloss | cv5
     length: int = 150

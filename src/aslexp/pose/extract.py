@@ -30,7 +30,7 @@ from collections import Counter
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
-from aslexp.pose import holistic
+from aslexp.keypoints import holistic
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
 WORKER = Path(__file__).resolve().parent / "mediapipe_worker.py"

@@ -7,8 +7,8 @@ with the MediaPipe environment's python and the two exchange files only:
     python mediapipe_worker.py extract JOBS.json     # one JSON event per line on stdout
     python mediapipe_worker.py overlay JOBS.json
 
-This file imports nothing from aslexp except ``holistic.py`` (standard library only, loaded by
-path) so that it runs without the package being installed in this environment.
+This file imports nothing from aslexp except ``keypoints/holistic.py`` (standard library only,
+loaded by path) so that it runs without the package being installed in this environment.
 
 Per video it writes, atomically (temporary name, then rename; the status JSON last):
 
@@ -41,7 +41,7 @@ _HERE = Path(__file__).resolve().parent
 
 
 def _load_holistic():
-    spec = importlib.util.spec_from_file_location("_aslexp_holistic", _HERE / "holistic.py")
+    spec = importlib.util.spec_from_file_location("_aslexp_holistic", _HERE.parent / "keypoints" / "holistic.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aslexp.pose import holistic as H
+from aslexp.keypoints import holistic as H
 
 MP_TO_HUMANOID = np.array([[0.0, 0.0, -1.0], [0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]])
 
