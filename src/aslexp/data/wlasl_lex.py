@@ -140,7 +140,7 @@ def build_wlasl_lex(
         else:
             candidates.append((instance, match.entry))
 
-    clips, loaded = [], []
+    clips, loaded, first_error = [], [], None
     for instance, entry in tqdm(candidates, desc="keypoints", unit="clip", mininterval=2,
                                 leave=False, disable=len(candidates) < 500):  # fmt: skip
         try:
@@ -150,10 +150,15 @@ def build_wlasl_lex(
                 raise
             log.warning("skipping video %s: %s", instance.video_id, error)
             skipped["bad_keypoint_file"] += 1
+            first_error = first_error or error
             continue
         clips.append(clip[..., channel_index])
         loaded.append((instance, entry))
-    zero_frames = getattr(source.source, "zero_frames", {})
+    if candidates and not loaded:  # every file is wrong for this source: say why, not "too few clips"
+        raise DataError(f"keypoint source {params.source!r} could read none of its {len(candidates)} "
+                        f"labelled clips; the first: {first_error} (files in another format need "
+                        "their source and layout: conf/pose/array_folder.yaml, pose=mediapipe_hands, ...)")  # fmt: skip
+    zero_frames = getattr(source.source, "zero_frames", {})  # sources that mark all-zero frames
     if zero_frames:
         total = sum(zero_frames.get(i.video_id, 0) for i, _ in loaded)
         log.info("%d all-zero frames (no detection) in %d clips marked missing", total, len(loaded))
