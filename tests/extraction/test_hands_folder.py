@@ -75,3 +75,26 @@ def test_arrays_that_fit_no_layout_say_so(hand_folders, data_root):
     message = str(error.value)
     assert "could read none of its 6" in message and "shape (10, 126)" in message and "(T, 132)" in message
     assert "\n" not in message and "array_folder" in message
+
+
+def test_recognize_on_a_folder_of_pose_files(wlasl6, data_root, tmp_path):
+    """The README's .pose route: `aslexp extract ... --format pose`, then
+    `aslexp recognize pose=pose_format pose.path=DIR` (here on ten frames of the six clips)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    out, _ = wlasl6
+    run_dir = tmp_path / "run"
+    proc = subprocess.run(
+        [sys.executable, "-m", "aslexp.cli", "recognize", "pose=pose_format", f"pose.path={out}",
+         "classifier=logreg", "split.rare_classes=train_only", "data.num_frames=16", f"hydra.run.dir={run_dir}"],
+        cwd=CONF_DIR.rsplit("/conf", 1)[0], capture_output=True, text=True, timeout=300,
+        env={**os.environ, "ASLEXP_CACHE_DIR": str(tmp_path / "cache"), "MPLBACKEND": "Agg"},
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    assert metrics["context"]["pose"] == "pose_format" and metrics["context"]["num_clips"] == 6
+    manifest = json.loads(next((tmp_path / "cache").glob("wlasl_lex-*/manifest.json")).read_text())
+    assert manifest["layout"] == "mediapipe_holistic_thesis27" and manifest["shape"]["V"] == 27

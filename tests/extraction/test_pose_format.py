@@ -139,7 +139,7 @@ def test_retargeting_a_pose_without_metric_hands(extracted, pose_dir, tmp_path):
                                                expected_columns=R.UPPER_FILE_VALUES).frames)  # fmt: skip
     np.testing.assert_allclose(got["right_elbow"], expected["right_elbow"], atol=1e-4)
     # Without any world component the image is lifted (shoulders 0.36 m): still a bent right arm,
-    # if less bent than the world pose says (MediaPipe's image depth is flatter): 0.79 vs 1.3 rad.
+    # if less bent than the world pose says (MediaPipe's image depth is flatter): 0.79 vs 1.50 rad.
     write_holistic_pose(tmp_path / "image_only.pose", np.load(out / f"{CLIP}.npy"), 25.0, 480, 320)
     lifted = R.retarget_video(tmp_path / "image_only.pose", out_dir=tmp_path / "lifted")
     joints = R.upper_body_joints(load_motion(lifted["upper_body"]["path"], expected_columns=R.UPPER_FILE_VALUES).frames)
