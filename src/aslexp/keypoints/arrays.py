@@ -26,7 +26,6 @@ from aslexp.files import atomic_write_text
 from aslexp.keypoints.layout import KeypointLayout
 from aslexp.keypoints.layouts import MEDIAPIPE_POSE
 from aslexp.keypoints.registry import register_source, register_subsets, resolve_layout
-from aslexp.keypoints.source import check_clip
 
 log = logging.getLogger(__name__)
 
