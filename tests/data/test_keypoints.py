@@ -5,11 +5,10 @@ import numpy as np
 import pytest
 
 from aslexp.data.dataset import DataError
-from aslexp.data.keypoints import (DirectoryKeypointSource, MediaPipePoseNpySource,
-                                   open_keypoint_source, write_layout)
-from aslexp.pose.base import KeypointSource, SubsetSource
-from aslexp.pose.importers import PublishedArraySource, write_published_arrays
-from aslexp.pose.layouts import MEDIAPIPE_POSE, SIGN27, induced_edges, subset_layout
+from aslexp.data.keypoints import open_keypoint_source
+from aslexp.keypoints import (MEDIAPIPE_POSE, SIGN27, DirectoryKeypointSource, KeypointSource, SubsetSource,
+                              induced_edges, subset_layout, write_layout)
+from aslexp.keypoints.published import PublishedArraySource, write_published_arrays
 
 KEYPOINT_DIR = "keypoints/wlasl-mediapipe-pose"
 
@@ -35,7 +34,7 @@ def test_mediapipe_source_marks_no_detection_frames(mediapipe):
 def test_mediapipe_bad_shapes(tmp_path, data_root):
     np.save(tmp_path / "wrong.npy", np.zeros((10, 99)))
     np.save(tmp_path / "empty.npy", np.zeros((0, 132)))
-    source = MediaPipePoseNpySource(tmp_path)
+    source = open_keypoint_source("mediapipe_pose_npy", path=tmp_path)
     with pytest.raises(DataError) as error:
         source.load("wrong")
     assert "wrong.npy" in str(error.value) and "(T, 132)" in str(error.value)
@@ -98,3 +97,76 @@ def test_published_importer_roundtrip(tmp_path, mediapipe, ids_format):
     assert frankmocap.layout.name == "sign27"
     with pytest.raises(DataError, match="rows"):
         PublishedArraySource(array, ids[:3])
+
+
+def test_registering_a_layout_and_a_source(tmp_path):
+    """A new format from Python: a layout, a source factory, opened by name like the built-ins."""
+    from aslexp.keypoints import KeypointLayout, get_layout, register_layout, register_source, source_names
+
+    layout = register_layout(KeypointLayout.from_spec(
+        {"name": "test_three_points", "nodes": ["a", "b", "c"], "edges": [["a", "b"], [1, 2]], "center": "b",
+         "channels": ["x", "y"]}), subsets={"ends": (0, 2)})  # fmt: skip
+    assert get_layout("test_three_points") is layout and layout.center == 1 and layout.edges == ((0, 1), (1, 2))
+    assert subset_layout(layout, "ends")[0].edges == ((0, 1),)  # a-c through the dropped b
+
+    @register_source("test_csv", summary="<dir>/<id>.csv: T rows of x0, y0, x1, y1, x2, y2")
+    def open_csv(path, scale: float = 1.0):
+        from aslexp.keypoints import ArrayFolderSource
+
+        class CsvSource(ArrayFolderSource):
+            def available(self):
+                return {p.stem for p in self.directory.glob("*.csv")}
+
+            def load(self, video_id):
+                rows = np.loadtxt(self.directory / f"{video_id}.csv", delimiter=",", ndmin=2)
+                return (rows.reshape(len(rows), 3, 2) * scale).astype(np.float32)
+
+        return CsvSource(path, "test_three_points")
+
+    np.savetxt(tmp_path / "v1.csv", np.arange(12.0).reshape(2, 6), delimiter=",")
+    source = open_keypoint_source("test_csv", path=tmp_path, scale=2.0)
+    assert "test_csv" in source_names() and source.available() == {"v1"}
+    assert source.load("v1")[1, 2].tolist() == [20.0, 22.0]
+    with pytest.raises(DataError, match="already registered"):
+        register_layout(KeypointLayout("test_three_points", ("a",), (), 0, ("x",)))
+    with pytest.raises(DataError, match="do not fit"):
+        open_keypoint_source("test_csv", path=tmp_path, scael=2.0)
+    with pytest.raises(DataError, match="unknown keypoint source 'nope'.*array_folder"):
+        open_keypoint_source("nope", path=tmp_path)
+
+
+@pytest.mark.parametrize("spec, field", [
+    ({"name": "x", "nodes": ["a", "a"], "channels": ["x"]}, "repeats"),
+    ({"name": "x", "nodes": 2, "edges": [[0, 5]], "channels": ["x"]}, "'edges' refers to node 5"),
+    ({"name": "x", "nodes": 2, "edges": [["a", "b"]], "channels": ["x"]}, "'edges' refers to node 'a'"),
+    ({"name": "x", "nodes": 2, "channels": []}, "'channels'"),
+    ({"name": "x", "nodes": 0, "channels": ["x"]}, "'nodes'"),
+    ({"nodes": 2, "channels": ["x"]}, "'name'"),
+])  # fmt: skip
+def test_yaml_layout_mistakes_name_the_field(spec, field):
+    from aslexp.keypoints import KeypointLayout
+
+    with pytest.raises(DataError, match=field) as error:
+        KeypointLayout.from_spec(spec, "conf/pose/mine.yaml")
+    assert str(error.value).startswith("conf/pose/mine.yaml: ")
+
+
+def test_a_plug_in_registers_through_its_entry_point(tmp_path, monkeypatch):
+    """An installed package that declares `[aslexp.keypoints]` in its entry points (a real
+    dist-info on sys.path here) is loaded the first time an unknown name is asked for."""
+    import sys
+
+    from aslexp.keypoints import get_layout, registry
+
+    (tmp_path / "aslexp_test_plugin.py").write_text(
+        "from aslexp.keypoints import KeypointLayout, register_layout\n"
+        "def register():\n"
+        "    register_layout(KeypointLayout('plugin_pair', ('p', 'q'), ((0, 1),), 0, ('x', 'y')))\n")  # fmt: skip
+    info = tmp_path / "aslexp_test_plugin-0.1.dist-info"
+    info.mkdir()
+    (info / "METADATA").write_text("Metadata-Version: 2.1\nName: aslexp-test-plugin\nVersion: 0.1\n")
+    (info / "entry_points.txt").write_text("[aslexp.keypoints]\npair = aslexp_test_plugin:register\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(registry, "_entry_points_loaded", False)
+    assert get_layout("plugin_pair").names == ("p", "q")
+    sys.modules.pop("aslexp_test_plugin", None)

@@ -4,11 +4,12 @@ import numpy as np
 import pytest
 
 from aslexp.data.dataset import DataError
-from aslexp.data.keypoints import open_keypoint_source, write_layout
+from aslexp.data.keypoints import open_keypoint_source
+from aslexp.keypoints import write_layout
 from aslexp.data.matching import match_glosses
 from aslexp.data.wlasl_lex import (WlaslLexParams, build_or_load, build_wlasl_lex, cache_key,
                                    load_wlasl_lex)
-from aslexp.pose.importers import PublishedArraySource
+from aslexp.keypoints.published import PublishedArraySource
 
 
 def test_glosses_of_the_291_clips_in_each_lexicon(data_root, wlasl, lexicons):

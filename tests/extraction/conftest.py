@@ -81,3 +81,35 @@ def extracted_copy(extracted, tmp_path):
     copy = tmp_path / "keypoints"
     shutil.copytree(out, copy)
     return copy, jobs
+
+
+# Ten frames inside each of the six real clips, in WLASL's own JSON format (1-based, inclusive):
+# the `--wlasl` route end to end at a test's cost. 70212 shows only a title card in frames 18-68.
+SHORT_RANGES = {"book": {"68011": (20, 29), "68012": (40, 49), "70212": (75, 84), "70266": (50, 59)},
+                "wheelchair": {"63048": (40, 49)}, "whistle": {"63185": (20, 29)}}
+
+
+@pytest.fixture(scope="session")
+def wlasl6(worker_env, videos, tmp_path_factory):
+    """`aslexp extract --wlasl JSON --videos DIR --workers 2 --format pose` on ten frames of each
+    of the six clips: (out_dir, printed summary)."""
+    import contextlib
+    import io
+    import json
+
+    from aslexp.pose.extract_cli import extract_main
+
+    base = tmp_path_factory.mktemp("wlasl6")
+    wlasl_json = base / "wlasl_short.json"
+    wlasl_json.write_text(json.dumps([
+        {"gloss": gloss, "instances": [{"video_id": vid, "frame_start": start, "frame_end": end}
+                                       for vid, (start, end) in clips.items()]}
+        for gloss, clips in SHORT_RANGES.items()
+    ]))  # fmt: skip
+    out = base / "keypoints"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        rc = extract_main(["--wlasl", str(wlasl_json), "--videos", str(videos), "--out", str(out),
+                           "--workers", "2", "--format", "pose", "--quiet"])  # fmt: skip
+    assert rc == 0, printed.getvalue()
+    return out, printed.getvalue()

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from aslexp.pose import holistic as H
+from aslexp.keypoints import holistic as H
 from aslexp.pose import retarget as R
 from aslexp.pose.extract import ExtractOptions, extract_videos, read_status, render_overlays
 from aslexp.pose.extract_cli import extract_main

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from aslexp.data.keypoints import read_layout
-from aslexp.pose import holistic as H
+from aslexp.keypoints import read_layout
+from aslexp.keypoints import holistic as H
 from aslexp.pose.extract import write_layout_json
 
 

@@ -6,29 +6,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-
-class DataError(ValueError):
-    """Bad or inconsistent input data; the message names the file, the field and what was expected."""
-
-
-@dataclass(frozen=True)
-class KeypointLayout:
-    """A named set of keypoints and the skeleton graph over them.
-
-    ``edges`` are undirected (i, j) index pairs into ``names``; ``center`` is the node the
-    ST-GCN spatial partition measures distances from. ``channels`` names the last axis of the
-    keypoint arrays (e.g. ``("x", "y", "z", "visibility")``); empty when not known.
-    """
-
-    name: str
-    names: tuple[str, ...]
-    edges: tuple[tuple[int, int], ...]
-    center: int = 0
-    channels: tuple[str, ...] = ()
-
-    @property
-    def num_nodes(self) -> int:
-        return len(self.names)
+# The dataset carries a keypoint layout; both names are defined lower (keypoints/, errors.py).
+from aslexp.errors import DataError  # noqa: F401
+from aslexp.keypoints.layout import KeypointLayout
 
 
 @dataclass

@@ -33,18 +33,18 @@ import numpy as np
 from tqdm import tqdm
 
 from aslexp.data.dataset import DataError, KeypointLayout, RecognitionDataset
-from aslexp.data.keypoints import open_keypoint_source, read_layout, write_layout
+from aslexp.data.keypoints import open_keypoint_source
 from aslexp.data.lexicon import check_property, lexicon_spec, load_lexicon
 from aslexp.data.matching import match_glosses
 from aslexp.data.preprocess import PADDINGS, preprocess_clips
 from aslexp.data.root import resolve_data_root
 from aslexp.data.splits import RARE_RULES, SPLIT_KINDS, make_splits
 from aslexp.data.wlasl import load_wlasl
-from aslexp.pose.base import SubsetSource
+from aslexp.keypoints import SubsetSource, read_layout, write_layout
 
 log = logging.getLogger(__name__)
 
-# Bump when the artefacts or the built-in layouts (pose/layouts.py) change: cached builds are keyed on it.
+# Bump when the artefacts or the built-in layouts (keypoints/layouts.py) change: cached builds are keyed on it.
 FORMAT_VERSION = 2
 SPLIT_FILES = ("train", "val", "train+val", "test")
 MANIFEST = "manifest.json"
@@ -58,10 +58,10 @@ class WlaslLexParams:
 
     lexicon: str = "asllex2"  # asllex1 | asllex2
     property: str = "sign_type"  # one of lexicon.PROPERTIES
-    source: str = "mediapipe_pose_npy"  # mediapipe_pose_npy | directory | published
+    source: str = "mediapipe_pose_npy"  # a registered source: aslexp.keypoints.source_names()
     source_path: str | None = None  # folder or array; None = the default of the source
     source_options: dict = field(default_factory=dict)  # e.g. {"ids": ..., "layout": ...}
-    subset: str = "all"  # keypoint subset of the layout (pose.layouts.SUBSETS)
+    subset: str = "all"  # keypoint subset of the layout (aslexp.keypoints.subset_names)
     channels: tuple[str, ...] | None = None  # None = all channels of the source
     split: str = "phoneme"  # phoneme | gloss | cv5
     length: int = 150
@@ -140,7 +140,7 @@ def build_wlasl_lex(
         else:
             candidates.append((instance, match.entry))
 
-    clips, loaded = [], []
+    clips, loaded, first_error = [], [], None
     for instance, entry in tqdm(candidates, desc="keypoints", unit="clip", mininterval=2,
                                 leave=False, disable=len(candidates) < 500):  # fmt: skip
         try:
@@ -150,10 +150,15 @@ def build_wlasl_lex(
                 raise
             log.warning("skipping video %s: %s", instance.video_id, error)
             skipped["bad_keypoint_file"] += 1
+            first_error = first_error or error
             continue
         clips.append(clip[..., channel_index])
         loaded.append((instance, entry))
-    zero_frames = getattr(source.source, "zero_frames", {})
+    if candidates and not loaded:  # every file is wrong for this source: say why, not "too few clips"
+        raise DataError(f"keypoint source {params.source!r} could read none of its {len(candidates)} "
+                        f"labelled clips; the first: {first_error} (files in another format need "
+                        "their source and layout: conf/pose/array_folder.yaml, pose=mediapipe_hands, ...)")  # fmt: skip
+    zero_frames = getattr(source.source, "zero_frames", {})  # sources that mark all-zero frames
     if zero_frames:
         total = sum(zero_frames.get(i.video_id, 0) for i, _ in loaded)
         log.info("%d all-zero frames (no detection) in %d clips marked missing", total, len(loaded))

@@ -26,6 +26,7 @@ from omegaconf import DictConfig
 
 from aslexp.data.root import resolve_data_root
 from aslexp.jobs._common import CONF_DIR, begin, run_dir, seed_everything, to_dict
+from aslexp.runs.loggers import make_logger
 from aslexp.tuning.context import trial_reporter
 
 log = logging.getLogger("aslexp.imitate")
@@ -53,8 +54,11 @@ def _resume_path(resume: str | None) -> Path | None:
     return path / "checkpoints" / "last.pt" if path.is_dir() else path
 
 
-def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None) -> dict[str, Any]:
-    """The job without Hydra: train, evaluate, draw; returns the metrics."""
+def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=None) -> dict[str, Any]:
+    """The job without Hydra: train, evaluate, draw; returns the metrics. ``metric_logger`` (the
+    `logger` group) gets every rollout's and evaluation's row of the trainer's history."""
+    from aslexp.runs.loggers import HistoryLogger, MetricLogger
+
     import numpy as np
 
     from aslexp.rl.evaluate import baselines, evaluate
@@ -67,16 +71,22 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None) -> dict[str, Any]
     base = baselines(eval_env, ppo.eval_steps)
     log.info("motion %s: baselines %s", cfg["motion"]["name"], {k: round(v, 4) for k, v in base.items()})
 
+    history_logger: HistoryLogger | None = None
+
     def on_eval(step: int, value: float, row: dict[str, Any]) -> None:
+        history_logger.flush()  # the rollouts since the last evaluation, and this evaluation
         if reporter is not None:
             reporter.report(value, step)
 
     trainer = PPOTrainer(train_env, eval_env, ppo, out_dir, seed=int(cfg.get("seed") or 0), on_eval=on_eval)
+    history_logger = HistoryLogger(metric_logger or MetricLogger(), trainer.history)
     resume = _resume_path(cfg.get("resume"))
     if resume is not None:
         trainer.restore(resume)  # a corrupt or mismatched checkpoint stops here, before any training
     started = time.perf_counter()
+    history_logger.logged = len(trainer.history)  # a resumed run's earlier rows were logged then
     result = trainer.train() if ppo.total_steps > trainer.steps else None
+    history_logger.flush()  # rollouts after the last evaluation
     if result is None:
         result_eval, _ = trainer.evaluate()
         best_eval, last_eval, stopped = result_eval, result_eval, "no_training"
@@ -143,7 +153,11 @@ def main(cfg: DictConfig) -> float:
     torch.set_num_threads(int(cfg.ppo.get("torch_threads", 1)))
     with begin("imitate", cfg) as run:
         seed_everything(int(cfg.seed))
-        metrics = imitate(to_dict(cfg), run_dir(), trial_reporter(cfg))
+        metric_logger, metrics = make_logger(to_dict(cfg.logger), run_dir(), to_dict(cfg)), {}
+        try:
+            metrics = imitate(to_dict(cfg), run_dir(), trial_reporter(cfg), metric_logger)
+        finally:
+            metric_logger.close(metrics)
         run.save_metrics(metrics)
         run.set_main_metric("eval_reward", metrics["best_eval"], "maximize")
         log.info("best eval %.4f (lookahead baseline %.4f) after %d steps, %.0f s",

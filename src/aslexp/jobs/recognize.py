@@ -58,6 +58,7 @@ def recognize(cfg: DictConfig, run) -> float:
         reporter.report(val_mcc, epoch)
 
     seeds = [int(cfg.seed) + i for i in range(int(cfg.n_seeds))]
+    summary: dict = {}  # the logger's run summary (and TensorBoard hparams metrics)
     try:
         result = run_recognition(
             dataset,
@@ -67,8 +68,9 @@ def recognize(cfg: DictConfig, run) -> float:
             out_dir=run.dir,
             on_epoch_end=on_epoch_end,
         )
+        summary = {"val_mcc": result["val_mcc"], **{f"test_{k}": v for k, v in result.get("test", {}).items()}}
     finally:
-        metric_logger.close()
+        metric_logger.close(summary)
     result["context"] = {
         "property": cfg.property.name,
         "split": cfg.split.name,

@@ -28,6 +28,7 @@ from omegaconf import DictConfig
 
 from aslexp.data.root import resolve_data_root
 from aslexp.jobs._common import CONF_DIR, begin, run_dir, seed_everything, to_dict
+from aslexp.runs.loggers import make_logger
 
 log = logging.getLogger("aslexp.tune_pd")
 
@@ -84,7 +85,12 @@ def main(cfg: DictConfig) -> float:
     """Hydra entry point; returns the tracking objective (minimise)."""
     with begin("tune_pd", cfg) as run:
         seed_everything(int(cfg.seed))
-        metrics = tune_pd(to_dict(cfg), run_dir())
+        metric_logger, metrics = make_logger(to_dict(cfg.logger), run_dir(), to_dict(cfg)), {}
+        try:
+            metrics = tune_pd(to_dict(cfg), run_dir())
+            metric_logger.log(metrics, step=0)  # one evaluation: the tracking errors and reward
+        finally:
+            metric_logger.close(metrics)
         run.save_metrics(metrics)
         run.set_main_metric("tracking_error", metrics["objective"], "minimize")
         # No trial_reporter here: the objective is one value at the end, so a pruner could only

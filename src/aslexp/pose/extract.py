@@ -22,15 +22,21 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections import Counter
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
-from aslexp.pose import holistic
+import numpy as np
+
+from aslexp.files import atomic_write_text
+from aslexp.keypoints import holistic
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpeg")
 WORKER = Path(__file__).resolve().parent / "mediapipe_worker.py"
@@ -201,6 +207,41 @@ def collect_jobs(
     return result
 
 
+def parse_frames(text: str) -> tuple[str | None, int, int]:
+    """``START:END`` or ``VIDEO_ID=START:END`` -> (video id or None, start, end): 1-based and
+    inclusive like WLASL's frame_start/frame_end; END empty or -1 means to the end."""
+    video_id, _, span = text.rpartition("=") if "=" in text else (None, "", text)
+    try:
+        start_text, end_text = span.split(":")
+        start = int(start_text) if start_text.strip() else 1
+        end = int(end_text) if end_text.strip() else -1
+    except ValueError:
+        raise ExtractionError(f"--frames {text!r}: expected START:END or VIDEO_ID=START:END "
+                              "(1-based, inclusive; END -1 or empty = to the end), e.g. 1:60") from None  # fmt: skip
+    if start < 1 or (end != -1 and end < start):
+        raise ExtractionError(f"--frames {text!r}: expected 1 <= START <= END (or END = -1)")
+    return (video_id or None), start, end
+
+
+def apply_frame_ranges(jobs: list[VideoJob], ranges: list[tuple[str | None, int, int]]) -> list[VideoJob]:
+    """Cut jobs to ``--frames`` ranges: a range with a video id applies to that video (over any
+    WLASL range); one without applies to every video taken whole (WLASL clips keep theirs)."""
+    if not ranges:
+        return jobs
+    by_id = {vid: (start, end) for vid, start, end in ranges if vid is not None}
+    everyone = [(start, end) for vid, start, end in ranges if vid is None]
+    if len(everyone) > 1:
+        raise ExtractionError("--frames START:END given twice without a video id; use VIDEO_ID=START:END")
+    unknown = sorted(set(by_id) - {job.video_id for job in jobs})
+    if unknown:
+        raise ExtractionError(f"--frames names video id(s) {unknown} that are not among the inputs")
+    result = []
+    for job in jobs:
+        span = by_id.get(job.video_id) or (everyone[0] if everyone and job.frame_start is None else None)
+        result.append(replace(job, frame_start=span[0], frame_end=span[1]) if span else job)
+    return result
+
+
 # ----------------------------------------------------------------------------- worker
 
 
@@ -246,7 +287,8 @@ def _is_finished(job: VideoJob, out_dir: Path, options: ExtractOptions) -> dict 
 
 
 class Progress:
-    """One status line with videos done, frames, rate and ETA (on stderr)."""
+    """One status line with videos done, frames, rate and ETA (on stderr); thread-safe, one slot
+    per worker for the video it is on."""
 
     def __init__(self, total_videos: int, stream=None, enabled: bool = True):
         self.total_videos = total_videos
@@ -254,26 +296,28 @@ class Progress:
         self.enabled = enabled
         self.videos_done = 0
         self.frames_done = 0  # frames of finished videos
-        self.frames_current = 0
-        self.current_total = 0
+        self.current: dict[int, tuple[int, int]] = {}  # worker -> (frames done, frames in its video)
         self.start = time.perf_counter()
         self._last = 0.0
+        self._lock = threading.Lock()
         # A terminal gets one rewritten line; a log file a new line every few seconds.
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
         self.interval = 0.5 if self.tty else 5.0
 
-    def video_started(self, frames: int) -> None:
-        self.current_total, self.frames_current = frames, 0
+    def video_started(self, frames: int, worker: int = 0) -> None:
+        with self._lock:
+            self.current[worker] = (0, frames)
 
-    def frames(self, done: int) -> None:
-        self.frames_current = done
-        self._print()
+    def frames(self, done: int, worker: int = 0) -> None:
+        with self._lock:
+            self.current[worker] = (done, self.current.get(worker, (0, 0))[1])
+            self._print()
 
-    def video_done(self) -> None:
-        self.frames_done += self.frames_current
-        self.frames_current = self.current_total = 0
-        self.videos_done += 1
-        self._print(force=True)
+    def video_done(self, worker: int = 0) -> None:
+        with self._lock:
+            self.frames_done += self.current.pop(worker, (0, 0))[0]
+            self.videos_done += 1
+            self._print(force=True)
 
     def _print(self, force: bool = False) -> None:
         now = time.perf_counter()
@@ -281,9 +325,9 @@ class Progress:
             return
         self._last = now
         elapsed = now - self.start
-        frames = self.frames_done + self.frames_current
+        frames = self.frames_done + sum(done for done, _ in self.current.values())
         rate = frames / elapsed if elapsed > 0 else 0.0
-        progress = self.videos_done + (self.frames_current / self.current_total if self.current_total else 0)
+        progress = self.videos_done + sum(done / total for done, total in self.current.values() if total)
         eta = elapsed / progress * (self.total_videos - progress) if progress > 0 else float("nan")
         eta_text = time.strftime("%H:%M:%S", time.gmtime(eta)) if eta == eta else "?"
         self.stream.write(
@@ -300,8 +344,13 @@ class Progress:
             self.stream.flush()
 
 
-def _run_worker(command: str, spec: dict, log_path: Path, on_event) -> int:
-    """Run the worker on ``spec``; call ``on_event(dict)`` for each event line; return its rc."""
+def _run_worker(command: str, spec: dict, log_path: Path, on_event, next_job=None) -> int:
+    """Run the worker on ``spec``; call ``on_event(dict)`` for each event line; return its rc.
+
+    With ``next_job`` (a callable returning a job dict, or None when there is none left) the
+    jobs are fed one at a time on the worker's stdin: one when it starts and one after each
+    'done' event, so that several workers share one queue and stay busy until it is empty.
+    """
     python = mediapipe_python()
     with tempfile.NamedTemporaryFile("w", suffix=".json", delete=False) as fh:
         json.dump(spec, fh)
@@ -313,27 +362,72 @@ def _run_worker(command: str, spec: dict, log_path: Path, on_event) -> int:
         with open(log_path, "a") as log:
             proc = subprocess.Popen(
                 [str(python), str(WORKER), command, jobs_file],
+                stdin=subprocess.PIPE if next_job else subprocess.DEVNULL,
                 stdout=subprocess.PIPE, stderr=log, text=True, env=env,
             )  # fmt: skip
             assert proc.stdout is not None
+
+            def feed() -> None:
+                job = next_job()
+                try:
+                    if job is None:
+                        proc.stdin.close()
+                    else:
+                        proc.stdin.write(json.dumps(job) + "\n")
+                        proc.stdin.flush()
+                except (BrokenPipeError, OSError):  # the worker died: its exit code tells
+                    pass
+
+            if next_job:
+                feed()
             for line in proc.stdout:
                 line = line.strip()
                 if not line.startswith("{"):
                     continue
                 try:
-                    on_event(json.loads(line))
+                    event = json.loads(line)
                 except json.JSONDecodeError:
                     continue
+                on_event(event)
+                if next_job and event.get("event") == "done":
+                    feed()
             return proc.wait()
     finally:
         os.unlink(jobs_file)
 
 
 def write_layout_json(out_dir: str | os.PathLike) -> Path:
-    path = Path(out_dir) / "layout.json"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(holistic.layout_json(), indent=1))
-    return path
+    return atomic_write_text(Path(out_dir) / "layout.json", json.dumps(holistic.layout_json(), indent=1))
+
+
+def select_shard(jobs: list[VideoJob], index: int, count: int) -> list[VideoJob]:
+    """Task ``index`` of ``count`` (0-based): the jobs whose position in video-id order is
+    ``index`` modulo ``count``. Every task sees the same order, so the shards are disjoint and
+    together cover every job, whatever each task finds already done in the shared output."""
+    if count < 1 or not 0 <= index < count:
+        raise ExtractionError(f"--shard {index}/{count}: expected i/n with 0 <= i < n")
+    ordered = sorted(jobs, key=lambda job: job.video_id)
+    return ordered[index::count]
+
+
+def parse_shard(text: str) -> tuple[int, int]:
+    """'i/n' -> (i, n), 0 <= i < n (e.g. ``$SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT``)."""
+    try:
+        index, count = (int(part) for part in text.split("/"))
+    except ValueError:
+        raise ExtractionError(f"--shard {text!r}: expected i/n, e.g. 0/4 (task 0 of 4)") from None
+    if count < 1 or not 0 <= index < count:
+        raise ExtractionError(f"--shard {text}: expected i/n with 0 <= i < n")
+    return index, count
+
+
+def _core_sets(workers: int, cpus: int | None) -> list[list[int] | None]:
+    """Disjoint cores per worker when ``cpus`` per worker is given (wrapping round when there are
+    not enough), else None (each worker may use every core)."""
+    if not cpus or not hasattr(os, "sched_getaffinity"):
+        return [None] * workers
+    allowed = sorted(os.sched_getaffinity(0))
+    return [[allowed[(k * cpus + c) % len(allowed)] for c in range(cpus)] for k in range(workers)]
 
 
 def extract_videos(
@@ -343,84 +437,120 @@ def extract_videos(
     force: bool = False,
     progress: bool = True,
     max_worker_restarts: int = 3,
+    workers: int = 1,
+    summary_name: str = "summary.json",
 ) -> ExtractSummary:
     """Extract every job's keypoints into ``out_dir``, skipping finished videos.
 
-    One worker process handles all pending videos (the models load once). A video that makes
-    the worker crash is marked failed ('worker_crash') and the worker restarts on the rest.
+    ``workers`` MediaPipe processes (each loads the models once) share one queue of pending
+    videos; with ``options.cpus`` each gets its own ``cpus`` cores. A video that makes a worker
+    crash is marked failed ('worker_crash') and that worker restarts on the rest of the queue.
     """
     options = options or ExtractOptions()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_layout_json(out)
     summary = ExtractSummary(out_dir=str(out))
-    pending = []
+    pending: queue.Queue[VideoJob] = queue.Queue()
     for job in jobs:
         status = None if force else _is_finished(job, out, options)
         if status is None:
-            pending.append(job)
+            pending.put(job)
         elif status.get("status") == "ok":
             summary.cached.append(job.video_id)
             if status.get("warnings"):
                 summary.warnings[job.video_id] = status["warnings"]
         else:
             summary.failed[job.video_id] = {"reason": status.get("reason"), "error": status.get("error")}
-    bar = Progress(len(pending), enabled=progress and bool(pending))
+    if not pending.empty():
+        mediapipe_python()  # no worker environment: say so here, not in a worker thread
+    workers = max(1, min(int(workers), pending.qsize()))
+    bar = Progress(pending.qsize(), enabled=progress and not pending.empty())
+    lock = threading.Lock()
     started = time.perf_counter()
-    restarts = 0
-    while pending:
-        current: dict[str, str | None] = {"video": None}
-        finished: set[str] = set()
-
-        def on_event(event: dict, current=current, finished=finished) -> None:
-            kind = event.get("event")
-            if kind == "start":
-                current["video"] = event["video_id"]
-                bar.video_started(int(event.get("frames", 0)))
-            elif kind == "progress":
-                bar.frames(int(event.get("done", 0)))
-            elif kind == "done":
-                vid = event["video_id"]
-                finished.add(vid)
-                status = event["status"]
-                if status.get("status") == "ok":
-                    summary.extracted.append(vid)
-                    summary.frames += int(status.get("frames", 0))
-                    if status.get("warnings"):
-                        summary.warnings[vid] = status["warnings"]
-                else:
-                    summary.failed[vid] = {"reason": status.get("reason"), "error": status.get("error")}
-                current["video"] = None
-                bar.video_done()
-
-        spec = {
-            "options": {**asdict(options)},
-            "jobs": [{**asdict(j), "out_dir": str(out), "cache_key": _cache_key(j, options)} for j in pending],
-        }
-        rc = _run_worker("extract", spec, out / "worker.log", on_event)
-        pending = [j for j in pending if j.video_id not in finished]
-        if not pending:
-            break
-        crashed = current["video"]
-        if rc == 0 and crashed is None:
-            # The worker ended cleanly without handling these: should not happen; do not loop.
-            for j in pending:
-                summary.failed[j.video_id] = {"reason": "worker", "error": "the worker skipped this video"}
-            break
-        if crashed is None or restarts >= max_worker_restarts:
-            log_tail = _tail(out / "worker.log")
-            for j in pending:
-                summary.failed[j.video_id] = {"reason": "worker_crash",
-                                              "error": f"the MediaPipe worker exited with code {rc}; log: {log_tail}"}  # fmt: skip
-            break
-        summary.failed[crashed] = {"reason": "worker_crash",
-                                   "error": f"the MediaPipe worker died (exit code {rc}) on this video"}  # fmt: skip
-        pending = [j for j in pending if j.video_id != crashed]
-        restarts += 1
+    threads = [
+        threading.Thread(target=_worker_loop, name=f"mediapipe-worker-{k}", daemon=True,
+                         args=(k, pending, out, options, cores, summary, lock, bar, max_worker_restarts))
+        for k, cores in enumerate(_core_sets(workers, options.cpus))
+    ] if not pending.empty() else []  # fmt: skip
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
     bar.close()
     summary.seconds = time.perf_counter() - started
-    (out / "summary.json").write_text(json.dumps(summary.to_dict(), indent=1))
+    atomic_write_text(out / summary_name, json.dumps(summary.to_dict(), indent=1))
     return summary
+
+
+def _worker_loop(k: int, pending: queue.Queue, out: Path, options: ExtractOptions, cores: list[int] | None,
+                 summary: ExtractSummary, lock: threading.Lock, bar: Progress, max_restarts: int) -> None:  # fmt: skip
+    """One worker slot: run a worker process on the shared queue, restart it after a crash."""
+    restarts = 0
+    spec = {"options": {**asdict(options), "cpu_set": cores}}
+
+    def fail(job: VideoJob, reason: str, error: str) -> None:
+        with lock:
+            summary.failed[job.video_id] = {"reason": reason, "error": error}
+
+    while not pending.empty():
+        state: dict[str, Any] = {"job": None, "ready": False}
+
+        def next_job(state=state) -> dict | None:
+            try:
+                job = pending.get_nowait()
+            except queue.Empty:
+                state["job"] = None
+                return None
+            state["job"] = job
+            return {**asdict(job), "out_dir": str(out), "cache_key": _cache_key(job, options)}
+
+        def on_event(event: dict, state=state) -> None:
+            kind = event.get("event")
+            if kind == "ready":
+                state["ready"] = True
+            elif kind == "start":
+                bar.video_started(int(event.get("frames", 0)), k)
+            elif kind == "progress":
+                bar.frames(int(event.get("done", 0)), k)
+            elif kind == "done":
+                vid, status = event["video_id"], event["status"]
+                with lock:
+                    if status.get("status") == "ok":
+                        summary.extracted.append(vid)
+                        summary.frames += int(status.get("frames", 0))
+                        if status.get("warnings"):
+                            summary.warnings[vid] = status["warnings"]
+                    else:
+                        summary.failed[vid] = {"reason": status.get("reason"), "error": status.get("error")}
+                state["job"] = None
+                bar.video_done(k)
+
+        rc = _run_worker("extract", spec, out / "worker.log", on_event, next_job)
+        crashed = state["job"]
+        if crashed is None and rc == 0:
+            return  # the queue is empty
+        if crashed is not None and rc == 0:  # ended cleanly without doing it: should not happen
+            fail(crashed, "worker", "the worker skipped this video")
+            continue
+        if crashed is None or not state["ready"] or restarts >= max_restarts:
+            # It could not start, or keeps dying: fail what it holds and what is left, with the log.
+            error = f"the MediaPipe worker exited with code {rc}; log: {_tail(out / 'worker.log')}"
+            for job in ([crashed] if crashed is not None else []) + _drain(pending):
+                fail(job, "worker_crash", error)
+            return
+        fail(crashed, "worker_crash", f"the MediaPipe worker died (exit code {rc}) on this video")
+        bar.video_done(k)
+        restarts += 1
+
+
+def _drain(pending: queue.Queue) -> list[VideoJob]:
+    jobs = []
+    while True:
+        try:
+            jobs.append(pending.get_nowait())
+        except queue.Empty:
+            return jobs
 
 
 def _tail(path: Path, lines: int = 5) -> str:
@@ -471,3 +601,33 @@ def render_overlays(
         for job in jobs:
             results.setdefault(job["video_id"], {"status": "failed", "error": "worker crashed"})
     return results
+
+
+# ----------------------------------------------------------------------------- .pose files
+
+
+def write_pose_files(out_dir: str | os.PathLike, video_ids: list[str], force: bool = False) -> dict[str, str]:
+    """``<out>/<id>.pose`` (pose-format, MediaPipe Holistic as the library lays it out) for each
+    extracted video, from its arrays and status; a file newer than the video's status is kept.
+    Returns {video_id: path or 'failed: reason'}."""
+    from aslexp.keypoints.posefile import write_holistic_pose
+
+    out = Path(out_dir)
+    written = {}
+    for vid in video_ids:
+        status = read_status(out, vid)
+        target = out / f"{vid}.pose"
+        if not status or status.get("status") != "ok":
+            written[vid] = "failed: no successful extraction"
+            continue
+        if not force and target.is_file() and target.stat().st_mtime >= (out / "status" / f"{vid}.json").stat().st_mtime:
+            written[vid] = str(target)
+            continue
+        world = out / "world" / f"{vid}.npy"
+        face = out / "face" / f"{vid}.npy"
+        write_holistic_pose(target, np.load(out / f"{vid}.npy"), float(status.get("fps") or 25.0),
+                            int(status["width"]), int(status["height"]),
+                            world=np.load(world) if world.is_file() else None,
+                            face=np.load(face) if face.is_file() else None)  # fmt: skip
+        written[vid] = str(target)
+    return written

@@ -3,8 +3,11 @@
 Examples::
 
     aslexp extract ../shared/data/videos/wlasl --out outputs/keypoints/wlasl6 --overlay --motions
-    aslexp extract ../shared/data/wlasl/WLASL_v0.3.json --videos ../shared/data/videos/wlasl \\
+    aslexp extract --wlasl ../shared/data/wlasl/WLASL_v0.3.json --videos ../shared/data/videos/wlasl \\
         --out outputs/keypoints/wlasl6            # cut each video to frame_start..frame_end
+    aslexp extract clip.mp4 --frames 11:60 --out DIR --format pose   # frames 11..60 -> DIR/clip.pose
+    aslexp extract VIDEOS/ --out DIR --workers 8                     # 8 MediaPipe processes
+    aslexp extract VIDEOS/ --out DIR --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT
 
 Exit code: 0 when every video succeeded, 2 when some failed (listed in the summary), 1 when
 nothing could start (bad arguments, no MediaPipe environment).
@@ -21,9 +24,14 @@ from pathlib import Path
 from aslexp.pose.extract import (
     ExtractionError,
     ExtractOptions,
+    apply_frame_ranges,
     collect_jobs,
     extract_videos,
+    parse_frames,
+    parse_shard,
     render_overlays,
+    select_shard,
+    write_pose_files,
 )
 
 
@@ -33,16 +41,28 @@ def build_parser() -> argparse.ArgumentParser:
         description="Extract MediaPipe Holistic keypoints from sign videos (cached per video), "
         "optionally with skeleton overlays and DeepMimic reference motions.",
     )
-    p.add_argument("inputs", nargs="+", help="video files, folders of videos, or a WLASL json")
+    p.add_argument("inputs", nargs="*", help="video files, folders of videos, or a WLASL json")
     p.add_argument("--out", required=True, help="output folder (a 'directory' keypoint source)")
-    p.add_argument("--wlasl", help="WLASL json: cut each video to its instance's frame range")
+    p.add_argument("--wlasl", help="WLASL json: cut each video to its instance's frame range "
+                   "(the videos come from --videos DIR or a folder among the inputs)")
     p.add_argument("--videos", help="folder of <video_id>.mp4 for a WLASL json")
     p.add_argument("--ids", nargs="*", help="only these video ids")
+    p.add_argument("--frames", action="append", default=[], metavar="[ID=]START:END",
+                   help="frames START..END (1-based, inclusive; END -1 = to the end) of every video "
+                   "taken whole, or with ID= of that video only (repeatable)")
+    p.add_argument("--format", choices=("npy", "pose"), default="npy",
+                   help="pose: also write <out>/<id>.pose (pose-format, MediaPipe Holistic) beside "
+                   "the arrays, which stay the cache")
+    p.add_argument("--workers", type=int, default=1,
+                   help="MediaPipe processes sharing the videos (default 1); each gets --cpus cores")
+    p.add_argument("--shard", metavar="I/N",
+                   help="cluster array task I of N (0-based): only the videos whose position in "
+                   "video-id order is I mod N; every task shares --out, its cache and resume")
     p.add_argument("--face", action="store_true", help="also store the 468 face landmarks")
     p.add_argument("--no-hands-model", action="store_true",
                    help="Holistic only (no metric 3D hands from MediaPipe Hands; faster)")
     p.add_argument("--cpus", type=int, default=1,
-                   help="cores for the MediaPipe worker (default 1; 0 = all)")
+                   help="cores per MediaPipe worker (default 1; 0 = no pinning)")
     p.add_argument("--force", action="store_true", help="redo videos that are already extracted")
     p.add_argument("--overlay", action="store_true", help="draw the skeleton on each video")
     p.add_argument("--overlay-format", choices=("mp4", "gif"), default="mp4")
@@ -61,21 +81,46 @@ def build_parser() -> argparse.ArgumentParser:
 def extract_main(argv: list[str]) -> int:
     """Entry point for `aslexp extract`; returns the exit code."""
     args = build_parser().parse_args(argv)
+    pose_files = [i for i in args.inputs if i.endswith(".pose")]
+    if pose_files:  # already keypoints: retarget them (no MediaPipe)
+        if len(pose_files) < len(args.inputs) or not args.motions:
+            print("aslexp extract: .pose inputs are keypoints already: give only .pose files, with "
+                  "--motions, to retarget them", file=sys.stderr)  # fmt: skip
+            return 1
+        return 2 if _write_motions(pose_files, args, from_pose=True) else 0
     skipped: Counter = Counter()
+    summary_name = "summary.json"
     try:
+        if not args.inputs and not args.wlasl:
+            raise ExtractionError("nothing to extract: give video files or folders, or --wlasl FILE "
+                                  "--videos DIR")  # fmt: skip
+        if args.wlasl and not args.videos and not any(Path(i).is_dir() for i in args.inputs):
+            raise ExtractionError(f"--wlasl {args.wlasl} needs the videos: add --videos DIR (a folder "
+                                  "of <video_id>.mp4), e.g. --videos ../shared/data/videos/wlasl")  # fmt: skip
+        if args.workers < 1:
+            raise ExtractionError(f"--workers {args.workers}: expected 1 or more")
         jobs = collect_jobs(args.inputs, wlasl_json=args.wlasl, video_dir=args.videos,
                             ids=args.ids, skipped=skipped)  # fmt: skip
+        jobs = apply_frame_ranges(jobs, [parse_frames(text) for text in args.frames])
+        if args.shard:
+            index, count = parse_shard(args.shard)
+            total = len(jobs)
+            jobs = select_shard(jobs, index, count)
+            summary_name = f"summary.shard-{index}-of-{count}.json"
+            print(f"shard {index}/{count}: {len(jobs)} of {total} videos")
     except ExtractionError as err:
         print(f"aslexp extract: {err}", file=sys.stderr)
         return 1
-    if not jobs:
+    if not jobs and not args.shard:
         print("aslexp extract: no videos found in the inputs "
-              f"({', '.join(args.inputs)}); skipped: {dict(skipped) or 'nothing'}", file=sys.stderr)  # fmt: skip
+              f"({', '.join(args.inputs or [args.wlasl])}); skipped: {dict(skipped) or 'nothing'}",
+              file=sys.stderr)  # fmt: skip
         return 1
     options = ExtractOptions(face=args.face, hands_model=not args.no_hands_model,
                              cpus=args.cpus or None)  # fmt: skip
     try:
-        summary = extract_videos(jobs, args.out, options, force=args.force, progress=not args.quiet)
+        summary = extract_videos(jobs, args.out, options, force=args.force, progress=not args.quiet,
+                                 workers=args.workers, summary_name=summary_name)  # fmt: skip
     except ExtractionError as err:
         print(f"aslexp extract: {err}", file=sys.stderr)
         return 1
@@ -83,6 +128,9 @@ def extract_main(argv: list[str]) -> int:
     print(summary.report())
     failed = bool(summary.failed)
     done = sorted(summary.ok)
+    if args.format == "pose" and done:
+        written = write_pose_files(args.out, done, force=args.force)
+        print(f".pose files: {len(written)} in {args.out}")
     if args.overlay and done:
         results = render_overlays(done, args.out, fmt=args.overlay_format, cpus=args.cpus or None)
         bad = {v: r for v, r in results.items() if r.get("status") != "ok"}
@@ -92,21 +140,28 @@ def extract_main(argv: list[str]) -> int:
         failed |= bool(bad)
     if args.motions and done:
         failed |= _write_motions(done, args)
-    summary_path = Path(args.out) / "summary.json"
+    summary_path = Path(args.out) / summary_name
     data = json.loads(summary_path.read_text())
     data["skipped_inputs"] = dict(skipped)
     summary_path.write_text(json.dumps(data, indent=1))
     return 2 if failed else 0
 
 
-def _write_motions(video_ids: list[str], args) -> bool:
+def _write_motions(video_ids: list[str], args, from_pose: bool = False) -> bool:
+    """Motions for extracted videos (ids in --out), or for .pose files (paths) into --out/motions."""
+    from aslexp.errors import DataError
     from aslexp.pose.retarget import retarget_video
 
     counts: Counter = Counter()
     problems = []
     for vid in video_ids:
-        result = retarget_video(args.out, vid, hand=args.hand, sigma=args.sigma,
-                                data_root=args.data_root, torso=args.torso)
+        try:
+            result = retarget_video(vid if from_pose else args.out, None if from_pose else vid,
+                                    Path(args.out) / "motions", hand=args.hand, sigma=args.sigma,
+                                    data_root=args.data_root, torso=args.torso)  # fmt: skip
+        except (DataError, OSError) as err:
+            problems.append(f"  motion FAILED {vid}: {err}")
+            continue
         for part in ("hand", "upper_body"):
             r = result[part]
             counts[f"{part} {r['status']}"] += 1

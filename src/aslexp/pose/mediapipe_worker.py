@@ -4,11 +4,12 @@ mediapipe 0.10.21 needs numpy<2 while the main aslexp environment is on numpy 2,
 process never imports mediapipe: :mod:`aslexp.pose.extract` starts this file as a subprocess
 with the MediaPipe environment's python and the two exchange files only:
 
-    python mediapipe_worker.py extract JOBS.json     # one JSON event per line on stdout
+    python mediapipe_worker.py extract JOBS.json     # one JSON event per line on stdout; jobs from
+                                                     # JOBS.json or, without a "jobs" key, one per stdin line
     python mediapipe_worker.py overlay JOBS.json
 
-This file imports nothing from aslexp except ``holistic.py`` (standard library only, loaded by
-path) so that it runs without the package being installed in this environment.
+This file imports nothing from aslexp except ``keypoints/holistic.py`` (standard library only,
+loaded by path) so that it runs without the package being installed in this environment.
 
 Per video it writes, atomically (temporary name, then rename; the status JSON last):
 
@@ -41,7 +42,7 @@ _HERE = Path(__file__).resolve().parent
 
 
 def _load_holistic():
-    spec = importlib.util.spec_from_file_location("_aslexp_holistic", _HERE / "holistic.py")
+    spec = importlib.util.spec_from_file_location("_aslexp_holistic", _HERE.parent / "keypoints" / "holistic.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
@@ -198,7 +199,7 @@ def assign_hands(detections, references, mirrored_labels) -> dict[str, int]:
     return result
 
 
-def _image_hand_to_world(hand_xyz: np.ndarray, width: int, height: int) -> np.ndarray:
+def image_hand_to_world(hand_xyz: np.ndarray, width: int, height: int) -> np.ndarray:
     """Metric-ish 3D hand from image landmarks (pixels, z on the x scale), for frames where
     Holistic saw a hand but MediaPipe Hands did not. Scaled to an adult hand; centred at 0."""
     pts = hand_xyz[:, :3].astype(np.float64) * np.array([width, height, width])
@@ -292,7 +293,7 @@ def extract_video(job: dict, options: dict, models) -> dict:
             counts[f"{side}_hand"] += 1
             hand_world = world_hands.get(side)
             if hand_world is None:
-                hand_world = _image_hand_to_world(image[t, o : o + 21], width, height)
+                hand_world = image_hand_to_world(image[t, o : o + 21], width, height)
                 counts["hand_world_from_image"] += 1
             anchor = world[t, pose_wrist[side]]
             if np.all(np.isfinite(anchor)) and np.all(np.isfinite(hand_world)):
@@ -320,6 +321,7 @@ def extract_video(job: dict, options: dict, models) -> dict:
         "counts": counts,
         "warnings": warnings,
         "seconds": round(time.perf_counter() - t0, 3),
+        "worker_pid": os.getpid(),
         "extractor": {
             "name": "mediapipe_holistic",
             "mediapipe": _mediapipe_version(),
@@ -352,16 +354,33 @@ def _mediapipe_version() -> str:
     return mediapipe.__version__
 
 
-def _limit_cpus(cpus: int | None) -> None:
-    if cpus and hasattr(os, "sched_setaffinity"):
+def _limit_cpus(cpus: int | None, cpu_set: list[int] | None = None) -> None:
+    """Pin this process to ``cpu_set`` (the parent gives each worker its own cores), else to the
+    first ``cpus`` allowed cores."""
+    if not hasattr(os, "sched_setaffinity"):
+        return
+    if cpu_set:
+        os.sched_setaffinity(0, set(cpu_set))
+    elif cpus:
         allowed = sorted(os.sched_getaffinity(0))
         os.sched_setaffinity(0, allowed[: max(1, int(cpus))])
+
+
+def _jobs(spec: dict):
+    """The spec's job list, or (without one) one JSON job per line on stdin until it closes: the
+    parent hands out the next video when this one is done, so several workers share a queue."""
+    if "jobs" in spec:
+        yield from spec["jobs"]
+        return
+    for line in sys.stdin:
+        if line.strip():
+            yield json.loads(line)
 
 
 def run_extract(jobs_file: str) -> int:
     spec = json.loads(Path(jobs_file).read_text())
     options = spec.get("options", {})
-    _limit_cpus(options.get("cpus"))
+    _limit_cpus(options.get("cpus"), options.get("cpu_set"))
     import mediapipe as mp
 
     holistic = mp.solutions.holistic.Holistic(
@@ -382,7 +401,7 @@ def run_extract(jobs_file: str) -> int:
             min_tracking_confidence=options.get("min_tracking_confidence", 0.5),
         )
     emit("ready", mediapipe=mp.__version__, numpy=np.__version__)
-    for job in spec["jobs"]:
+    for job in _jobs(spec):
         vid = job["video_id"]
         status_path = Path(job["out_dir"]) / "status" / f"{vid}.json"
         try:

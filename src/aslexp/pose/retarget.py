@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aslexp.pose import holistic as H
+from aslexp.keypoints import holistic as H
 
 MP_TO_HUMANOID = np.array([[0.0, 0.0, -1.0], [0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]])
 
@@ -754,7 +754,7 @@ def dominant_side(world: np.ndarray) -> str:
 
 def retarget_video(
     keypoint_dir: str | os.PathLike,
-    video_id: str,
+    video_id: str | None = None,
     out_dir: str | os.PathLike | None = None,
     hand: str = "dominant",
     sigma: float = 1.0,
@@ -762,17 +762,15 @@ def retarget_video(
     torso: str = "vertical",
 ) -> dict:
     """Write ``<out>/hand/<id>.txt`` (23 columns) and ``<out>/upper_body/<id>.txt`` (76 columns)
-    from an extracted video's world landmarks; returns a report. A part that cannot be made
+    from a video's world landmarks: an extraction folder and a video id, or a MediaPipe-Holistic
+    ``.pose`` file (:mod:`aslexp.pose.landmarks`); returns a report. A part that cannot be made
     (no hand, no body) is reported with its reason; the other part is still written."""
+    from aslexp.pose.landmarks import load_world
+
     kdir = Path(keypoint_dir)
-    out = Path(out_dir) if out_dir else kdir / "motions"
-    status_path = kdir / "status" / f"{video_id}.json"
-    world_path = kdir / "world" / f"{video_id}.npy"
-    if not world_path.is_file():
-        raise FileNotFoundError(f"{world_path}: no world landmarks (extract the video first)")
-    status = json.loads(status_path.read_text()) if status_path.is_file() else {}
-    fps = float(status.get("fps") or 25.0)
-    world = np.load(world_path).astype(float)
+    out = Path(out_dir) if out_dir else (kdir.parent if kdir.suffix == ".pose" else kdir) / "motions"
+    world, fps, video_id = load_world(kdir, video_id)
+    world = world.astype(float)
     result: dict = {"video_id": video_id, "fps": fps, "frames": len(world)}
     side = dominant_side(world) if hand == "dominant" else hand
     offset = H.LEFT_HAND_OFFSET if side == "left" else H.RIGHT_HAND_OFFSET

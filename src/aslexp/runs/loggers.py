@@ -1,44 +1,83 @@
 """Metric loggers selected by the `logger` config group: none | csv | tensorboard | wandb.
 
-All take ``log(metrics, step)`` and ``close()``; the run directory is the single place they write.
-wandb runs offline unless an API key is configured, so nothing leaves the machine by default.
+Every logger takes ``log(metrics, step)`` for each epoch / rollout / evaluation and
+``close(summary)`` once, with the job's final numbers; the run's configuration is logged as its
+hyper-parameters. The run directory is the single place they write:
+
+- ``csv``: ``history.csv``, one row per step, one column per metric (new keys extend the header).
+- ``tensorboard``: ``tensorboard/`` event files through torchrl's ``TensorboardLogger``: every
+  metric as a scalar, and at close the flattened configuration as TensorBoard hparams with the
+  summary as their metrics (``hparam/<name>``), so the HParams tab compares runs.
+- ``wandb``: offline (``wandb/offline-run-*``, ``wandb sync`` uploads it later) unless
+  ``WANDB_MODE`` says otherwise, ``logger.mode`` is set, or a W&B key exists (``WANDB_API_KEY``,
+  or a ``~/.netrc`` entry for the W&B host: an entry for another host does not count). If going
+  online fails (no or bad credentials, no network) it warns and logs offline; it never ends the
+  job. The summary holds the job's final numbers, not just the last step's.
+
+Non-numeric and non-finite values are left out of scalar logs (NaN would break TensorBoard's
+charts); the CSV keeps them as written.
 """
 
 from __future__ import annotations
 
 import csv
 import logging
+import math
+import netrc
 import os
+from numbers import Real
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
+from urllib.parse import urlparse
 
 from aslexp.files import atomic_path
 
 log = logging.getLogger(__name__)
+LOGGERS = ("none", "csv", "tensorboard", "wandb")
+WANDB_HOST = "https://api.wandb.ai"
 
 
-class MetricLogger(Protocol):
-    def log(self, metrics: dict[str, float], step: int) -> None: ...
+def scalars(metrics: dict[str, Any]) -> dict[str, float]:
+    """The finite real numbers of ``metrics`` (bools and strings are not metrics)."""
+    return {k: float(v) for k, v in metrics.items()
+            if isinstance(v, Real) and not isinstance(v, bool) and math.isfinite(float(v))}  # fmt: skip
 
-    def close(self) -> None: ...
+
+def flatten(config: Any, prefix: str = "") -> dict[str, Any]:
+    """A nested configuration as ``{"a/b/c": value}`` with values TensorBoard's hparams accept
+    (int, float, str, bool; lists and None as text)."""
+    if isinstance(config, dict):
+        items: dict[str, Any] = {}
+        for key, value in config.items():
+            items.update(flatten(value, f"{prefix}{key}/"))
+        return items
+    key = prefix.rstrip("/")
+    if isinstance(config, (bool, int, float, str)):
+        return {key: config}
+    return {key: str(config)}
 
 
-class NoLogger:
-    def log(self, metrics: dict[str, float], step: int) -> None:
+class MetricLogger:
+    """The interface, and the ``none`` logger."""
+
+    def log(self, metrics: dict[str, Any], step: int) -> None:
         return None
 
-    def close(self) -> None:
+    def close(self, summary: dict[str, Any] | None = None) -> None:
         return None
 
 
-class CsvLogger:
-    """Appends one row per call to ``history.csv``; new keys extend the header."""
+NoLogger = MetricLogger
+
+
+class CsvLogger(MetricLogger):
+    """Rewrites ``history.csv`` (atomically) with one row per call; new keys extend the header."""
 
     def __init__(self, run_dir: Path, filename: str = "history.csv"):
         self.path = Path(run_dir) / filename
         self.rows: list[dict[str, Any]] = []
 
-    def log(self, metrics: dict[str, float], step: int) -> None:
+    def log(self, metrics: dict[str, Any], step: int) -> None:
         self.rows.append({"step": step, **metrics})
         fields: list[str] = []
         for row in self.rows:
@@ -48,55 +87,112 @@ class CsvLogger:
             writer.writeheader()
             writer.writerows(self.rows)
 
-    def close(self) -> None:
-        return None
 
+class TensorBoardLogger(MetricLogger):
+    """torchrl's TensorboardLogger for the scalars; hparams with the summary at close."""
 
-class TensorBoardLogger:
-    def __init__(self, run_dir: Path):
+    def __init__(self, run_dir: Path, hparams: dict[str, Any]):
         try:
-            from torch.utils.tensorboard import SummaryWriter
-        except ImportError as err:  # tensorboard is an optional extra
-            raise ImportError(
-                "logger=tensorboard needs the tensorboard package: pip install 'aslexp[tensorboard]'"
-            ) from err
-        self.writer = SummaryWriter(log_dir=str(Path(run_dir) / "tensorboard"))
+            from torchrl.record.loggers import TensorboardLogger
+        except ImportError as err:  # tensorboard is a dependency; only a broken install gets here
+            raise ImportError("logger=tensorboard needs tensorboard: pip install tensorboard") from err
+        self.logger = TensorboardLogger(exp_name="tensorboard", log_dir=str(run_dir))
+        self.hparams = flatten(hparams)
+        self.log_dir = Path(self.logger.log_dir)
 
-    def log(self, metrics: dict[str, float], step: int) -> None:
-        for key, value in metrics.items():
-            self.writer.add_scalar(key, value, step)
+    def log(self, metrics: dict[str, Any], step: int) -> None:
+        self.logger.log_metrics(scalars(metrics), step=step)
 
-    def close(self) -> None:
-        self.writer.close()
+    def close(self, summary: dict[str, Any] | None = None) -> None:
+        writer = self.logger.experiment
+        # run_name="." keeps the hparams in this run's folder (torch makes a sub-run otherwise).
+        writer.add_hparams(self.hparams, {f"hparam/{k}": v for k, v in scalars(summary or {}).items()},
+                           run_name=".")  # fmt: skip
+        writer.close()
 
 
-class WandbLogger:
-    def __init__(self, run_dir: Path, project: str, config: dict[str, Any], mode: str | None):
+def wandb_key_available(environ: dict[str, str] | None = None, home: Path | None = None) -> bool:
+    """A W&B API key in the environment, or a ``.netrc`` entry for the W&B host itself."""
+    environ = os.environ if environ is None else environ
+    if environ.get("WANDB_API_KEY"):
+        return True
+    host = urlparse(environ.get("WANDB_BASE_URL") or WANDB_HOST).hostname
+    path = (home or Path.home()) / ".netrc"
+    try:
+        entry = netrc.netrc(str(path)).authenticators(host) if path.is_file() else None
+    except (netrc.NetrcParseError, OSError):
+        return False
+    return bool(entry and entry[2])
+
+
+def wandb_mode(mode: str | None, environ: dict[str, str] | None = None, home: Path | None = None) -> str | None:
+    """``logger.mode`` if set; None (wandb reads ``WANDB_MODE``) when that variable is set;
+    else online with a key, offline without."""
+    environ = os.environ if environ is None else environ
+    if mode:
+        return mode
+    if environ.get("WANDB_MODE"):
+        return None
+    return "online" if wandb_key_available(environ, home) else "offline"
+
+
+class WandbLogger(MetricLogger):
+    """Weights & Biases; see the module doc for when it is online.
+
+    wandb itself, not torchrl's WandbLogger: that one sets ``WANDB_MODE`` for the whole process
+    when offline and adds a step column per metric group.
+    """
+
+    def __init__(self, run_dir: Path, project: str, config: dict[str, Any], mode: str | None, name: str | None = None):
         try:
             import wandb
-        except ImportError as err:  # wandb is an optional extra
-            raise ImportError("logger=wandb needs wandb: pip install 'aslexp[wandb]'") from err
-        if mode is None:
-            has_key = bool(os.environ.get("WANDB_API_KEY")) or (Path.home() / ".netrc").exists()
-            mode = "online" if has_key else "offline"
-        self.run = wandb.init(project=project, dir=str(run_dir), config=config, mode=mode)
-        log.info("wandb logging %s (project %s)", mode, project)
+        except ImportError as err:  # an optional extra (scripts/setup.sh installs it)
+            raise ImportError("logger=wandb needs wandb: pip install wandb") from err
+        mode = wandb_mode(mode)
+        kwargs = dict(project=project, dir=str(run_dir), config=config, name=name or Path(run_dir).name)
+        try:
+            self.run = wandb.init(mode=mode, **kwargs)
+        except Exception as err:  # noqa: BLE001 - no key, a bad key, no network: log offline instead
+            if mode == "offline":
+                raise
+            log.warning("wandb could not go online (%s: %s); logging offline in %s (upload later "
+                        "with `wandb sync`)", type(err).__name__, str(err).splitlines()[0], run_dir)  # fmt: skip
+            self.run = wandb.init(mode="offline", **kwargs)
+        self.mode = self.run.settings.mode
+        log.info("wandb logging %s (project %s) in %s", self.mode, project, run_dir)
 
-    def log(self, metrics: dict[str, float], step: int) -> None:
-        self.run.log(metrics, step=step)
+    def log(self, metrics: dict[str, Any], step: int) -> None:
+        self.run.log({**scalars(metrics), "step": step}, step=step)
 
-    def close(self) -> None:
+    def close(self, summary: dict[str, Any] | None = None) -> None:
+        if summary:
+            self.run.summary.update(scalars(summary))
         self.run.finish()
 
 
+class HistoryLogger:
+    """Forwards the rows a job appends to a history list (``{"step": ..., metric: value}``) to a
+    logger: each ``flush()`` logs the rows added since the last one, at their own step."""
+
+    def __init__(self, logger: MetricLogger, history: list[dict[str, Any]]):
+        self.logger, self.history, self.logged = logger, history, 0
+
+    def flush(self) -> None:
+        for row in self.history[self.logged :]:
+            self.logger.log({k: v for k, v in row.items() if k != "step"}, int(row.get("step", self.logged)))
+            self.logged += 1
+
+
 def make_logger(cfg: dict[str, Any], run_dir: Path, run_config: dict[str, Any]) -> MetricLogger:
+    """The logger named by ``cfg['name']``, writing into ``run_dir``; ``run_config`` is logged as
+    the run's hyper-parameters."""
     name = cfg.get("name", "none")
     if name == "none":
-        return NoLogger()
+        return MetricLogger()
     if name == "csv":
         return CsvLogger(run_dir)
     if name == "tensorboard":
-        return TensorBoardLogger(run_dir)
+        return TensorBoardLogger(run_dir, run_config)
     if name == "wandb":
         return WandbLogger(run_dir, cfg.get("project", "aslexp"), run_config, cfg.get("mode"))
-    raise ValueError(f"logger.name={name!r}: expected one of none, csv, tensorboard, wandb")
+    raise ValueError(f"logger.name={name!r}: expected one of {', '.join(LOGGERS)}")

@@ -16,8 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from aslexp.data.dataset import DataError, KeypointLayout
-from aslexp.pose.layouts import SIGN27, generic_layout, get_layout
+from aslexp.errors import DataError
+from aslexp.keypoints.layout import KeypointLayout, generic_layout
+from aslexp.keypoints.layouts import SIGN27
+from aslexp.keypoints.registry import register_source, resolve_layout
 
 log = logging.getLogger(__name__)
 
@@ -71,8 +73,8 @@ class PublishedArraySource:
         self.row_of = {video_id: row for row, video_id in enumerate(self.video_ids)}
         if len(self.row_of) != n:
             raise DataError(f"{ids!r}: duplicate video ids")
-        if isinstance(layout, str):
-            layout = get_layout(layout)
+        if layout is not None:
+            layout = resolve_layout(layout, f"{self.array_path}: pose.options.layout")
         self._layout = layout or _default_layout(v, c)
         if self._layout.num_nodes != v or len(self._layout.channels) != c:
             raise DataError(f"{self.array_path}: {v} nodes x {c} channels do not fit layout "
@@ -95,6 +97,10 @@ class PublishedArraySource:
         clip = np.array(self.array[row, :, :, :, 0].transpose(1, 2, 0), dtype=np.float32)  # T, V, C
         clip[np.all(clip == 0, axis=-1)] = np.nan
         return clip
+
+
+register_source("published", PublishedArraySource,
+                summary="the thesis' (N, C, T, V, 1) .npy and its video ids (options: ids, layout)")
 
 
 def write_published_arrays(array_path: str | Path, clips: list[np.ndarray], video_ids: list[str],

@@ -1,8 +1,8 @@
 """The keypoint-source protocol: anything that yields per-video keypoint arrays.
 
 A source returns ``(T, V, C)`` float32 arrays with NaN where a keypoint was not observed, laid out
-as ``source.layout`` says (node names, skeleton edges, channel names). Extractors, the real
-MediaPipe files and importers of published arrays all look the same to the dataset builder.
+as ``source.layout`` says (node names, skeleton edges, channel names). Extractors, array folders,
+``.pose`` files and importers of published arrays all look the same to the dataset builder.
 """
 
 from __future__ import annotations
@@ -11,8 +11,9 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from aslexp.data.dataset import DataError, KeypointLayout
-from aslexp.pose.layouts import subset_layout
+from aslexp.errors import DataError
+from aslexp.keypoints.layout import KeypointLayout
+from aslexp.keypoints.registry import subset_layout
 
 
 @runtime_checkable

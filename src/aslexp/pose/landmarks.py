@@ -1,0 +1,66 @@
+"""Metric landmarks for retargeting, from an extraction folder or from a ``.pose`` file.
+
+- ``<folder>/world/<id>.npy`` (``aslexp extract``): MediaPipe's world pose and metric hands.
+- a MediaPipe-Holistic ``.pose``: the ``POSE_WORLD_LANDMARKS`` component (metres, pose-format's
+  x*width, y*height scaling undone) and, in files aslexp wrote, its metric hand components;
+  where a file has no metric hand (files from pose-format's own ``video_to_pose``), each image
+  hand is scaled to an adult hand and set on the world wrist, as the extraction worker does
+  when MediaPipe Hands misses a hand. A file without a world component is lifted from the
+  image (pixels, MediaPipe's z on the x scale) and scaled so that the median shoulder width
+  is 0.36 m: the angles retargeting reads do not depend on that scale, only on the
+  image-space depth MediaPipe guessed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from aslexp.keypoints import holistic as H
+from aslexp.pose.mediapipe_worker import image_hand_to_world
+
+SHOULDER_WIDTH_M = 0.36
+SIDES = (("left", H.LEFT_HAND_OFFSET, 15), ("right", H.RIGHT_HAND_OFFSET, 16))  # hand offset, pose wrist
+
+
+def world_from_pose_file(path: str | os.PathLike) -> tuple[np.ndarray, float]:
+    """(T, 75, 3) metres in MediaPipe world axes (NaN where missing) and the fps of a ``.pose``."""
+    from aslexp.keypoints.posefile import read_pose_file
+
+    pose = read_pose_file(path)  # a non-Holistic file is a one-line DataError naming it
+    image, width, height = pose.keypoints, pose.width, pose.height
+    if pose.world is not None:
+        world = pose.world.astype(float)
+    else:
+        pixels = image[..., :3].astype(float) * np.array([width, height, width])
+        shoulders = np.linalg.norm(pixels[:, 11] - pixels[:, 12], axis=-1)
+        if not np.isfinite(shoulders).any():
+            raise ValueError(f"{path}: no frame with both shoulders: no scale for the image landmarks")
+        world = pixels * (SHOULDER_WIDTH_M / np.nanmedian(shoulders))
+    for _, offset, wrist in SIDES:
+        hand = slice(offset, offset + H.NUM_HAND)
+        for t in np.flatnonzero(~np.isfinite(world[:, offset, 0]) & np.isfinite(image[:, offset, 0])):
+            if np.isfinite(world[t, wrist]).all():
+                local = image_hand_to_world(image[t, hand], width, height)
+                world[t, hand] = local - local[0] + world[t, wrist]
+    return world.astype(np.float32), pose.fps
+
+
+def load_world(source: str | os.PathLike, video_id: str | None = None) -> tuple[np.ndarray, float, str]:
+    """World landmarks, fps and video id from an extraction folder (with ``video_id``) or a
+    ``.pose`` file (the id is its stem)."""
+    source = Path(source)
+    if source.suffix == ".pose":
+        world, fps = world_from_pose_file(source)
+        return world, fps, video_id or source.stem
+    if video_id is None:
+        raise ValueError(f"{source}: an extraction folder needs a video id")
+    status_path = source / "status" / f"{video_id}.json"
+    world_path = source / "world" / f"{video_id}.npy"
+    if not world_path.is_file():
+        raise FileNotFoundError(f"{world_path}: no world landmarks (extract the video first)")
+    status = json.loads(status_path.read_text()) if status_path.is_file() else {}
+    return np.load(world_path).astype(float), float(status.get("fps") or 25.0), video_id
