@@ -36,7 +36,8 @@ from aslexp.sim.body import BodySpec, load_layout
 from aslexp.sim.motion import Motion, load_motion
 from aslexp.sim.pd import ControllerSpec, PDController
 from aslexp.sim.reference import ReferenceMotion
-from aslexp.sim.world import Character, PhysicsConfig, World, quat_conjugate, quat_multiply
+from aslexp import quaternion
+from aslexp.sim.world import Character, PhysicsConfig, World
 
 
 # Rendering camera (TinyRenderer) looking at the mean link position: the hand's view.
@@ -101,15 +102,6 @@ def resolve_motion_path(motion: str | os.PathLike, data_root: str | os.PathLike 
 
         data_root = resolve_data_root(None, must_exist=False)
     return Path(data_root) / path
-
-
-def _rotation_matrix(q_wxyz: np.ndarray) -> np.ndarray:
-    w, x, y, z = q_wxyz
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
 
 
 class ImitationEnv(gym.Env):
@@ -330,10 +322,10 @@ class ImitationEnv(gym.Env):
         root_pos, root_rot, _, _ = self.sim.base_state()
         if len(self.observed_links) != len(links):
             links = links[self.observed_links]
-        to_root = _rotation_matrix(root_rot).T
+        to_root = quaternion.to_matrix(root_rot).T
         local = np.empty_like(links)
         local[:, 0:3] = (links[:, 0:3] - root_pos) @ to_root.T
-        rot = quat_multiply(quat_conjugate(root_rot), links[:, 3:7])
+        rot = quaternion.multiply(quaternion.conjugate(root_rot), links[:, 3:7])
         local[:, 3:7] = np.where(rot[:, :1] < 0, -rot, rot)  # one sign per rotation
         local[:, 7:10] = links[:, 7:10] @ to_root.T
         local[:, 10:13] = links[:, 10:13] @ to_root.T

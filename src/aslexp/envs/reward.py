@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from aslexp.sim.body import BodyLayout
-from aslexp.sim.world import quat_angle
+from aslexp.quaternion import angle as quat_angle
 
 TERMS = ("pose", "velocity", "end_effector", "root")
 COMBINE = ("sum", "product")

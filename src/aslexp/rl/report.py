@@ -15,10 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.sim.world import quat_angle
-
-IDENTITY_WXYZ = np.array([1.0, 0.0, 0.0, 0.0])
-
+from aslexp.quaternion import IDENTITY as IDENTITY_WXYZ, angle as quat_angle
 
 def _pyplot():
     import matplotlib

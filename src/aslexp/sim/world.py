@@ -19,6 +19,7 @@ import numpy as np
 import pybullet
 from pybullet_utils import bullet_client
 
+from aslexp.quaternion import rotate, wxyz_to_xyzw
 from aslexp.sim.body import BodyLayout, BodySpec
 
 
@@ -90,10 +91,6 @@ class World:
             pass
 
 
-def _quat_wxyz_to_xyzw(q: np.ndarray) -> list[float]:
-    return [float(q[1]), float(q[2]), float(q[3]), float(q[0])]
-
-
 class Character:
     """A body in a world: load it, set its pose, read joints and links in motion-layout terms."""
 
@@ -111,7 +108,7 @@ class Character:
         if not path.is_file():
             raise FileNotFoundError(f"URDF not found: {path}")
         self.id = pb.loadURDF(
-            str(path), list(base_position), _quat_wxyz_to_xyzw(np.asarray(base_orientation_wxyz)),
+            str(path), list(base_position), wxyz_to_xyzw(np.asarray(base_orientation_wxyz)),
             useFixedBase=spec.fixed_base, globalScaling=spec.global_scaling, flags=flags,
         )
         self.num_links = pb.getNumJoints(self.id)
@@ -160,7 +157,7 @@ class Character:
                 velocities.append([0.0 if qd is None else float(qd[voffset])])
                 offset, voffset = offset + 1, voffset + 1
             else:
-                positions.append(_quat_wxyz_to_xyzw(q[offset:offset + 4]))
+                positions.append(wxyz_to_xyzw(q[offset:offset + 4]))
                 velocities.append([0.0] * 3 if qd is None else [float(v) for v in qd[voffset:voffset + 3]])
                 offset, voffset = offset + 4, voffset + 3
         pb.resetJointStatesMultiDof(self.id, self.joint_indices, positions, velocities)
@@ -200,7 +197,7 @@ class Character:
         if links is None:  # only the end-effector links (the reference character's question)
             links = self.link_states(velocities=False, links=self.end_effector_links)
         tips = links[self.end_effector_links]
-        return tips[:, 0:3] + quat_rotate(tips[:, 3:7], self.end_effector_offset)
+        return tips[:, 0:3] + rotate(tips[:, 3:7], self.end_effector_offset)
 
 
 def pack_joint_states(joints, states) -> tuple[np.ndarray, np.ndarray]:
@@ -229,42 +226,3 @@ def pack_link_states(states, indices, num_links: int, velocities: bool = True) -
             out[i, 7:10] = s[6]
             out[i, 10:13] = s[7]
     return out
-
-
-def quat_rotate(q_wxyz: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate vector(s) ``v`` by unit quaternion(s) ``q`` (w, x, y, z); broadcasts over rows.
-
-    v' = v + w t + u x t with t = 2 u x v (u the vector part); written out because np.cross is
-    slow on small arrays and this runs every control step.
-    """
-    q = np.asarray(q_wxyz, dtype=np.float64)
-    v = np.asarray(v, dtype=np.float64)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
-    tx, ty, tz = 2 * (y * vz - z * vy), 2 * (z * vx - x * vz), 2 * (x * vy - y * vx)
-    return np.stack([vx + w * tx + (y * tz - z * ty),
-                     vy + w * ty + (z * tx - x * tz),
-                     vz + w * tz + (x * ty - y * tx)], axis=-1)
-
-
-def quat_conjugate(q_wxyz: np.ndarray) -> np.ndarray:
-    return np.asarray([q_wxyz[0], -q_wxyz[1], -q_wxyz[2], -q_wxyz[3]])
-
-
-def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of quaternions (w, x, y, z); broadcasts over leading axes."""
-    a, b = np.asarray(a), np.asarray(b)
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ], axis=-1)
-
-
-def quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Rotation angle (radians, in [0, pi]) of the difference between unit quaternions a and b."""
-    dot = np.abs(np.sum(np.asarray(a) * np.asarray(b), axis=-1))
-    return 2.0 * np.arccos(np.clip(dot, -1.0, 1.0))
