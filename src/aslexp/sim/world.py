@@ -72,6 +72,23 @@ class World:
     def timestep(self) -> float:
         return 1.0 / self.physics.physics_hz
 
+    def add_ground(self) -> int:
+        """A static plane through the origin facing against gravity (y up: the motions' frame)."""
+        import pybullet_data
+
+        up = np.asarray(self.physics.gravity, dtype=np.float64)
+        up = -up / max(np.linalg.norm(up), 1e-12)
+        # plane_implicit.urdf faces +z; turn +z onto `up`.
+        axis, cos = np.cross([0.0, 0.0, 1.0], up), float(up[2])
+        if np.linalg.norm(axis) < 1e-9:
+            xyzw = [0.0, 0.0, 0.0, 1.0] if cos > 0 else [1.0, 0.0, 0.0, 0.0]
+        else:
+            half = np.arccos(np.clip(cos, -1.0, 1.0)) / 2
+            axis = axis / np.linalg.norm(axis) * np.sin(half)
+            xyzw = [*axis.tolist(), float(np.cos(half))]
+        return self.client.loadURDF(str(Path(pybullet_data.getDataPath()) / "plane_implicit.urdf"),
+                                    [0.0, 0.0, 0.0], xyzw, useMaximalCoordinates=True)
+
     def step(self, substeps: int = 1) -> None:
         for _ in range(substeps):
             self.client.stepSimulation()
@@ -107,10 +124,20 @@ class Character:
         path = Path(urdf)
         if not path.is_file():
             raise FileNotFoundError(f"URDF not found: {path}")
+        # A kinematic reference is never stepped: a fixed base is the cheapest holder for it.
+        self.base = "fixed" if kinematic else spec.base
         self.id = pb.loadURDF(
             str(path), list(base_position), wxyz_to_xyzw(np.asarray(base_orientation_wxyz)),
-            useFixedBase=spec.fixed_base, globalScaling=spec.global_scaling, flags=flags,
+            useFixedBase=self.base == "fixed", globalScaling=spec.global_scaling, flags=flags,
         )
+        self._pin: int | None = None
+        if self.base == "pinned":
+            # Held by a constraint, not welded: PyBullet 3.2.7's stable PD reads a fixed-base body's
+            # joint states 7 slots off (its server's convertPose), a pinned free base reads right.
+            self._pin = pb.createConstraint(self.id, -1, -1, -1, pb.JOINT_FIXED, [0, 0, 0], [0, 0, 0],
+                                            list(base_position),
+                                            childFrameOrientation=wxyz_to_xyzw(base_orientation_wxyz))
+            pb.changeConstraint(self._pin, maxForce=1e9)
         self.num_links = pb.getNumJoints(self.id)
         self.link_names = [pb.getJointInfo(self.id, i)[12].decode() for i in range(self.num_links)]
         self.joint_indices = [j.index for j in layout.joints]
@@ -141,6 +168,24 @@ class Character:
                                                 velocityGain=0, force=[0, 0, 0])
 
     # -- state -----------------------------------------------------------------------------
+    def set_base(self, position, orientation_wxyz, linear_velocity=(0.0, 0.0, 0.0),
+                 angular_velocity=(0.0, 0.0, 0.0)) -> None:
+        """Teleport the root (a pinned root is pinned there); a fixed root only moves."""
+        pb = self.world.client
+        xyzw = wxyz_to_xyzw(orientation_wxyz)
+        pb.resetBasePositionAndOrientation(self.id, [float(v) for v in position], xyzw)
+        if self.base == "fixed":
+            return
+        if self._pin is not None:
+            pb.changeConstraint(self._pin, jointChildPivot=[float(v) for v in position],
+                                jointChildFrameOrientation=xyzw, maxForce=1e9)
+            linear_velocity = angular_velocity = (0.0, 0.0, 0.0)
+        pb.resetBaseVelocity(self.id, [float(v) for v in linear_velocity], [float(v) for v in angular_velocity])
+
+    def ground_contacts(self, ground: int) -> set[int]:
+        """Link indices (-1: the base) touching the body ``ground``."""
+        return {c[3] for c in self.world.client.getContactPoints(bodyA=self.id, bodyB=ground)}
+
     def set_state(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
         """Teleport the joints to ``q`` (motion-layout joint vector) with velocities ``qd``."""
         pb = self.world.client
