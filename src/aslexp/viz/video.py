@@ -27,14 +27,17 @@ def save_gif(frames, path: str | Path, fps: float = 15.0, max_frames: int = 150,
     if not frames:
         raise ValueError(f"{path}: no frames to write")
     keep = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), max_frames)).round().astype(int))
-    duration_ms = int(round(1000.0 / fps * len(frames) / len(keep)))
+    # GIF delays are whole centiseconds: spread the rounding so the clip keeps its duration.
+    step_ms = 1000.0 / fps * len(frames) / len(keep)
+    ends = np.round(np.arange(1, len(keep) + 1) * step_ms / 10.0).astype(int) * 10
+    durations = np.diff(np.concatenate([[0], ends])).tolist()
     # One palette for the whole clip (from a strip of sampled frames): no per-frame palettes, no flicker.
     sample = np.concatenate([frames[i] for i in keep[:: max(1, len(keep) // 8)]], axis=0)
     palette = Image.fromarray(sample).quantize(colors=colors, method=Image.Quantize.MEDIANCUT)
     images = [Image.fromarray(frames[i]).quantize(palette=palette, dither=Image.Dither.NONE) for i in keep]
     path = Path(path)
     with atomic_path(path) as tmp:
-        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=duration_ms,
+        images[0].save(tmp, format="GIF", save_all=True, append_images=images[1:], duration=durations,
                        loop=0, optimize=True)
     return path
 
