@@ -152,7 +152,7 @@ def convergence(args: argparse.Namespace) -> None:
     """No-learning baselines per solver setting: which settings give the converged rewards."""
     from aslexp.rl.evaluate import evaluate, reference_policy
 
-    print(f"mean reward over {args.steps} control steps from phase 0 (multiplicative reward), "
+    print(f"mean reward over {args.steps} control steps from phase 0 (the thesis reward, upper_body_thesis), "
           f"thesis controller one step ahead | reference-velocity controller, no correction")
     print("| solver (iterations x inner) | controller | " + " | ".join(SIGNS) + " | control steps/s (median) |")
     print("|---|---|" + "---|" * len(SIGNS) + "---|")

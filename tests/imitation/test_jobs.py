@@ -91,3 +91,29 @@ def test_tune_pd_measures_a_controller_with_target_options(tmp_path):
     assert rv["objective"] < 0.5 * thesis["objective"] and not rv["diverged"]
     saved = (tmp_path / "rv" / "controller.yaml").read_text()
     assert "velocity_scale: 0.8" in saved and "target_rate: physics" in saved
+
+
+def test_tune_pd_thesis_objective_is_eq_5_14(tmp_path, motion_a, data_root):
+    """Eq. 5.14 on the hand: per step, the sum over joints of squared pose errors plus that of squared
+    velocity errors, averaged over the steps; recomputed here from the joint states."""
+    import numpy as np
+
+    from aslexp.envs.imitation import ImitationEnv
+    from aslexp.envs.tracking import pd_tracking_error
+
+    env = ImitationEnv(motion_a, env={"reference_state_init": False}, data_root=data_root)
+    result = pd_tracking_error(env, 60, 1, objective="thesis")
+    env.reset(options={"time": 0.0})
+    pose, vel = [], []
+    for _ in range(60):
+        env.step(env.reference_action(1))
+        q, qd = env.sim.joint_state()
+        pose.append(np.sum((q - env.reference.joints(env.time)) ** 2))
+        vel.append(np.sum((qd - env.reference.joint_velocities(env.time)) ** 2))
+    assert result["pose_error"] == pytest.approx(np.mean(pose), rel=1e-9)
+    assert result["velocity_error"] == pytest.approx(np.mean(vel), rel=1e-9)
+    assert result["objective"] == pytest.approx(np.mean(pose) + np.mean(vel), rel=1e-9)
+    run_job("tune_pd", "tuning.objective=thesis", "tuning.random.seconds=1.0", f"hydra.run.dir={tmp_path}")
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["objective_kind"] == "thesis"
+    assert metrics["objective"] == pytest.approx(metrics["pose_error"] + metrics["velocity_error"])

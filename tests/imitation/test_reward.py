@@ -12,6 +12,8 @@ from aslexp.envs.imitation import ImitationEnv
 from aslexp.envs.reward import ImitationReward, PoseSnapshot, RewardSpec
 from aslexp.sim.body import BodySpec, load_layout
 
+from .thesis_values import TABLE_5_2
+
 
 @pytest.fixture(scope="module")
 def layout(data_root):
@@ -28,10 +30,31 @@ def snapshot(q=None, qd=None, ee=None, root_pos=(0, 0.9, 0), root_rot=(1, 0, 0, 
     )
 
 
-def test_thesis_defaults_are_the_config():
-    spec = RewardSpec.from_dict(resolve_group("reward", "deepmimic"))
-    assert {k: (t.weight, t.scale) for k, t in spec.terms.items()} == {
-        "pose": (0.65, 2.0), "velocity": (0.1, 0.1), "end_effector": (0.15, 40.0), "root": (0.1, 10.0)}
+@pytest.mark.parametrize("name", ["deepmimic", "hand_thesis"])
+def test_table_5_2_is_the_config(name):
+    spec = RewardSpec.from_dict(resolve_group("reward", name))
+    assert {k: (t.weight, t.scale) for k, t in spec.terms.items()} == TABLE_5_2
+    assert spec.combine == "sum" and not spec.normalize_joint_weights  # Eq. 5.12, sums (Eq. 5.10)
+
+
+def test_hand_thesis_equals_the_hand_computation_and_the_code_is_an_option(layout):
+    """Eq. 5.10/5.12 with Table 5.2 on a known state; the root counts as a joint (authors' code)."""
+    q = np.zeros(15)
+    q[[2, 9]] = [0.1, -0.2]
+    qd = np.zeros(15)
+    qd[[0, 7]] = [1.0, -2.0]
+    ee = np.zeros((5, 3))
+    ee[2] = [0.0, 0.01, 0.0]
+    angle = 0.1
+    sim = snapshot(q, qd, ee, root_pos=(0.1, 0.9, 0.0), root_rot=(math.cos(angle / 2), math.sin(angle / 2), 0, 0))
+    errors = {"pose": 0.1 ** 2 + 0.2 ** 2 + angle ** 2, "velocity": 1.0 + 4.0, "end_effector": 0.01 ** 2 / 5,
+              "root": 0.1 ** 2 + 0.1 * angle ** 2}
+    for name, table in (("hand_thesis", TABLE_5_2),
+                        ("hand_code", {"pose": (0.5 / 0.9, 2), "velocity": (0.05 / 0.9, 0.1),
+                                       "end_effector": (0.15 / 0.9, 40), "root": (0.2 / 0.9, 5)})):
+        total, _, got = ImitationReward(RewardSpec.from_dict(resolve_group("reward", name)), layout)(sim, snapshot())
+        assert {k: got[k] for k in errors} == pytest.approx(errors, rel=1e-9), name
+        assert total == pytest.approx(sum(w * math.exp(-k * errors[t]) for t, (w, k) in table.items()), rel=1e-9)
 
 
 def test_identical_states_score_one(layout):

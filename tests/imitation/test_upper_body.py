@@ -17,7 +17,7 @@ from aslexp.sim.body import BodySpec, load_layout
 from aslexp.sim.motion import MotionFormatError
 from aslexp.sim.upper_body import UpperBodyProportions, build_upper_body_urdf, write_upper_body_urdf
 from aslexp.sim.urdf import compare_joint_tables, read_joints
-from aslexp.sim.world import quat_multiply
+from aslexp.quaternion import multiply as quat_multiply
 
 
 @pytest.fixture(scope="module")

@@ -18,7 +18,7 @@ PROJECT_ROOT = Path(__file__).resolve().parents[3]
 CONF_DIR = PROJECT_ROOT / "conf"
 
 DEFAULTS = {"body": "hand15", "controller": "thesis", "reward": "deepmimic", "env": "default",
-            "ppo": "thesis"}
+            "ppo": "base"}
 
 
 def deep_merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:

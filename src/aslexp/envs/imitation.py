@@ -7,14 +7,20 @@ One control step (``1 / control_hz`` seconds):
      substep; ``target_velocity: reference`` adds the reference velocity as velocity target);
   2. the world steps ``physics_hz / control_hz`` times;
   3. the reward compares the simulated character with the reference at the new time;
-  4. the observation: phase, then each link's position, orientation, linear and angular velocity
-     in the root frame, then (``observe_future``) upcoming reference joint positions (and, with
-     ``observe_future_velocities``, velocities), then
-     (``observe_joints``) the joint positions and velocities.
+  4. the observation (``observation: aslexp``): phase, then each link's position, orientation,
+     linear and angular velocity in the root frame, then (``observe_future``) upcoming reference
+     joint positions (and, with ``observe_future_velocities``, velocities), then
+     (``observe_joints``) the joint positions and velocities. ``observation: deepmimic`` is the
+     authors' (DeepMimic's) state instead: phase, root height, every observed link's position
+     (relative to the root) and orientation, then every link's linear and angular velocity, all in
+     the root's heading frame (the root's yaw about the up axis removed: a tilt stays visible),
+     followed by the same options.
 
 Episodes end when ``episode_steps`` have passed (truncated), and are terminated on a NaN action,
 a diverging simulation (non-finite state or joint speed above ``max_joint_velocity``) or, if
-configured, a step reward below ``early_termination.min_reward``. Every such end is flagged in
+configured, a step reward below ``early_termination.min_reward`` or a fall
+(``early_termination.fall``: with ``body.base: free``, a link other than ``body.ground_contacts``
+touching the ground, as the authors' "forbidden ground contact"). Every such end is flagged in
 ``info`` and counted in :attr:`ImitationEnv.counters`.
 """
 
@@ -36,8 +42,12 @@ from aslexp.sim.body import BodySpec, load_layout
 from aslexp.sim.motion import Motion, load_motion
 from aslexp.sim.pd import ControllerSpec, PDController
 from aslexp.sim.reference import ReferenceMotion
-from aslexp.sim.world import Character, PhysicsConfig, World, quat_conjugate, quat_multiply
+from aslexp import quaternion
+from aslexp.sim.world import Character, PhysicsConfig, World
 
+
+OBSERVATIONS = ("aslexp", "deepmimic")
+UP_AXIS = 1  # the motions and worlds are y-up (gravity -9.8 y)
 
 # Rendering camera (TinyRenderer) looking at the mean link position: the hand's view.
 DEFAULT_CAMERA = {"distance": 0.5, "yaw": 90.0, "pitch": -10.0}
@@ -66,6 +76,7 @@ class EnvSpec:
     # Links in the observation (fnmatch patterns on link names, URDF order); None: every link.
     observe_links: tuple[str, ...] | None = None
     camera: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_CAMERA))
+    observation: str = "aslexp"  # aslexp (root frame, per link 13 values) | deepmimic (the authors')
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "EnvSpec":
@@ -78,6 +89,12 @@ class EnvSpec:
         if values.get("observe_links") is not None:
             values["observe_links"] = tuple(str(p) for p in values["observe_links"])
         spec = cls(**values)
+        if spec.observation not in OBSERVATIONS:
+            raise ValueError(f"env config: observation must be one of {OBSERVATIONS}, got {spec.observation!r}")
+        unknown_end = set(spec.early_termination or {}) - {"min_reward", "fall"}
+        if unknown_end:
+            raise ValueError(f"env config: early_termination has unknown keys {sorted(unknown_end)}; "
+                             f"expected min_reward, fall")
         if spec.action_mode not in ("absolute", "residual"):
             raise ValueError(f"env config: action_mode must be absolute or residual, got {spec.action_mode!r}")
         ratio = spec.physics_hz / spec.control_hz
@@ -101,15 +118,6 @@ def resolve_motion_path(motion: str | os.PathLike, data_root: str | os.PathLike 
 
         data_root = resolve_data_root(None, must_exist=False)
     return Path(data_root) / path
-
-
-def _rotation_matrix(q_wxyz: np.ndarray) -> np.ndarray:
-    w, x, y, z = q_wxyz
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
 
 
 class ImitationEnv(gym.Env):
@@ -179,12 +187,19 @@ class ImitationEnv(gym.Env):
         self.sim_world = World(physics)
         self.ref_world = World(physics)
         self.sim = Character(self.sim_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot)
+        self.ground = self.sim_world.add_ground() if self.body_spec.base == "free" else None
+        unknown = [n for n in self.body_spec.ground_contacts if n not in self.sim.link_names]
+        if unknown:
+            raise ValueError(f"body {self.body_spec.name}: ground_contacts {unknown} are not links; "
+                             f"links: {self.sim.link_names}")
+        self._allowed_contacts = {self.sim.link_names.index(n) for n in self.body_spec.ground_contacts}
         self.ref = Character(self.ref_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot,
                              kinematic=True)
         if render_mode == "rgb_array":
             _colour(self.ref, (0.25, 0.45, 0.85))  # reference: blue
             _colour(self.sim, (0.95, 0.55, 0.15))  # simulation: orange
         self.controller = PDController(self.controller_spec, self.layout)
+        self.controller.check_body(self.sim)
         if self.controller_spec.target_rate == "physics" and self.spec_env.action_mode != "residual":
             raise ValueError(f"controller {self.controller_spec.name}: target_rate physics re-samples the "
                              f"reference under the policy's correction and needs env action_mode residual, "
@@ -222,6 +237,7 @@ class ImitationEnv(gym.Env):
         self._state_links = (None if self.spec_env.observe_links is None else
                              sorted(set(self.observed_links.tolist()) | set(self.sim.end_effector_links)))
         obs_size = 1 + 13 * len(self.observed_links) + len(self.spec_env.observe_future) * self.layout.action_size
+        obs_size += self.spec_env.observation == "deepmimic"  # the root height
         if self.spec_env.observe_future_velocities:
             obs_size += len(self.spec_env.observe_future) * self.velocity_size
         if self.spec_env.observe_joints:
@@ -231,6 +247,8 @@ class ImitationEnv(gym.Env):
         # -- episode state and counters --------------------------------------------------
         self.time = 0.0
         self.steps = 0
+        self.last_sim_state: PoseSnapshot | None = None
+        self.last_reference_state: PoseSnapshot | None = None
         self.counters: dict[str, int] = defaultdict(int)
         self._term_sums: dict[str, float] = defaultdict(float)
 
@@ -276,6 +294,7 @@ class ImitationEnv(gym.Env):
             if not spec.is_thesis_pd:
                 raise ValueError(f"default controller {spec.name!r} has target options; baselines need a plain one")
             self._default_controller = PDController(spec, self.layout)
+            self._default_controller.check_body(self.sim)
         previous = self._thesis_pd, self.controller
         self._thesis_pd, self.controller = True, self._default_controller
         try:
@@ -310,8 +329,7 @@ class ImitationEnv(gym.Env):
         else:
             targets = action
         targets = np.clip(targets, self.joint_lower, self.joint_upper)
-        self.controller.apply(self.sim, targets, velocity_targets(target_time))
-        self.sim_world.step(n)
+        self.controller.drive(self.sim, targets, velocity_targets(target_time), n)
 
     def _reference_snapshot(self, t: float) -> PoseSnapshot:
         q = self.reference.joints(t)
@@ -330,14 +348,20 @@ class ImitationEnv(gym.Env):
         root_pos, root_rot, _, _ = self.sim.base_state()
         if len(self.observed_links) != len(links):
             links = links[self.observed_links]
-        to_root = _rotation_matrix(root_rot).T
+        deepmimic = self.spec_env.observation == "deepmimic"
+        frame = heading_rotation(root_rot) if deepmimic else root_rot  # the frame links are seen in
+        to_frame = quaternion.to_matrix(frame).T
         local = np.empty_like(links)
-        local[:, 0:3] = (links[:, 0:3] - root_pos) @ to_root.T
-        rot = quat_multiply(quat_conjugate(root_rot), links[:, 3:7])
+        local[:, 0:3] = (links[:, 0:3] - root_pos) @ to_frame.T
+        rot = quaternion.multiply(quaternion.conjugate(frame), links[:, 3:7])
         local[:, 3:7] = np.where(rot[:, :1] < 0, -rot, rot)  # one sign per rotation
-        local[:, 7:10] = links[:, 7:10] @ to_root.T
-        local[:, 10:13] = links[:, 10:13] @ to_root.T
-        parts = [np.asarray([self.reference.phase(self.time)]), local.ravel()]
+        local[:, 7:10] = links[:, 7:10] @ to_frame.T
+        local[:, 10:13] = links[:, 10:13] @ to_frame.T
+        if deepmimic:  # phase, root height, then all poses, then all velocities (DeepMimic's order)
+            parts = [np.asarray([self.reference.phase(self.time), root_pos[UP_AXIS]]),
+                     local[:, 0:7].ravel(), local[:, 7:13].ravel()]
+        else:
+            parts = [np.asarray([self.reference.phase(self.time)]), local.ravel()]
         for k in self.spec_env.observe_future:
             parts.append(self.reference.joints(self.time + k * self.control_dt))
         if self.spec_env.observe_future_velocities:
@@ -364,6 +388,7 @@ class ImitationEnv(gym.Env):
         q = self.reference.joints(self.time)
         qd = self.reference.joint_velocities(self.time)
         self.sim.set_state(q, qd)
+        self.sim.set_base(*self.reference.root(self.time))
         self._reference_snapshot(self.time)
         links = self.sim.link_states(links=self._state_links)
         self.counters["episodes"] += 1
@@ -392,20 +417,31 @@ class ImitationEnv(gym.Env):
             obs = np.nan_to_num(self._observation(links), nan=0.0, posinf=0.0, neginf=0.0)
             return obs, 0.0, True, False, {"nan_action": False, "diverged": True}
 
-        reward, terms, errors = self.reward_fn(sim_state, self._reference_snapshot(self.time))
+        ref_state = self._reference_snapshot(self.time)
+        self.last_sim_state, self.last_reference_state = sim_state, ref_state  # what the reward compared
+        reward, terms, errors = self.reward_fn(sim_state, ref_state)
         for name, value in terms.items():
             self._term_sums[name] += value
         self._term_sums["reward"] += reward
         self._term_sums["steps"] += 1
 
-        min_reward = (self.spec_env.early_termination or {}).get("min_reward")
-        early = min_reward is not None and reward < float(min_reward)
+        ending = self.spec_env.early_termination or {}
+        min_reward = ending.get("min_reward")
+        fell = bool(ending.get("fall")) and self.fallen()
+        early = fell or (min_reward is not None and reward < float(min_reward))
         if early:
             self.counters["early_terminations"] += 1
+            self.counters["falls"] += fell
         truncated = self.steps >= self.spec_env.episode_steps and not early
-        info = {"nan_action": False, "diverged": False, "early_termination": early,
+        info = {"nan_action": False, "diverged": False, "early_termination": early, "fall": fell,
                 **{f"r_{k}": v for k, v in terms.items()}, **{f"e_{k}": v for k, v in errors.items()}}
         return self._observation(links), reward, early, truncated, info
+
+    def fallen(self) -> bool:
+        """True when a link other than the body's ``ground_contacts`` touches the ground."""
+        if self.ground is None:
+            return False
+        return bool(self.sim.ground_contacts(self.ground) - self._allowed_contacts)
 
     def pop_term_means(self) -> dict[str, float]:
         """Mean reward and per-term rewards since the last call (for training logs)."""
@@ -426,6 +462,14 @@ class ImitationEnv(gym.Env):
     def close(self) -> None:
         self.sim_world.close()
         self.ref_world.close()
+
+
+def heading_rotation(root_rot: np.ndarray) -> np.ndarray:
+    """The root's rotation about the up axis alone (its heading), as DeepMimic's state frame: the
+    root's x axis projected on the ground plane gives the heading angle."""
+    forward = quaternion.rotate(root_rot, np.array([1.0, 0.0, 0.0]))
+    heading = np.arctan2(-forward[2], forward[0])  # about +y (y up)
+    return np.array([np.cos(heading / 2), 0.0, np.sin(heading / 2), 0.0])
 
 
 def _colour(character: Character, rgb: tuple[float, float, float]) -> None:

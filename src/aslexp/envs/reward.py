@@ -12,6 +12,12 @@ A term may be named freely when it says which ``error`` it uses and, for pose an
 which joint ``groups`` it covers: the upper body's multiplicative reward (thesis 6.1-6.3)
 ``r = r_p * r_v * r_e * r_r`` splits r_p and r_v into body and hands this way
 (``pose_body: {error: pose, groups: [chest, ...]}``, ``pose_hands: {error: pose, groups: [fingers]}``).
+A pose or velocity term with ``root: true`` also counts the root as a joint, as the authors' code
+(DeepMimic's) does: the root's rotation angle^2 is added to the pose error, its angular-velocity
+error |dw|^2 to the velocity error.
+
+Joint errors are summed (Eq. 5.10, the thesis and the authors' code) unless
+``normalize_joint_weights`` makes them a weighted mean (aslexp's earlier upper-body default).
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from aslexp.sim.body import BodyLayout
-from aslexp.sim.world import quat_angle
+from aslexp.quaternion import angle as quat_angle
 
 TERMS = ("pose", "velocity", "end_effector", "root")
 COMBINE = ("sum", "product")
@@ -36,6 +42,7 @@ class TermSpec:
     scale: float
     error: str | None = None  # which error (TERMS); None: the term's own name
     groups: tuple[str, ...] | None = None  # joint groups of a pose/velocity term; None: all
+    root: bool = False  # pose/velocity term: the root counts as one more joint (the authors' code)
 
     def kind(self, name: str) -> str:
         return self.error or name
@@ -63,17 +70,19 @@ class RewardSpec:
         for name, term in (values.get("terms") or {}).items():
             if term is None:  # a term switched off by an override (`reward.terms.pose: null`)
                 continue
-            unknown_keys = set(term) - {"weight", "scale", "error", "groups"}
+            unknown_keys = set(term) - {"weight", "scale", "error", "groups", "root"}
             if unknown_keys:
                 raise ValueError(f"reward config: term {name!r} has unknown keys {sorted(unknown_keys)}")
             kind = term.get("error") or name
             if kind not in TERMS:
                 raise ValueError(f"reward config: unknown term {name!r} (error {kind!r}); known errors: {TERMS}")
             groups = term.get("groups")
-            if groups is not None and kind not in ("pose", "velocity"):
-                raise ValueError(f"reward config: term {name!r}: `groups` applies to pose and velocity only")
+            if (groups is not None or term.get("root")) and kind not in ("pose", "velocity"):
+                raise ValueError(f"reward config: term {name!r}: `groups` and `root` apply to pose and "
+                                 f"velocity only")
             terms[name] = TermSpec(float(term["weight"]), float(term["scale"]), term.get("error"),
-                                   None if groups is None else tuple(str(g) for g in groups))
+                                   None if groups is None else tuple(str(g) for g in groups),
+                                   bool(term.get("root", False)))
         combine = values.get("combine", "sum")
         if combine not in COMBINE:
             raise ValueError(f"reward config: combine must be one of {COMBINE}, got {combine!r}")
@@ -164,14 +173,20 @@ class ImitationReward:
             end = 0.0
         c = self.spec.root_error
         root_angle = float(quat_angle(sim.root_rot, ref.root_rot))
+        root_ang_err = float(np.sum((sim.root_ang_vel - ref.root_ang_vel) ** 2))
         root = (c["position"] * float(np.sum((sim.root_pos - ref.root_pos) ** 2))
                 + c["rotation"] * root_angle * root_angle
                 + c["velocity"] * float(np.sum((sim.root_vel - ref.root_vel) ** 2))
-                + c["angular_velocity"] * float(np.sum((sim.root_ang_vel - ref.root_ang_vel) ** 2)))
+                + c["angular_velocity"] * root_ang_err)
+        root_as_joint = {"pose": root_angle * root_angle, "velocity": root_ang_err}
         out = {"pose": pose, "velocity": vel, "end_effector": end, "root": root}
-        for name, weights in self._term_weights.items():
-            per_joint = pose_j if self.spec.terms[name].kind(name) == "pose" else vel_j
-            out[name] = float(weights @ per_joint)
+        for name, term in self.spec.terms.items():
+            kind = term.kind(name)
+            if name in self._term_weights:
+                per_joint = pose_j if kind == "pose" else vel_j
+                out[name] = float(self._term_weights[name] @ per_joint)
+            if term.root:
+                out[name] = out.get(name, out[kind]) + root_as_joint[kind]
         return out
 
     def combine(self, errors: dict[str, float]) -> tuple[float, dict[str, float]]:

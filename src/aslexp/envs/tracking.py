@@ -1,38 +1,87 @@
-"""How well a PD controller alone tracks a reference: the PD-tuning objective (thesis 5.3.1)."""
+"""Driving a body with the reference and no policy: the PD-tuning objective (thesis 5.3.1) and the
+no-learning baselines every learned result is reported beside."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from aslexp.envs.imitation import ImitationEnv
 
+OBJECTIVES = ("mean_abs", "thesis")
 
-def pd_tracking_error(env: ImitationEnv, steps: int | None = None, lookahead: int = 1) -> dict[str, Any]:
-    """Drive the PD targets with the reference ``lookahead`` control steps ahead, from time 0.
 
-    Returns the mean absolute joint position error (rad), velocity error (rad/s), their sum
-    (the objective), the mean imitation reward and whether the simulation diverged.
-    """
-    steps = steps or max(1, int(env.reference.duration / env.control_dt))
-    env.reset(options={"time": 0.0})
-    pose_err, vel_err, rewards = [], [], []
-    diverged = False
+@dataclass
+class Rollout:
+    """One reference-driven episode from a start time."""
+
+    rewards: list[float] = field(default_factory=list)
+    planned_steps: int = 0
+    ended_early: bool = False
+    fell: bool = False
+    diverged: bool = False
+    terms: dict[str, float] = field(default_factory=dict)  # mean per-term rewards over the steps run
+    pose_errors: list[np.ndarray] = field(default_factory=list)  # per step, per joint (see record)
+    velocity_errors: list[np.ndarray] = field(default_factory=list)
+
+    @property
+    def mean_reward(self) -> float:
+        """Sum of step rewards / planned steps: an early end scores 0 for the rest (as evaluations)."""
+        return float(np.sum(self.rewards) / max(self.planned_steps, 1))
+
+
+def reference_rollout(env: ImitationEnv, steps: int, lookahead: int = 1, start_time: float = 0.0,
+                      record_errors: bool = False) -> Rollout:
+    """Step ``env`` with its reference ``lookahead`` control steps ahead (``env.reference_action``:
+    a zero correction in residual mode) for ``steps`` control steps from ``start_time``. With
+    ``record_errors`` each step's per-joint pose errors (rad: the angle of the quaternion difference
+    for a spherical joint) and velocity errors are kept (the reward's own error definitions)."""
+    env.reset(options={"time": start_time})
+    out = Rollout(planned_steps=steps)
+    sums: dict[str, float] = {}
     for _ in range(steps):
         _, reward, terminated, _, info = env.step(env.reference_action(lookahead))
         if info.get("diverged"):
-            diverged = True
+            out.diverged = out.ended_early = True
             break
-        q, qd = env.sim.joint_state()
-        pose_err.append(np.mean(np.abs(q - env.reference.joints(env.time))))
-        vel_err.append(np.mean(np.abs(qd - env.reference.joint_velocities(env.time))))
-        rewards.append(reward)
+        out.rewards.append(float(reward))
+        for name, value in info.items():
+            if name.startswith("r_"):
+                sums[name[2:]] = sums.get(name[2:], 0.0) + value
+        if record_errors:
+            pose_sq, vel_sq = env.reward_fn.joint_errors(env.last_sim_state, env.last_reference_state)
+            out.pose_errors.append(np.sqrt(pose_sq))
+            out.velocity_errors.append(np.sqrt(vel_sq))
         if terminated:
+            out.ended_early, out.fell = True, bool(info.get("fall"))
             break
-    if diverged or not pose_err:
+    out.terms = {k: v / max(len(out.rewards), 1) for k, v in sums.items()}
+    return out
+
+
+def pd_tracking_error(env: ImitationEnv, steps: int | None = None, lookahead: int = 1,
+                      objective: str = "mean_abs") -> dict[str, Any]:
+    """Drive the PD targets with the reference ``lookahead`` control steps ahead, from time 0.
+
+    ``objective``: ``mean_abs`` (aslexp's): mean over steps and joints of |position error| (rad)
+    plus the same of |velocity error| (rad/s); ``thesis`` (Eq. 5.14): e_p + e_v with each the
+    Eq. 5.10 sum over joints of squared errors, averaged over the steps. Returns both error parts,
+    the objective, the mean imitation reward and whether the simulation diverged.
+    """
+    if objective not in OBJECTIVES:
+        raise ValueError(f"tune_pd: tuning.objective must be one of {OBJECTIVES}, got {objective!r}")
+    steps = steps or max(1, int(env.reference.duration / env.control_dt))
+    run = reference_rollout(env, steps, lookahead, record_errors=True)
+    if run.diverged or not run.pose_errors:
         return {"pose_error": float("inf"), "velocity_error": float("inf"), "objective": float("inf"),
-                "reward": 0.0, "diverged": True, "steps": len(pose_err)}
-    pose, vel = float(np.mean(pose_err)), float(np.mean(vel_err))
-    return {"pose_error": pose, "velocity_error": vel, "objective": pose + vel,
-            "reward": float(np.mean(rewards)), "diverged": False, "steps": len(pose_err)}
+                "objective_kind": objective, "reward": 0.0, "diverged": True, "steps": len(run.pose_errors)}
+    pose, vel = np.asarray(run.pose_errors), np.asarray(run.velocity_errors)
+    if objective == "thesis":
+        pose_err, vel_err = float(np.mean(np.sum(pose ** 2, axis=1))), float(np.mean(np.sum(vel ** 2, axis=1)))
+    else:
+        pose_err, vel_err = float(np.mean(pose)), float(np.mean(vel))
+    return {"pose_error": pose_err, "velocity_error": vel_err, "objective": pose_err + vel_err,
+            "objective_kind": objective, "reward": float(np.mean(run.rewards)), "diverged": False,
+            "steps": len(run.pose_errors)}

@@ -2,8 +2,10 @@
 
 The same environment as the hand's (:class:`~aslexp.envs.imitation.ImitationEnv`), with the
 upper body's config groups as defaults: ``body=upper_body`` (built model; ``upper_body_thesis``
-loads the thesis' URDF), ``controller=upper_body``, ``reward=multiplicative`` and
-``env=upper_body``. Registered as ``aslexp/UpperBodyImitation-v0``::
+loads the thesis' URDF), ``controller=upper_body`` (position control, fixed base),
+``reward=upper_body_thesis`` (Eqs. 6.1-6.3, summed errors, Table 6.5 Run 4) and ``env=upper_body``
+(30 Hz). The authors' setting is ``controller=upper_body_thesis`` (stable PD) with
+``body.base=pinned`` (or ``free``) and ``env=upper_body_thesis`` (240 Hz). Registered as ``aslexp/UpperBodyImitation-v0``::
 
     gym.make("aslexp/UpperBodyImitation-v0", motion="motions/upper_body/00433.txt")
 """
@@ -12,7 +14,7 @@ from __future__ import annotations
 
 from aslexp.envs.imitation import ImitationEnv
 
-UPPER_BODY_DEFAULTS = {"body": "upper_body", "controller": "upper_body", "reward": "multiplicative",
+UPPER_BODY_DEFAULTS = {"body": "upper_body", "controller": "upper_body", "reward": "upper_body_thesis",
                        "env": "upper_body"}
 
 

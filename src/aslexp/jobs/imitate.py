@@ -5,11 +5,13 @@
     aslexp imitate motion=A ppo.total_steps=0                 # baselines and plots only
     aslexp imitate hydra.run.dir=outputs/imitate/X +resume=outputs/imitate/X   # continue a run
     aslexp imitate -m experiment=letters                     # letters x seeds (figure 5.9)
+    aslexp imitate -m experiment=letters_thesis              # the same as the thesis ran it, beside it
 
 The run folder gets: metrics.json (baselines, best/last evaluation, steps, seconds, steps per
 second, counts of NaN actions / divergences / early ends, steps and seconds to pass the
 lookahead baseline), progress.csv, checkpoints/{last,best}.pt, reward_curve.png,
-tracking.png (reference vs simulation per joint) and imitation.gif (reference | simulation).
+tracking.png (reference vs simulation per joint), imitation.gif (reference | simulation; small) and
+imitation.mp4 (H.264, where an encoder is installed).
 """
 
 from __future__ import annotations
@@ -127,8 +129,12 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         report.plot_reward_curve(trainer.history, base, out_dir / "reward_curve.png",
                                  f"{cfg['motion']['name']} (seed {cfg.get('seed')})")
     if frames_every and "frames" in final.trajectory:
-        report.save_gif(final.trajectory["frames"], out_dir / "imitation.gif",
-                        fps=eval_env.spec_env.control_hz / frames_every)
+        from aslexp.viz.video import save_gif, save_mp4
+
+        fps = eval_env.spec_env.control_hz / frames_every
+        save_gif(final.trajectory["frames"], out_dir / "imitation.gif", fps=fps)
+        if render.get("mp4", True) and save_mp4(final.trajectory["frames"], out_dir / "imitation.mp4", fps) is None:
+            log.info("no H.264 encoder (pip install imageio-ffmpeg): imitation.gif only")
     rows = [h for h in trainer.history if "steps_per_s" in h]
     counters = dict(train_env.counters)
     metrics = {
@@ -191,6 +197,18 @@ class LettersSummary(_MultirunSummary):
         from aslexp.rl.report import summarize_letters
 
         return summarize_letters(sweep_dir)
+
+
+class ThesisSummary(_MultirunSummary):
+    """The thesis overlays: per letter or sign, the thesis' number, every no-learning baseline and the
+    learned policies' last evaluation, all under the runs' reward (aslexp.rl.thesis_report)."""
+
+    kind = "thesis"
+
+    def summarize(self, sweep_dir: Path) -> dict:
+        from aslexp.rl.thesis_report import summarize_thesis
+
+        return summarize_thesis(sweep_dir)
 
 
 class SignsSummary(_MultirunSummary):

@@ -2,13 +2,16 @@
 
     aslexp tune_pd                                   # the controller config's gains
     aslexp tune_pd tuning.kp=0.5 tuning.kd=1.0       # other gains
+    aslexp tune_pd tuning.objective=thesis           # Eq. 5.14: sums of squared errors
     aslexp tune_pd -m +sweeps=pd_gains_1             # Optuna (TPE) over kp, kd in [0, 1]
 
     aslexp tune_pd -m +sweeps=pd_gains_reference_velocity   # kp, kd, velocity_scale of the
                                                             # reference-velocity controller
 
-The objective (minimised) is mean |position error| + mean |velocity error| while the PD targets
-follow the reference: one control step ahead for the thesis controller; for a controller with
+The objective (minimised) while the PD targets follow the reference is ``tuning.objective``:
+``mean_abs`` (aslexp's): mean |position error| + mean |velocity error|; ``thesis`` (Eq. 5.14):
+pose error + velocity error, each the sum over joints of squared errors (Eq. 5.10), averaged over
+the steps. The targets are one control step ahead for the thesis controller; for a controller with
 target options (``target_velocity: reference``, ``target_rate: physics``) the environment runs
 with ``action_mode: residual`` and no correction, so the controller's own targets are what is
 measured. The reference is a random smooth motion (``tuning.motion: random``) or a motion file.
@@ -71,7 +74,7 @@ def tune_pd(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     env = ImitationEnv(motion, body=cfg["body"], controller=controller, reward=cfg["reward"], env=env_cfg,
                        data_root=data_root, complete_configs=True)  # Hydra composed every group
     lookahead = int(tuning.get("lookahead", 1)) if plain else env.spec_env.reference_lookahead
-    result = pd_tracking_error(env, tuning.get("steps"), lookahead)
+    result = pd_tracking_error(env, tuning.get("steps"), lookahead, tuning.get("objective", "mean_abs"))
     env.close()
     with open(out_dir / "controller.yaml", "w", encoding="utf-8") as fh:
         fh.write(f"# from aslexp tune_pd: objective {result['objective']:.5f}\n")

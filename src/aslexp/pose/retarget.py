@@ -45,6 +45,9 @@ from pathlib import Path
 import numpy as np
 
 from aslexp.keypoints import holistic as H
+from aslexp.quaternion import angle as quat_angle  # noqa: F401  (re-exported for callers)
+from aslexp.quaternion import from_matrix as matrix_to_quat
+from aslexp.quaternion import to_matrix as quat_to_matrix
 
 MP_TO_HUMANOID = np.array([[0.0, 0.0, -1.0], [0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]])
 
@@ -107,57 +110,6 @@ def axis_angle_matrix(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
     return np.eye(3) + s * k + (1 - c) * (k @ k)
-
-
-def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    """(..., 4) quaternions (w, x, y, z) -> (..., 3, 3)."""
-    q = _normalize(np.asarray(q, dtype=float))
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)  # fmt: skip
-
-
-def matrix_to_quat(m: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotations -> (..., 4) quaternions (w, x, y, z), w >= 0 (Shepperd's method)."""
-    m = np.asarray(m, dtype=float)
-    shape = m.shape[:-2]
-    m = m.reshape(-1, 3, 3)
-    q = np.empty((m.shape[0], 4))
-    trace = np.trace(m, axis1=1, axis2=2)
-    diag = np.stack([m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], 1)
-    best = np.argmax(np.concatenate([trace[:, None], diag], 1), axis=1)
-    for case in range(4):
-        idx = best == case
-        if not np.any(idx):
-            continue
-        r = m[idx]
-        if case == 0:
-            s = np.sqrt(1.0 + trace[idx]) * 2
-            q[idx] = np.stack([0.25 * s, (r[:, 2, 1] - r[:, 1, 2]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s,
-                               (r[:, 1, 0] - r[:, 0, 1]) / s], 1)  # fmt: skip
-        elif case == 1:
-            s = np.sqrt(1.0 + r[:, 0, 0] - r[:, 1, 1] - r[:, 2, 2]) * 2
-            q[idx] = np.stack([(r[:, 2, 1] - r[:, 1, 2]) / s, 0.25 * s, (r[:, 0, 1] + r[:, 1, 0]) / s,
-                               (r[:, 0, 2] + r[:, 2, 0]) / s], 1)  # fmt: skip
-        elif case == 2:
-            s = np.sqrt(1.0 + r[:, 1, 1] - r[:, 0, 0] - r[:, 2, 2]) * 2
-            q[idx] = np.stack([(r[:, 0, 2] - r[:, 2, 0]) / s, (r[:, 0, 1] + r[:, 1, 0]) / s, 0.25 * s,
-                               (r[:, 1, 2] + r[:, 2, 1]) / s], 1)  # fmt: skip
-        else:
-            s = np.sqrt(1.0 + r[:, 2, 2] - r[:, 0, 0] - r[:, 1, 1]) * 2
-            q[idx] = np.stack([(r[:, 1, 0] - r[:, 0, 1]) / s, (r[:, 0, 2] + r[:, 2, 0]) / s,
-                               (r[:, 1, 2] + r[:, 2, 1]) / s, 0.25 * s], 1)  # fmt: skip
-    q *= np.where(q[:, :1] < 0, -1.0, 1.0)
-    return q.reshape(*shape, 4)
-
-
-def quat_angle(q1: np.ndarray, q2: np.ndarray) -> np.ndarray:
-    """Geodesic angle (radians) between rotations given as (..., 4) quaternions."""
-    d = np.abs(np.sum(_normalize(q1) * _normalize(q2), axis=-1))
-    return 2 * np.arccos(np.clip(d, -1.0, 1.0))
 
 
 def signed_angle(u: np.ndarray, v: np.ndarray, axis: np.ndarray) -> np.ndarray:

@@ -15,10 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.sim.world import quat_angle
-
-IDENTITY_WXYZ = np.array([1.0, 0.0, 0.0, 0.0])
-
+from aslexp.quaternion import IDENTITY as IDENTITY_WXYZ, angle as quat_angle
 
 def _pyplot():
     import matplotlib
@@ -99,17 +96,6 @@ def plot_reward_curve(history: list[dict[str, Any]], baselines: dict[str, float]
     return Path(path)
 
 
-def save_gif(frames: list[np.ndarray] | np.ndarray, path: str | Path, fps: float = 15.0) -> Path:
-    """Animated GIF of RGB frames (reference left, imitation right)."""
-    from PIL import Image
-
-    images = [Image.fromarray(np.asarray(f, dtype=np.uint8)) for f in frames]
-    if not images:
-        raise ValueError("no frames to write")
-    images[0].save(path, save_all=True, append_images=images[1:], duration=int(1000 / fps), loop=0)
-    return Path(path)
-
-
 def read_progress(run_dir: str | Path) -> list[dict[str, float]]:
     path = Path(run_dir) / "progress.csv"
     if not path.is_file():
@@ -130,31 +116,44 @@ def first_above(progress: list[dict[str, Any]], value: float) -> tuple[int, floa
 LETTERS_TARGET = 0.95
 
 
-def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None,
-                      targets: float | dict[str, float] | None = LETTERS_TARGET) -> dict[str, Any]:
-    """Mean and std evaluation-reward curves per letter over seeds (thesis figure 5.9) and a table.
+def mean_std(values) -> str:
+    """``mean ± std`` (population std over seeds) with 3 decimals, or ``-`` for no values."""
+    values = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=float)
+    if not len(values):
+        return "-"
+    return f"{values.mean():.3f} ± {values.std():.3f}" if len(values) > 1 else f"{values[0]:.3f}"
 
-    Reads every run folder under ``sweep_dir`` holding ``metrics.json``; writes
-    ``letters_curves.png``, ``letters_table.csv`` and ``letters_table.md`` to ``out_dir``.
-    ``targets`` (one value or one per motion) adds how many seeds passed it and the median steps
-    and seconds until they did.
-    """
-    sweep_dir = Path(sweep_dir)
-    out_dir = Path(out_dir or sweep_dir)
+
+def read_runs(sweep_dir: str | Path) -> dict[str, list[dict[str, Any]]]:
+    """Every imitation run (metrics.json with a motion) under ``sweep_dir``, by motion, with its
+    progress rows and, if present, its composed config (``.hydra/config.yaml``)."""
     runs: dict[str, list[dict[str, Any]]] = defaultdict(list)
-    for metrics_path in sorted(sweep_dir.glob("**/metrics.json")):
+    for metrics_path in sorted(Path(sweep_dir).glob("**/metrics.json")):
         metrics = json.loads(metrics_path.read_text())
         if "motion" not in metrics:
             continue
         metrics["progress"] = read_progress(metrics_path.parent)
-        runs[metrics["motion"]].append(metrics)
+        metrics["run_dir"] = str(metrics_path.parent)
+        runs[str(metrics["motion"])].append(metrics)
     if not runs:
         raise FileNotFoundError(f"no imitation runs (metrics.json with a motion) under {sweep_dir}")
+    return runs
+
+
+def learned(metrics: dict[str, Any]) -> bool:
+    """True for a run that trained (a run with ppo.total_steps=0 only measured its baselines)."""
+    return metrics.get("stopped") != "no_training" and metrics.get("steps", 0) > 0
+
+
+def plot_curves(runs: dict[str, list[dict[str, Any]]], path: Path, title: str,
+                lines: dict[str, dict[str, float]] | None = None) -> Path:
+    """Mean ± std evaluation reward per motion over seeds; a run with one evaluation is a point.
+    ``lines``: per motion, named horizontal lines (baselines, the thesis' number)."""
     plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(7, 4))
-    rows = []
-    for i, (letter, items) in enumerate(sorted(runs.items())):
-        color = f"C{i}"
+    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    styles = (":", "--", "-.", (0, (1, 3)), (0, (5, 2, 1, 2)))
+    for i, (motion, items) in enumerate(sorted(runs.items())):
+        color = f"C{i % 10}"
         curves = [[(p["step"], p["eval_reward"]) for p in m["progress"] if "eval_reward" in p] for m in items]
         curves = [c for c in curves if c]
         if curves:
@@ -162,38 +161,61 @@ def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None,
             steps = np.asarray([s for s, _ in curves[0][:length]])
             values = np.asarray([[v for _, v in c[:length]] for c in curves])
             mean, std = values.mean(0), values.std(0)
-            ax.plot(steps, mean, color=color, label=f"{letter} (n={len(curves)})")
+            ax.plot(steps, mean, color=color, marker="o", ms=3 if length > 1 else 6,
+                    label=f"{motion} (n={len(curves)})")
             ax.fill_between(steps, mean - std, mean + std, color=color, alpha=0.2)
-        look = float(np.mean([m["baselines"]["lookahead"] for m in items]))
-        ax.axhline(look, color=color, ls=":", lw=1)
-        best = np.asarray([m["best_eval"] for m in items])
-        rows.append({
-            "motion": letter, "seeds": " ".join(str(m.get("seed")) for m in items),
-            "best_eval_mean": round(float(best.mean()), 4), "best_eval_std": round(float(best.std()), 4),
-            "baseline_reference": round(float(np.mean([m["baselines"]["reference"] for m in items])), 4),
-            "baseline_lookahead": round(look, 4),
-            "steps_mean": int(np.mean([m["steps"] for m in items])),
-            "minutes_mean": round(float(np.mean([m["seconds"] for m in items])) / 60, 1),
-            "passed_lookahead": f"{sum(1 for m in items if m.get('steps_to_lookahead') is not None)}/{len(items)}",
-        })
-        strong = [m["baselines"]["reference_velocity_pd"] for m in items if "reference_velocity_pd" in m["baselines"]]
-        if strong:
-            rows[-1]["baseline_reference_velocity_pd"] = round(float(np.mean(strong)), 4)
-        target = targets.get(str(letter)) if isinstance(targets, dict) else targets
-        if target is not None:
-            passed = [p for p in (first_above(m["progress"], target) for m in items) if p is not None]
-            rows[-1].update({
-                "target": target, "passed_target": f"{len(passed)}/{len(items)}",
-                "median_steps_to_target": int(np.median([p[0] for p in passed])) if passed else None,
-                "median_minutes_to_target": round(float(np.median([p[1] for p in passed])) / 60, 2) if passed else None,
-            })
+        for (name, value), style in zip((lines or {}).get(motion, {}).items(), styles):
+            ax.axhline(value, color=color, ls=style, lw=1)
     ax.set_xlabel("environment steps")
     ax.set_ylabel("evaluation reward (mean ± std over seeds)")
-    ax.set_title("evaluation reward per motion (dotted: one-step-lookahead baseline)")
+    ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out_dir / "letters_curves.png", dpi=90)
+    fig.savefig(path, dpi=90)
     plt.close(fig)
+    return path
+
+
+def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None,
+                      targets: float | dict[str, float] | None = LETTERS_TARGET) -> dict[str, Any]:
+    """Per motion over seeds: the LAST evaluation (mean ± std; the headline), the best-so-far one
+    (secondary: a maximum over evaluations is biased upward), every no-learning baseline the runs
+    measured, and how many seeds end above EVERY one of them; curves in ``letters_curves.png``,
+    the table in ``letters_table.{md,csv}``. ``targets`` (one value or one per motion) adds how many
+    seeds reached it and the median steps and minutes until they did."""
+    runs = read_runs(sweep_dir)
+    out_dir = Path(out_dir or sweep_dir)
+    rows = []
+    for letter, items in sorted(runs.items()):
+        names = list(dict.fromkeys(k for m in items for k in m["baselines"]))
+        base = {k: float(np.mean([m["baselines"][k] for m in items if k in m["baselines"]])) for k in names}
+        strongest = max(base, key=base.get) if base else None
+        trained = [m for m in items if learned(m)]
+        row = {"motion": letter, "seeds": " ".join(str(m.get("seed")) for m in items),
+               "last_eval": mean_std(m.get("last_eval") for m in trained) if trained else "pending",
+               "best_eval (secondary)": mean_std(m.get("best_eval") for m in trained) if trained else "pending",
+               **{f"baseline_{k}": round(v, 4) for k, v in base.items()}}
+        if strongest is not None and trained:
+            last = [m.get("last_eval") for m in trained]
+            row["last - strongest baseline"] = round(float(np.mean(last)) - base[strongest], 4)
+            row["above every baseline"] = (f"{sum(1 for v in last if v is not None and v > base[strongest])}"
+                                           f"/{len(trained)}")
+        row["steps_mean"] = int(np.mean([m["steps"] for m in items]))
+        row["minutes_mean"] = round(float(np.mean([m["seconds"] for m in items])) / 60, 1)
+        target = targets.get(str(letter)) if isinstance(targets, dict) else targets
+        if target is not None:
+            reached = [p for p in (first_above(m["progress"], target) for m in trained) if p is not None]
+            row.update({
+                "target": target, "reached_target": f"{len(reached)}/{len(trained)}",
+                "median_steps_to_target": int(np.median([p[0] for p in reached])) if reached else None,
+                "median_minutes_to_target": round(float(np.median([p[1] for p in reached])) / 60, 2) if reached else None,
+            })
+        rows.append(row)
+    lines = {m: {k: float(np.mean([r["baselines"][k] for r in items if k in r["baselines"]]))
+                 for k in list(dict.fromkeys(k for r in items for k in r["baselines"]))[:3]}
+             for m, items in runs.items()}
+    plot_curves(runs, out_dir / "letters_curves.png", "evaluation reward per motion (lines: no-learning baselines)",
+                lines)
     table = write_table(rows, out_dir, "letters_table")
     return {"rows": rows, "table": table}
 

@@ -21,6 +21,10 @@ from aslexp.sim.motion import ROOT_COLUMNS
 from aslexp.sim.urdf import HandProportions, JointInfo, read_joints
 
 BUILDERS = ("hand15", "upper_body")
+# How the root is held: welded to the world (PyBullet's fixed base), a free base pinned to the world
+# by a fixed constraint (what stable PD needs: PyBullet 3.2.7's stable PD misreads the joint states
+# of fixed-base multibodies), or free, standing on a ground plane (the authors' upper body).
+BASES = ("fixed", "pinned", "free")
 
 
 @dataclass(frozen=True)
@@ -31,7 +35,9 @@ class BodySpec:
     urdf: str | None = None
     builder: str | None = None
     proportions: dict[str, Any] = field(default_factory=dict)
-    fixed_base: bool = True
+    base: str = "fixed"  # fixed | pinned | free (BASES)
+    # With base free: links allowed to touch the ground (the feet); any other contact is a fall.
+    ground_contacts: tuple[str, ...] = ()
     self_collision: bool = True
     global_scaling: float = 1.0
     # Group name -> list of joint-name patterns (fnmatch); every actuated joint needs one group.
@@ -54,6 +60,10 @@ class BodySpec:
         values = dict(values)
         if "end_effector_offset" in values:
             values["end_effector_offset"] = tuple(values["end_effector_offset"])
+        values["ground_contacts"] = tuple(values.get("ground_contacts") or ())
+        base = values.get("base", "fixed")
+        if base not in BASES:
+            raise ValueError(f"body config: base must be one of {BASES}, got {base!r}")
         return cls(**values)
 
 

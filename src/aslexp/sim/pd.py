@@ -1,9 +1,16 @@
-"""PD control: gains per joint group, applied with PyBullet's position motors.
+"""PD control: gains per joint group, applied with PyBullet's motors.
 
-PyBullet's POSITION_CONTROL motor is a PD controller solved as a velocity constraint,
-``kp * (q* - q) + kd * (qd* - qd)`` limited by ``max_force``; its gains are dimensionless
-(the thesis tuned kp = 0.22, kd = 0.87). STABLE_PD_CONTROL gave NaN or poor tracking on
-fixed-base models here, so position control is the one mode offered.
+Two modes (``mode`` in ``conf/controller/*.yaml``):
+* ``position``: PyBullet's POSITION_CONTROL motor, a PD controller solved as a velocity
+  constraint, ``kp * (q* - q) + kd * (qd* - qd)`` limited by ``max_force``; its gains are
+  dimensionless (the thesis' hand: kp 0.22, kd 0.87). The motor persists across physics steps.
+* ``stable_pd``: PyBullet's STABLE_PD_CONTROL (Tan et al.'s stable PD: torques from physical
+  gains, N m/rad and N m s/rad, computed implicitly over the next step), the authors' upper-body
+  controller. Two PyBullet 3.2.7 facts shape it: the command is cleared after every physics step,
+  so :meth:`PDController.drive` re-sends it before each substep (sent once per 30 Hz control step
+  the joints would be driven 1 substep in 8); and on a fixed-base body the server reads each
+  joint's state 7 slots off, so the body must be loaded with a free base, pinned or standing
+  (``body.base: pinned | free``; a fixed base is refused).
 
 Two agent-side options shape the targets the environment gives the motors (defaults: the thesis
 controller): ``target_velocity: reference`` feeds the reference joint velocity (times
@@ -91,11 +98,37 @@ class PDController:
         self.kp = [g.kp for g in per_joint]
         self.kd = [g.kd for g in per_joint]
         self.max_force = [g.max_force for g in per_joint]
+        self.commands_sent = 0  # motor commands given to PyBullet (a test counts them per substep)
+
+    @property
+    def resend_every_substep(self) -> bool:
+        """True for stable PD, whose command PyBullet clears after each physics step."""
+        return self.spec.mode == "stable_pd"
+
+    def check_body(self, character: Character) -> None:
+        """Refuse stable PD on a fixed-base body (PyBullet 3.2.7 misreads its joint states)."""
+        if self.spec.mode == "stable_pd" and character.base == "fixed":
+            raise ValueError(
+                f"controller {self.spec.name}: stable PD needs a free base (body.base=pinned or free); "
+                f"on a fixed base PyBullet 3.2.7 reads the joint states 7 slots off (body {character.spec.name})")
+
+    def drive(self, character: Character, targets: np.ndarray, target_velocities: np.ndarray | None,
+              substeps: int) -> None:
+        """Hold ``targets`` for ``substeps`` physics steps: a position motor is set once, a stable-PD
+        command is re-sent before every step."""
+        if not self.resend_every_substep:
+            self.apply(character, targets, target_velocities)
+            character.world.step(substeps)
+            return
+        for _ in range(substeps):
+            self.apply(character, targets, target_velocities)
+            character.world.step(1)
 
     def apply(self, character: Character, targets: np.ndarray,
               target_velocities: np.ndarray | None = None) -> None:
         """Drive ``character`` towards ``targets`` (motion-layout joint vector) until the next call."""
         pb = character.world.client
+        self.commands_sent += 1
         mode = pb.POSITION_CONTROL if self.spec.mode == "position" else pb.STABLE_PD_CONTROL
         if self.layout.all_revolute and mode == pb.POSITION_CONTROL:
             velocities = [0.0] * len(targets) if target_velocities is None else list(target_velocities)

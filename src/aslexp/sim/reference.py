@@ -6,7 +6,7 @@ import numpy as np
 
 from aslexp.sim.body import BodyLayout
 from aslexp.sim.motion import Motion
-from aslexp.sim.world import quat_conjugate, quat_multiply
+from aslexp import quaternion
 
 
 class ReferenceMotion:
@@ -68,7 +68,7 @@ class ReferenceMotion:
         frame = self.motion.sample(t)
         i, _ = self.motion._locate(t)
         vel = self._column_velocity[i]
-        omega = 2.0 * quat_multiply(vel[3:7], quat_conjugate(frame[3:7]))[1:4]
+        omega = 2.0 * quaternion.multiply(vel[3:7], quaternion.conjugate(frame[3:7]))[1:4]
         return frame[0:3].copy(), frame[3:7].copy(), vel[0:3].copy(), omega
 
 
@@ -80,20 +80,7 @@ def _local_angular_velocity(q: np.ndarray, dt: np.ndarray, loop: str) -> np.ndar
     """
     if len(q) == 1:
         return np.zeros((1, 3))
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    a, b = q[:-1], q[1:]
-    rel = quat_multiply(quat_conjugate_rows(a), b)
-    rel = np.where(rel[:, :1] < 0, -rel, rel)  # shortest arc
-    vec = rel[:, 1:4]
-    sin_half = np.linalg.norm(vec, axis=1)
-    angle = 2.0 * np.arctan2(sin_half, rel[:, 0])
-    scale = np.where(sin_half > 1e-12, angle / np.maximum(sin_half, 1e-12), 2.0)
     omega = np.empty((len(q), 3))
-    omega[:-1] = vec * (scale / dt[:-1])[:, None]
+    omega[:-1] = quaternion.relative_rotvec(q[:-1], q[1:]) / dt[:-1, None]
     omega[-1] = omega[0] if loop == "wrap" else omega[-2]
     return omega
-
-
-def quat_conjugate_rows(q: np.ndarray) -> np.ndarray:
-    """Conjugates of quaternions (w x y z) along the last axis."""
-    return q * np.array([1.0, -1.0, -1.0, -1.0])

@@ -19,6 +19,7 @@ import numpy as np
 import pybullet
 from pybullet_utils import bullet_client
 
+from aslexp.quaternion import rotate, wxyz_to_xyzw
 from aslexp.sim.body import BodyLayout, BodySpec
 
 
@@ -71,6 +72,23 @@ class World:
     def timestep(self) -> float:
         return 1.0 / self.physics.physics_hz
 
+    def add_ground(self) -> int:
+        """A static plane through the origin facing against gravity (y up: the motions' frame)."""
+        import pybullet_data
+
+        up = np.asarray(self.physics.gravity, dtype=np.float64)
+        up = -up / max(np.linalg.norm(up), 1e-12)
+        # plane_implicit.urdf faces +z; turn +z onto `up`.
+        axis, cos = np.cross([0.0, 0.0, 1.0], up), float(up[2])
+        if np.linalg.norm(axis) < 1e-9:
+            xyzw = [0.0, 0.0, 0.0, 1.0] if cos > 0 else [1.0, 0.0, 0.0, 0.0]
+        else:
+            half = np.arccos(np.clip(cos, -1.0, 1.0)) / 2
+            axis = axis / np.linalg.norm(axis) * np.sin(half)
+            xyzw = [*axis.tolist(), float(np.cos(half))]
+        return self.client.loadURDF(str(Path(pybullet_data.getDataPath()) / "plane_implicit.urdf"),
+                                    [0.0, 0.0, 0.0], xyzw, useMaximalCoordinates=True)
+
     def step(self, substeps: int = 1) -> None:
         for _ in range(substeps):
             self.client.stepSimulation()
@@ -90,10 +108,6 @@ class World:
             pass
 
 
-def _quat_wxyz_to_xyzw(q: np.ndarray) -> list[float]:
-    return [float(q[1]), float(q[2]), float(q[3]), float(q[0])]
-
-
 class Character:
     """A body in a world: load it, set its pose, read joints and links in motion-layout terms."""
 
@@ -110,10 +124,20 @@ class Character:
         path = Path(urdf)
         if not path.is_file():
             raise FileNotFoundError(f"URDF not found: {path}")
+        # A kinematic reference is never stepped: a fixed base is the cheapest holder for it.
+        self.base = "fixed" if kinematic else spec.base
         self.id = pb.loadURDF(
-            str(path), list(base_position), _quat_wxyz_to_xyzw(np.asarray(base_orientation_wxyz)),
-            useFixedBase=spec.fixed_base, globalScaling=spec.global_scaling, flags=flags,
+            str(path), list(base_position), wxyz_to_xyzw(np.asarray(base_orientation_wxyz)),
+            useFixedBase=self.base == "fixed", globalScaling=spec.global_scaling, flags=flags,
         )
+        self._pin: int | None = None
+        if self.base == "pinned":
+            # Held by a constraint, not welded: PyBullet 3.2.7's stable PD reads a fixed-base body's
+            # joint states 7 slots off (its server's convertPose), a pinned free base reads right.
+            self._pin = pb.createConstraint(self.id, -1, -1, -1, pb.JOINT_FIXED, [0, 0, 0], [0, 0, 0],
+                                            list(base_position),
+                                            childFrameOrientation=wxyz_to_xyzw(base_orientation_wxyz))
+            pb.changeConstraint(self._pin, maxForce=1e9)
         self.num_links = pb.getNumJoints(self.id)
         self.link_names = [pb.getJointInfo(self.id, i)[12].decode() for i in range(self.num_links)]
         self.joint_indices = [j.index for j in layout.joints]
@@ -144,6 +168,24 @@ class Character:
                                                 velocityGain=0, force=[0, 0, 0])
 
     # -- state -----------------------------------------------------------------------------
+    def set_base(self, position, orientation_wxyz, linear_velocity=(0.0, 0.0, 0.0),
+                 angular_velocity=(0.0, 0.0, 0.0)) -> None:
+        """Teleport the root (a pinned root is pinned there); a fixed root only moves."""
+        pb = self.world.client
+        xyzw = wxyz_to_xyzw(orientation_wxyz)
+        pb.resetBasePositionAndOrientation(self.id, [float(v) for v in position], xyzw)
+        if self.base == "fixed":
+            return
+        if self._pin is not None:
+            pb.changeConstraint(self._pin, jointChildPivot=[float(v) for v in position],
+                                jointChildFrameOrientation=xyzw, maxForce=1e9)
+            linear_velocity = angular_velocity = (0.0, 0.0, 0.0)
+        pb.resetBaseVelocity(self.id, [float(v) for v in linear_velocity], [float(v) for v in angular_velocity])
+
+    def ground_contacts(self, ground: int) -> set[int]:
+        """Link indices (-1: the base) touching the body ``ground``."""
+        return {c[3] for c in self.world.client.getContactPoints(bodyA=self.id, bodyB=ground)}
+
     def set_state(self, q: np.ndarray, qd: np.ndarray | None = None) -> None:
         """Teleport the joints to ``q`` (motion-layout joint vector) with velocities ``qd``."""
         pb = self.world.client
@@ -160,7 +202,7 @@ class Character:
                 velocities.append([0.0 if qd is None else float(qd[voffset])])
                 offset, voffset = offset + 1, voffset + 1
             else:
-                positions.append(_quat_wxyz_to_xyzw(q[offset:offset + 4]))
+                positions.append(wxyz_to_xyzw(q[offset:offset + 4]))
                 velocities.append([0.0] * 3 if qd is None else [float(v) for v in qd[voffset:voffset + 3]])
                 offset, voffset = offset + 4, voffset + 3
         pb.resetJointStatesMultiDof(self.id, self.joint_indices, positions, velocities)
@@ -200,7 +242,7 @@ class Character:
         if links is None:  # only the end-effector links (the reference character's question)
             links = self.link_states(velocities=False, links=self.end_effector_links)
         tips = links[self.end_effector_links]
-        return tips[:, 0:3] + quat_rotate(tips[:, 3:7], self.end_effector_offset)
+        return tips[:, 0:3] + rotate(tips[:, 3:7], self.end_effector_offset)
 
 
 def pack_joint_states(joints, states) -> tuple[np.ndarray, np.ndarray]:
@@ -229,42 +271,3 @@ def pack_link_states(states, indices, num_links: int, velocities: bool = True) -
             out[i, 7:10] = s[6]
             out[i, 10:13] = s[7]
     return out
-
-
-def quat_rotate(q_wxyz: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate vector(s) ``v`` by unit quaternion(s) ``q`` (w, x, y, z); broadcasts over rows.
-
-    v' = v + w t + u x t with t = 2 u x v (u the vector part); written out because np.cross is
-    slow on small arrays and this runs every control step.
-    """
-    q = np.asarray(q_wxyz, dtype=np.float64)
-    v = np.asarray(v, dtype=np.float64)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
-    tx, ty, tz = 2 * (y * vz - z * vy), 2 * (z * vx - x * vz), 2 * (x * vy - y * vx)
-    return np.stack([vx + w * tx + (y * tz - z * ty),
-                     vy + w * ty + (z * tx - x * tz),
-                     vz + w * tz + (x * ty - y * tx)], axis=-1)
-
-
-def quat_conjugate(q_wxyz: np.ndarray) -> np.ndarray:
-    return np.asarray([q_wxyz[0], -q_wxyz[1], -q_wxyz[2], -q_wxyz[3]])
-
-
-def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of quaternions (w, x, y, z); broadcasts over leading axes."""
-    a, b = np.asarray(a), np.asarray(b)
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ], axis=-1)
-
-
-def quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Rotation angle (radians, in [0, pi]) of the difference between unit quaternions a and b."""
-    dot = np.abs(np.sum(np.asarray(a) * np.asarray(b), axis=-1))
-    return 2.0 * np.arccos(np.clip(dot, -1.0, 1.0))

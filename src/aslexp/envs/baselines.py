@@ -1,0 +1,70 @@
+"""No-learning baselines: each controller driven by the reference alone, scored under one reward.
+
+A learned result is only readable beside what the same body, reward and rate give with no policy at
+all. A :class:`Baseline` names a controller (and any body/env overrides: a pinned or standing base,
+another rate or solver) and the lookaheads to try: 0 is "the reference as the PD target", 1 "the
+target one control step ahead". Controllers with target options (the aslexp reference-velocity
+controllers) run with a residual action and no correction, so their own targets are measured.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+from aslexp.envs.config import deep_merge, resolve_group
+from aslexp.envs.imitation import ImitationEnv
+from aslexp.envs.tracking import reference_rollout
+from aslexp.sim.pd import ControllerSpec
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """One no-learning row: ``label`` as shown, a controller config name, overrides, lookaheads."""
+
+    label: str
+    controller: str
+    body: dict[str, Any] = field(default_factory=dict)
+    env: dict[str, Any] = field(default_factory=dict)
+    lookahead: tuple[int, ...] = (0, 1)
+    aslexp: bool = False  # an aslexp addition, not the thesis' (shown as a labelled aslexp row)
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any]) -> "Baseline":
+        unknown = set(values) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"report.baselines: unknown keys {sorted(unknown)} in {values}")
+        values = dict(values)
+        values["lookahead"] = tuple(int(k) for k in values.get("lookahead", (0, 1)))
+        return cls(**values)
+
+
+def no_learning_baselines(motion, body: dict, reward: dict, env: dict, rows: list[Baseline],
+                          seconds: float = 10.0, data_root: str | os.PathLike | None = None) -> list[dict[str, Any]]:
+    """Mean reward per step of every row x lookahead over ``seconds`` of simulated time from phase 0
+    (an early end, e.g. a fall, scores 0 for the rest), under ``reward``; ``body`` and ``env`` are
+    complete group dicts (the run's), each row's overrides merged over them."""
+    out = []
+    for row in rows:
+        controller = resolve_group("controller", row.controller)
+        options = not ControllerSpec.from_dict(controller).is_thesis_pd
+        env_cfg = deep_merge(env, row.env)
+        env_cfg = deep_merge(env_cfg, {"reference_state_init": False, "residual_velocity_range": 0.0,
+                                       "early_termination": {"min_reward": None},
+                                       **({"action_mode": "residual"} if options else {})})
+        instance = ImitationEnv(motion, body=deep_merge(body, row.body), controller=controller, reward=reward,
+                                env=env_cfg, data_root=data_root, complete_configs=True)
+        try:
+            steps = max(1, int(round(seconds * instance.spec_env.control_hz)))
+            lookaheads = (instance.spec_env.reference_lookahead,) if options else row.lookahead
+            for k in lookaheads:
+                run = reference_rollout(instance, steps, k)
+                out.append({"label": row.label, "controller": row.controller, "lookahead": k,
+                            "aslexp": row.aslexp, "reward": run.mean_reward, "steps": len(run.rewards),
+                            "planned_steps": steps, "fell": run.fell, "diverged": run.diverged,
+                            "control_hz": instance.spec_env.control_hz, "base": instance.body_spec.base,
+                            "terms": run.terms})
+        finally:
+            instance.close()
+    return out
