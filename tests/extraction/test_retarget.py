@@ -7,6 +7,7 @@ import numpy as np
 import pybullet as pb
 import pytest
 
+from aslexp.quaternion import angle as quat_angle
 from aslexp.pose import retarget as R
 from aslexp.sim.motion import load_motion
 
@@ -111,7 +112,7 @@ def _upper_errors(original: np.ndarray, retargeted: np.ndarray) -> dict[str, flo
         if "hip" in name or "knee" in name or "ankle" in name:
             continue  # fixed in the URDF
         if width == 4:
-            errors[name] = float(np.degrees(R.quat_angle(a[name], b[name])).max())
+            errors[name] = float(np.degrees(quat_angle(a[name], b[name])).max())
         else:
             errors[name] = float(np.degrees(np.abs(a[name] - b[name])).max())
     return errors

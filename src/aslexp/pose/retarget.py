@@ -45,7 +45,6 @@ from pathlib import Path
 import numpy as np
 
 from aslexp.keypoints import holistic as H
-from aslexp.quaternion import angle as quat_angle  # noqa: F401  (re-exported for callers)
 from aslexp.quaternion import from_matrix as matrix_to_quat
 from aslexp.quaternion import to_matrix as quat_to_matrix
 
