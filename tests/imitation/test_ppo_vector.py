@@ -137,19 +137,22 @@ def test_device_switch(tmp_path, motion_a):
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (torch finds none)")
-def test_learner_on_cuda_rollout_on_cpu_and_back(tmp_path, motion_a):
+@pytest.mark.parametrize("rollout_device", ["cpu", "learner"])
+def test_learner_on_cuda_and_back(tmp_path, motion_a, rollout_device):
     eval_env = ImitationEnv(motion_a, env={**ENV, "early_termination": {"min_reward": None}})
-    trainer = PPOTrainer(factory(motion_a), eval_env, PPOConfig(**TINY, device="cuda", num_envs=2), tmp_path)
+    config = PPOConfig(**TINY, device="cuda", num_envs=2, rollout_device=rollout_device)
+    trainer = PPOTrainer(factory(motion_a), eval_env, config, tmp_path)
     try:
         before = trainer.rollout_agent.head.net[0].weight.clone()
         result = trainer.train()
     finally:
         trainer.close()
-    assert next(trainer.agent.parameters()).is_cuda and trainer.rollout_agent.device.type == "cpu"
+    assert next(trainer.agent.parameters()).is_cuda
+    assert trainer.rollout_agent.device.type == ("cpu" if rollout_device == "cpu" else "cuda")
     assert result.steps == 256 and np.isfinite(result.last_eval)
-    # The CPU copy that collects follows the learner after every update.
+    # The policy that collects follows the learner after every update.
     assert not torch.equal(before, trainer.rollout_agent.head.net[0].weight)
-    assert torch.equal(trainer.rollout_agent.head.net[0].weight, trainer.agent.head.net[0].weight.cpu())
+    assert torch.equal(trainer.rollout_agent.head.net[0].weight.cpu(), trainer.agent.head.net[0].weight.cpu())
     cpu = PPOTrainer(factory(motion_a), None, PPOConfig(**TINY, device="cpu"), tmp_path / "cpu")
     cpu.restore(tmp_path / "checkpoints" / "last.pt")
     assert cpu.steps == 256
@@ -214,3 +217,24 @@ def test_bad_vector_settings_are_refused_with_the_key(motion_a):
         make_vector_env(env, num_envs=2)
     env.close()
     assert PPOConfig(num_envs=3, steps_per_rollout=1000).batch_size == 1002  # 334 steps per environment
+
+
+def test_imitate_composes_quick_by_default_and_builds_a_factory_workers_can_unpickle(data_root):
+    import pickle
+
+    from hydra import compose, initialize_config_dir
+
+    from aslexp.jobs._common import to_dict
+    from aslexp.jobs.imitate import build_envs
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        default = compose(config_name="imitate")
+        cfg = to_dict(compose(config_name="imitate", overrides=["ppo=thesis", "ppo.num_envs=2", "ppo.device=cpu"]))
+    assert default.ppo.name == "quick" and default.ppo.num_envs == 1
+    config = PPOConfig.from_dict(cfg["ppo"])  # base.yaml's keys under the thesis file
+    assert config.num_envs == 2 and config.learning_rate == 3e-6 and config.eval_episodes == 4
+    make_train_env, eval_env = build_envs(cfg, data_root)
+    env = pickle.loads(pickle.dumps(make_train_env))()  # as a worker process receives it
+    assert env.observation_space == eval_env.observation_space and env.spec_env.episode_steps == 300
+    env.close()
+    eval_env.close()

@@ -221,7 +221,7 @@ class Progress:
 
     def report(self, steps: int) -> None:
         cfg, rate = self.config, self.rate(steps)
-        eta, limit = (cfg.total_steps - steps) / max(rate, 1e-9), "total_steps"
+        eta, limit = max(cfg.total_steps - steps, 0) / max(rate, 1e-9), "total_steps"
         if cfg.max_minutes is not None and 60 * cfg.max_minutes - self.elapsed() < eta:
             eta, limit = max(60 * cfg.max_minutes - self.elapsed(), 0.0), "max_minutes"
         log.info("step %s/%s (%.0f%%)  %s steps/s  ETA %s (%s)%s", f"{steps:,}", f"{cfg.total_steps:,}",
@@ -259,11 +259,11 @@ class PPOTrainer:
         self.loss = ClipPPOLoss(
             self.agent.actor, self.agent.critic, clip_epsilon=config.clip_epsilon,
             entropy_bonus=config.entropy_coef > 0, entropy_coeff=config.entropy_coef or None,
-            critic_coeff=config.value_coef, loss_critic_type="l2", normalize_advantage=True,
+            critic_coeff=config.value_coef, loss_critic_type="l2", normalize_advantage=True, device=self.device,
         )
         self.loss.set_keys(sample_log_prob=LOG_PROB)
         self.gae = GAE(gamma=config.gamma, lmbda=config.gae_lambda, value_network=self.agent.critic,
-                       average_gae=False)
+                       average_gae=False, device=self.device)
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=config.learning_rate,
                                           weight_decay=config.weight_decay)
         self.steps = 0
@@ -324,12 +324,13 @@ class PPOTrainer:
     # -- rollout ----------------------------------------------------------------------------
     def collect(self) -> TensorDict:
         """One rollout: ``steps_per_env`` steps of every environment as a ``(num_envs, steps)``
-        TensorDict of normalised observations (on the CPU)."""
+        TensorDict of normalised observations (on the rollout device)."""
         envs, agent, n_envs, n = self.envs, self.rollout_agent, self.num_envs, self.config.steps_per_env
+        device = agent.device
         obs_size, act_size = envs.single_observation_space.shape[0], envs.single_action_space.shape[0]
         raw_obs = np.empty((n, n_envs, obs_size), np.float32)
         next_raw = np.empty((n, n_envs, obs_size), np.float32)
-        actions = torch.empty(n, n_envs, act_size)
+        actions = torch.empty(n, n_envs, act_size, device=device)
         rewards = np.empty((n, n_envs), np.float32)
         terminated = np.empty((n, n_envs), bool)
         done = np.empty((n, n_envs), bool)
@@ -338,10 +339,10 @@ class PPOTrainer:
         with torch.no_grad():
             for t in range(n):
                 raw_obs[t] = self._obs
-                loc, scale = agent.head(agent.normalizer(torch.from_numpy(raw_obs[t])))
+                loc, scale = agent.head(agent.normalizer(torch.from_numpy(raw_obs[t]).to(device)))
                 a = loc + scale * torch.randn_like(loc)
                 actions[t] = a
-                obs, reward, term, trunc, info = envs.step(agent.to_env_action(a).numpy())
+                obs, reward, term, trunc, info = envs.step(agent.to_env_action(a).cpu().numpy())
                 next_raw[t] = obs
                 ended = term | trunc
                 for i in np.flatnonzero(ended):  # same-step reset: obs already starts the next episode
@@ -352,8 +353,8 @@ class PPOTrainer:
                 if self.progress is not None:
                     self.progress.tick(self.steps + (t + 1) * n_envs)
         # (steps, envs) -> (envs, steps): torchrl's GAE takes time as the last batch dimension.
-        raw = torch.from_numpy(np.ascontiguousarray(raw_obs.swapaxes(0, 1)))
-        next_raw_t = torch.from_numpy(np.ascontiguousarray(next_raw.swapaxes(0, 1)))
+        raw = torch.from_numpy(np.ascontiguousarray(raw_obs.swapaxes(0, 1))).to(device)
+        next_raw_t = torch.from_numpy(np.ascontiguousarray(next_raw.swapaxes(0, 1))).to(device)
         actions = actions.transpose(0, 1).contiguous()
         # Normalise with the statistics the actions were taken under, then update them.
         norm = agent.normalizer
@@ -367,7 +368,7 @@ class PPOTrainer:
         self.steps += n * n_envs
 
         def per_env(values: np.ndarray) -> torch.Tensor:
-            return torch.from_numpy(np.ascontiguousarray(values.swapaxes(0, 1))).unsqueeze(-1)
+            return torch.from_numpy(np.ascontiguousarray(values.swapaxes(0, 1))).unsqueeze(-1).to(device)
 
         return TensorDict({
             "observation": observation, "action": actions, LOG_PROB: log_probs,

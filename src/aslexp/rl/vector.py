@@ -10,25 +10,29 @@ returned one already starts the next episode: PPO bootstraps a truncated episode
   memory); the learner batches the policy over all of them and waits for the slowest.
 
 Why gymnasium's ``AsyncVectorEnv`` and not torchrl's ``ParallelEnv``/collectors: on the hand
-(``ImitationEnv``, reference actions, no policy), this 2-core machine, shared with other work
-(load 1.6-1.8), medians of 2 x 1,500 steps (``python bench/ppo_scaling.py --backends``):
+(``ImitationEnv``, reference actions, no policy), on this 2-core machine shared with other work,
+medians of 2 x 1,500 steps, control steps/s (``python bench/ppo_scaling.py --backends``; the
+first two columns from the same measurement in a scratch script at load 1.6-1.8, the last two
+from the benchmark at load 4-7):
 
-=====================  ============  ==============
-control steps/s        30 Hz         240 Hz
-=====================  ============  ==============
-one env, in process    1,316         1,789
-SyncVectorEnv, N = 1   964 (noise)   1,856
-AsyncVectorEnv, N = 1  604           1,075
-AsyncVectorEnv, N = 2  1,007         1,608
-ParallelEnv, N = 1     437           634
-ParallelEnv, N = 2     433           704
-=====================  ============  ==============
+=====================  ======  ======  ======  ======
+control rate           30 Hz   240 Hz  30 Hz   240 Hz
+=====================  ======  ======  ======  ======
+one env, in process    1,316   1,789   356     690
+SyncVectorEnv, N = 1   964     1,856   411     547
+AsyncVectorEnv, N = 1  604     1,075   380     326
+AsyncVectorEnv, N = 2  1,007   1,608   238     507
+ParallelEnv, N = 1     437     634     73      120
+ParallelEnv, N = 2     433     704     91      111
+=====================  ======  ======  ======  ======
 
-torchrl's ``ParallelEnv`` costs about 1.5 ms per step more than the environment itself (it builds
-and checks TensorDicts on both sides of the pipe) and did not scale from 1 to 2 workers here;
-``AsyncVectorEnv`` sends the action through a pipe and the observation through shared memory.
-A torchrl collector would run a copy of the policy in each worker: no batched inference (the
-learner's device is then of no use during the rollout) and the same per-step TensorDict cost.
+The load makes the absolute figures and the N = 2 gain unreliable (two busy processes ran 1.07x
+as fast as one on these "2 cores" at the time), but in every measurement torchrl's
+``ParallelEnv`` stepped 1.4-5x slower than ``AsyncVectorEnv``: it builds and checks TensorDicts
+on both sides of the pipe for every step, where ``AsyncVectorEnv`` sends the action through a
+pipe and the observation through shared memory. A torchrl collector would run a copy of the
+policy in each worker: no batched inference (the learner's device is of no use during the
+rollout) and the same per-step TensorDict cost.
 
 The environments' per-step ``info`` is dropped (:class:`DropInfo`): merging ~15 reward-term
 entries into vector infos costs 17 us per environment step (SyncVectorEnv, measured), and
