@@ -41,22 +41,19 @@ from aslexp.envs.config import CONF_DIR, load_group_file  # noqa: E402
 from aslexp.envs.imitation import ImitationEnv  # noqa: E402
 from aslexp.envs.upper_body import UpperBodyImitationEnv  # noqa: E402
 from aslexp.rl.ppo import PPOConfig, PPOTrainer  # noqa: E402
+from aslexp.rl.vector import cpu_cores  # noqa: E402
 
 BODIES = {"hand": (ImitationEnv, "motions/hand/A.txt"), "upper_body": (UpperBodyImitationEnv, "motions/upper_body/00433.txt")}
 RUN_STEPS = 50_000_000
 
 
-def cores() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-
-
 def default_envs() -> list[int]:
     """1, 2, 4, ... up to the cores present, and the core count itself."""
     n, out = 1, []
-    while n <= cores():
+    while n <= cpu_cores():
         out.append(n)
         n *= 2
-    return sorted(set(out) | {cores()})
+    return sorted(set(out) | {cpu_cores()})
 
 
 def make_factory(body: str, rate: float, data_root: Path):
@@ -237,7 +234,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.torch_threads)
     data_root = resolve_data_root(None)
-    print(f"# ppo_scaling: {cores()} cores, load {os.getloadavg()[0]:.1f}, torch {torch.__version__}, "
+    print(f"# ppo_scaling: {cpu_cores()} cores, load {os.getloadavg()[0]:.1f}, torch {torch.__version__}, "
           f"learner {args.device}, rollout {args.rollout_device}, python {sys.version.split()[0]}, conf {CONF_DIR}", flush=True)
     start = time.perf_counter()
     if args.backends:

@@ -238,3 +238,22 @@ def test_imitate_composes_quick_by_default_and_builds_a_factory_workers_can_unpi
     assert env.observation_space == eval_env.observation_space and env.spec_env.episode_steps == 300
     env.close()
     eval_env.close()
+
+
+def test_the_scaling_benchmark_runs_on_tiny_settings(tmp_path, data_root):
+    import csv
+    import os
+    import subprocess
+    import sys
+
+    root = CONF_DIR.parent
+    out = tmp_path / "scaling.csv"
+    proc = subprocess.run(
+        [sys.executable, str(root / "bench" / "ppo_scaling.py"), "--bodies", "hand", "--rates", "240", "--envs", "1",
+         "2", "--steps", "64", "--repeats", "1", "--ppo-hand", "quick", "--csv", str(out)],
+        cwd=root, env={**os.environ, "ASLEXP_DATA_ROOT": str(data_root)}, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = list(csv.DictReader(out.open()))
+    assert [(r["num_envs"], r["mode"]) for r in rows] == [("1", "sync"), ("1", "async"), ("2", "async")]
+    assert float(rows[0]["collect_efficiency"]) == 1.0 and all(float(r["hours_50M"]) > 0 for r in rows)
+    assert "| 2 | 2 workers |" in proc.stdout

@@ -45,9 +45,9 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from aslexp.rl.checkpoint import load_checkpoint, save_checkpoint
-from aslexp.rl.evaluate import EvaluationSummary, even_phases
+from aslexp.rl.evaluate import EvaluationSummary, even_phases, evaluate_phases
 from aslexp.rl.policy import Agent, ModelSpec
-from aslexp.rl.vector import make_vector_env, mean_terms, resolve_mode, sum_counters, worker_seeds
+from aslexp.rl.vector import cpu_cores, make_vector_env, mean_terms, resolve_mode, sum_counters, worker_seeds
 
 log = logging.getLogger("aslexp.ppo")
 LOG_PROB = "action_log_prob"
@@ -249,6 +249,10 @@ class PPOTrainer:
         torch.manual_seed(seed)
         self.rng = np.random.default_rng(seed)
         self.seed = seed
+        if resolve_mode(config.vector_env, config.num_envs) == "async":
+            cores = cpu_cores()
+            log.info("starting %d environment worker process(es)%s", config.num_envs,
+                     f" on {cores} cores: they will share them" if config.num_envs > cores else "")
         self.envs = make_vector_env(env, config.num_envs, config.vector_env)
         self._owns_envs = not isinstance(env, gym.Env)
         self.num_envs = config.num_envs
@@ -334,8 +338,9 @@ class PPOTrainer:
         rewards = np.empty((n, n_envs), np.float32)
         terminated = np.empty((n, n_envs), bool)
         done = np.empty((n, n_envs), bool)
-        if self._obs is None:
+        if self._obs is None:  # a new run, or a resumed one: every environment starts an episode
             self._obs, _ = envs.reset(seed=worker_seeds(self.seed, n_envs, self.steps))
+            self.episodes = EpisodeStats(n_envs)
         with torch.no_grad():
             for t in range(n):
                 raw_obs[t] = self._obs
@@ -417,8 +422,6 @@ class PPOTrainer:
 
     def evaluate(self) -> EvaluationSummary:
         """Deterministic episodes from the configured start phases (see :func:`evaluate_phases`)."""
-        from aslexp.rl.evaluate import evaluate_phases
-
         if self.eval_env is None:
             raise ValueError("this trainer has no evaluation environment")
         agent = self.rollout_agent

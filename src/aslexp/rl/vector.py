@@ -47,6 +47,7 @@ an environment instance can only be stepped in this process (``sync``, one envir
 from __future__ import annotations
 
 import multiprocessing
+import os
 from collections import defaultdict
 from collections.abc import Callable
 from typing import Any
@@ -96,6 +97,11 @@ class _DropInfoFactory:
 
     def __call__(self) -> gym.Env:
         return DropInfo(self.make_env())
+
+
+def cpu_cores() -> int:
+    """Cores this process may run on (its affinity mask where the platform has one)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 def resolve_mode(mode: str, num_envs: int) -> str:
