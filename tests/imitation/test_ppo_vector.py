@@ -128,9 +128,9 @@ def test_device_switch(tmp_path, motion_a):
     assert resolve_device("auto").type == ("cuda" if torch.cuda.is_available() else "cpu")
     with pytest.raises(ValueError, match="device must be"):
         resolve_device("gpu0")
-    if not torch.cuda.is_available():
+    if not torch.cuda.is_available():  # refused with the config, before any environment starts
         with pytest.raises(ValueError, match="no CUDA device"):
-            PPOTrainer(factory(motion_a), None, PPOConfig(**TINY, device="cuda"), tmp_path)
+            PPOConfig.from_dict({**TINY, "device": "cuda"})
     trainer = PPOTrainer(factory(motion_a), None, PPOConfig(**TINY, device="cpu"), tmp_path)
     assert trainer.rollout_agent is trainer.agent and trainer.agent.device.type == "cpu"
     trainer.close()

@@ -104,6 +104,7 @@ class PPOConfig:
             if not ok:
                 raise ValueError(f"ppo config: {key} must be {expected}, got {getattr(self, key)!r}")
         resolve_mode(self.vector_env, self.num_envs)
+        resolve_device(self.device)  # an unknown or absent device fails here, before any work
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "PPOConfig":
