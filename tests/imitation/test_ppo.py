@@ -9,9 +9,10 @@ from aslexp.envs.imitation import ImitationEnv
 from aslexp.rl.checkpoint import CheckpointError, load_checkpoint
 from aslexp.rl.ppo import PPOConfig, PPOTrainer
 
+# gamma 0.5: tracking is nearly myopic, and a short horizon gives a short run clean advantages.
 TINY = dict(hidden_sizes=(64, 64), learning_rate=3e-3, steps_per_rollout=512, minibatch_size=128, epochs=10,
-            log_std_init=-0.5, weight_decay=0.0, eval_interval=512, eval_steps=60, target_kl=None,
-            total_steps=2048)
+            log_std_init=-0.5, weight_decay=0.0, eval_interval=1024, eval_steps=60, target_kl=None,
+            total_steps=4096, gamma=0.5)
 
 
 # From a mid-range start every joint is ~1 rad off and the thesis' pose scale (2) leaves the pose
@@ -28,11 +29,13 @@ def make_envs(motion, **env):
 def test_short_ppo_run_improves_on_its_start(tmp_path, motion_a):
     env, eval_env = make_envs(motion_a)
     trainer = PPOTrainer(env, eval_env, PPOConfig(**TINY), tmp_path, seed=0)
-    start, _ = trainer.evaluate()
+    start = trainer.evaluate().mean_reward
     result = trainer.train()
-    assert result.steps == 2048 and len([h for h in result.history if "eval_reward" in h]) == 4
-    # Measured: 0.608 -> 0.633 (seed 0, single thread; PyBullet and CPU torch are deterministic).
-    assert result.best_eval > start + 0.015, (start, result.best_eval)
+    assert result.steps == 4096 and len([h for h in result.history if "eval_reward" in h]) == 4
+    # The headline is the last evaluation (4 deterministic episodes from phases 0, 1/4, 2/4, 3/4).
+    # Measured: 0.618 -> 0.681 (seed 0; seeds 1 and 2: 0.667, 0.668; single thread, deterministic).
+    assert result.last_eval > start + 0.03, (start, result.last_eval)
+    assert result.best_eval >= result.last_eval
     assert (tmp_path / "checkpoints" / "best.pt").is_file() and (tmp_path / "progress.csv").is_file()
     row = result.history[-1]
     assert row["steps_per_s"] > 0 and "train_pose" in row and "eval_pose" in row

@@ -18,12 +18,10 @@ SWEEPS = CONF_DIR.parent / "sweeps"
 
 
 def per_env_steps(ppo: dict, authors_envs: int) -> float:
-    """n_steps per environment: with vectorised collection (``num_envs``) steps_per_rollout is per
-    environment; until then one environment collects all the authors' environments' steps."""
-    if "num_envs" in ppo:
-        assert ppo["num_envs"] == authors_envs
-        return ppo["steps_per_rollout"]
-    return ppo["steps_per_rollout"] / authors_envs
+    """SB3's n_steps (per environment): aslexp's steps_per_rollout is the batch of one update, all
+    ``num_envs`` environments together."""
+    assert ppo["num_envs"] == authors_envs
+    return ppo["steps_per_rollout"] / ppo["num_envs"]
 
 
 def test_hand_thesis_is_table_d1s_best_row():

@@ -8,7 +8,7 @@ from aslexp.rl.ppo import PPOConfig, PPOTrainer
 
 TINY = dict(hidden_sizes=(64, 64), learning_rate=3e-3, steps_per_rollout=384, minibatch_size=128, epochs=10,
             log_std_init=-0.5, weight_decay=0.0, eval_interval=384, eval_steps=30, target_kl=None,
-            total_steps=1536)
+            total_steps=1536, eval_episodes=1)  # one evaluation episode (from phase 0): a quick test
 
 # From a mid-range start every joint is far off and the default k-factors leave the product flat
 # at ~0; gentler scales on the averaged reward give a short run a gradient (the reward is config,
@@ -26,7 +26,7 @@ def test_short_ppo_run_on_a_sign_improves(tmp_path, data_root):
     eval_env = UpperBodyImitationEnv(motion, env={**cfg, "reference_state_init": False}, reward=GENTLE,
                                      data_root=data_root)
     trainer = PPOTrainer(env, eval_env, PPOConfig(**TINY), tmp_path, seed=0)
-    start, _ = trainer.evaluate()
+    start = trainer.evaluate().mean_reward
     result = trainer.train()
     assert result.steps == 1536
     # Measured: 0.013 -> 0.090 (seed 0, single thread; PyBullet and CPU torch are deterministic).

@@ -32,9 +32,9 @@ TABLE_6_2 = {"learning_rate": [1e-6, 3e-6, 1e-5, 3e-5, 1e-4], "n_steps": [512, 1
              "n_epochs": [3, 5, 10]}
 K_GRID = {"k_p,h": [2, 1, 0.5, 0.2], "k_v,h": [1e-1, 1e-2, 1e-3, 1e-4]}
 
-# The authors' code (THESIS.md 10.1): environments per update of the upper body; the hand script's
-# (deep_mimic/train.py, not in THESIS.md) is 100.
-AUTHORS_ENVS_UPPER_BODY, AUTHORS_ENVS_HAND = 10, 100
+# The authors' code (THESIS.md 10.1): 10 environments per update (train_ppo.py); the hand script's
+# count is not recorded in THESIS.md, so the hand uses the same 10.
+AUTHORS_ENVS_UPPER_BODY, AUTHORS_ENVS_HAND = 10, 10
 # Upper-body stable-PD gains (10.1): group -> (kp, kd).
 UPPER_BODY_GAINS = {"chest": (1000, 100), "neck": (100, 10), "shoulder": (400, 8), "elbow": (300, 6),
                     "wrist": (50, 0.5), "fingers": (50, 0.5)}

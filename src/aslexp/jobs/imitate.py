@@ -1,13 +1,15 @@
 """``aslexp imitate``: learn to imitate one reference motion with PPO.
 
-    aslexp imitate motion=A                                   # thesis settings (long)
+    aslexp imitate motion=A                                   # ppo=quick: minutes on a laptop
+    aslexp imitate motion=A ppo=hand_thesis ppo.num_envs=8    # Table D.1 PPO (long), 8 workers
     aslexp imitate motion=A env=residual ppo=fast seed=1      # fast settings for this hardware
     aslexp imitate motion=A ppo.total_steps=0                 # baselines and plots only
     aslexp imitate hydra.run.dir=outputs/imitate/X +resume=outputs/imitate/X   # continue a run
     aslexp imitate -m experiment=letters                     # letters x seeds (figure 5.9)
     aslexp imitate -m experiment=letters_thesis              # the same as the thesis ran it, beside it
 
-The run folder gets: metrics.json (baselines, best/last evaluation, steps, seconds, steps per
+The run folder gets: metrics.json (baselines, last evaluation (the headline) and best, the
+evaluation protocol, steps, seconds, steps per
 second, counts of NaN actions / divergences / early ends, steps and seconds to pass the
 lookahead baseline), progress.csv, checkpoints/{last,best}.pt, reward_curve.png,
 tracking.png (reference vs simulation per joint), imitation.gif (reference | simulation; small) and
@@ -35,18 +37,21 @@ log = logging.getLogger("aslexp.imitate")
 
 
 def build_envs(cfg: dict[str, Any], data_root: Path):
-    """Training env and evaluation env (no early termination: evaluations score whole episodes)."""
+    """A factory of training envs (picklable: PPO may build them in worker processes) and the
+    evaluation env (no early termination: evaluations score whole episodes)."""
+    import functools
+
     from aslexp.envs.config import deep_merge
     from aslexp.envs.imitation import ImitationEnv
 
     common = dict(body=cfg["body"], controller=cfg["controller"], reward=cfg["reward"], data_root=data_root,
                   complete_configs=True)  # Hydra composed every group: no merge over the hand's files
-    train_env = ImitationEnv(cfg["motion"]["file"], env=cfg["env"], **common)
+    make_train_env = functools.partial(ImitationEnv, cfg["motion"]["file"], env=cfg["env"], **common)
     eval_cfg = deep_merge(cfg["env"], {"early_termination": {"min_reward": None}})
     render = cfg.get("render") or {}
-    eval_env = ImitationEnv(train_env.motion, env=eval_cfg, render_mode="rgb_array",
+    eval_env = ImitationEnv(cfg["motion"]["file"], env=eval_cfg, render_mode="rgb_array",
                             render_size=tuple(render.get("size", (240, 240))), **common)
-    return train_env, eval_env
+    return make_train_env, eval_env
 
 
 def _resume_path(resume: str | None) -> Path | None:
@@ -69,8 +74,8 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
 
     data_root = resolve_data_root(cfg.get("data_root"))
     ppo = PPOConfig.from_dict(cfg["ppo"])
-    train_env, eval_env = build_envs(cfg, data_root)
-    base = baselines(eval_env, ppo.eval_steps)
+    make_train_env, eval_env = build_envs(cfg, data_root)
+    base = baselines(eval_env, ppo.eval_steps, ppo.phases)  # the policy's evaluation protocol
     log.info("motion %s: baselines %s", cfg["motion"]["name"], {k: round(v, 4) for k, v in base.items()})
 
     history_logger: HistoryLogger | None = None
@@ -80,17 +85,21 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         if reporter is not None:
             reporter.report(value, step)
 
-    trainer = PPOTrainer(train_env, eval_env, ppo, out_dir, seed=int(cfg.get("seed") or 0), on_eval=on_eval)
+    trainer = PPOTrainer(make_train_env, eval_env, ppo, out_dir, seed=int(cfg.get("seed") or 0), on_eval=on_eval)
     history_logger = HistoryLogger(metric_logger or MetricLogger(), trainer.history)
-    resume = _resume_path(cfg.get("resume"))
-    if resume is not None:
-        trainer.restore(resume)  # a corrupt or mismatched checkpoint stops here, before any training
-    started = time.perf_counter()
-    history_logger.logged = len(trainer.history)  # a resumed run's earlier rows were logged then
-    result = trainer.train() if ppo.total_steps > trainer.steps else None
-    history_logger.flush()  # rollouts after the last evaluation
+    try:  # worker processes end with the job, also when a sweep prunes it
+        resume = _resume_path(cfg.get("resume"))
+        if resume is not None:
+            trainer.restore(resume)  # a corrupt or mismatched checkpoint stops here, before any training
+        started = time.perf_counter()
+        history_logger.logged = len(trainer.history)  # a resumed run's earlier rows were logged then
+        result = trainer.train() if ppo.total_steps > trainer.steps else None
+        history_logger.flush()  # rollouts after the last evaluation
+        counters = trainer.counters()
+    finally:
+        trainer.close()
     if result is None:
-        result_eval, _ = trainer.evaluate()
+        result_eval = trainer.evaluate().mean_reward
         best_eval, last_eval, stopped = result_eval, result_eval, "no_training"
     else:
         best_eval, last_eval, stopped = result.best_eval, result.last_eval, result.stopped
@@ -102,12 +111,8 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         passed[f"steps_to_{name}"] = None if first is None else int(first["step"])
         passed[f"seconds_to_{name}"] = None if first is None else float(first["seconds"])
 
-    # Figures with the best policy: tracking plots and a side-by-side GIF.
-    best_path = out_dir / "checkpoints" / "best.pt"
-    if best_path.is_file():
-        from aslexp.rl.checkpoint import load_checkpoint
-
-        trainer.agent.load_state_dict(load_checkpoint(best_path)["agent"])
+    # Figures with the last policy (the headline's; checkpoints/best.pt keeps the best one):
+    # tracking plots and a side-by-side GIF.
     render = cfg.get("render") or {}
     frames_every = int(render.get("frames_every", 2)) if render.get("gif", True) else 0
     final = evaluate(eval_env, lambda obs, env: trainer.agent.act(obs), ppo.eval_steps, record=True,
@@ -119,7 +124,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         look.trajectory = report.per_joint_trajectory(look.trajectory, eval_env.layout)
     if cfg.get("plots", True):
         report.plot_tracking(final.trajectory, joint_names, out_dir / "tracking.png",
-                             f"{cfg['motion']['name']}: learned policy (reward {final.mean_reward:.3f})")
+                             f"{cfg['motion']['name']}: last policy from phase 0 (reward {final.mean_reward:.3f})")
         # This run's controller driven by the reference one step ahead (the thesis-controller
         # baselines in metrics.json are the bar; with controller options they differ).
         controller = HydraConfig.get().runtime.choices.get("controller", "?") if HydraConfig.initialized() else "?"
@@ -136,24 +141,23 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         if render.get("mp4", True) and save_mp4(final.trajectory["frames"], out_dir / "imitation.mp4", fps) is None:
             log.info("no H.264 encoder (pip install imageio-ffmpeg): imitation.gif only")
     rows = [h for h in trainer.history if "steps_per_s" in h]
-    counters = dict(train_env.counters)
     metrics = {
         "motion": cfg["motion"]["name"], "seed": cfg.get("seed"), "baselines": base,
-        "best_eval": best_eval, "last_eval": last_eval, "final_eval_terms": final.terms,
+        "last_eval": last_eval, "best_eval": best_eval, "eval_protocol": ppo.eval_protocol,
+        "final_eval_terms": final.terms, "num_envs": ppo.num_envs, "device": str(trainer.device),
         "steps": trainer.steps, "seconds": trainer.elapsed, "stopped": stopped,
         "steps_per_s": float(np.mean([h["steps_per_s"] for h in rows])) if rows else None,
         "env_steps_per_s": float(np.mean([h["env_steps_per_s"] for h in rows])) if rows else None,
         "wall_seconds_this_process": time.perf_counter() - started,
         "counters": counters, **passed,
     }
-    train_env.close()
     eval_env.close()
     return metrics
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="imitate")
 def main(cfg: DictConfig) -> float:
-    """Hydra entry point; returns the best evaluation reward (the sweep objective)."""
+    """Hydra entry point; returns the last evaluation reward (the sweep objective; never the best of many)."""
     import torch
 
     torch.set_num_threads(int(cfg.ppo.get("torch_threads", 1)))
@@ -165,10 +169,11 @@ def main(cfg: DictConfig) -> float:
         finally:
             metric_logger.close(metrics)
         run.save_metrics(metrics)
-        run.set_main_metric("eval_reward", metrics["best_eval"], "maximize")
-        log.info("best eval %.4f (lookahead baseline %.4f) after %d steps, %.0f s",
-                 metrics["best_eval"], metrics["baselines"]["lookahead"], metrics["steps"], metrics["seconds"])
-        return float(metrics["best_eval"])
+        run.set_main_metric("eval_reward", metrics["last_eval"], "maximize")
+        log.info("last eval %.4f (best %.4f; lookahead baseline %.4f) after %d steps, %.0f s",
+                 metrics["last_eval"], metrics["best_eval"], metrics["baselines"]["lookahead"], metrics["steps"],
+                 metrics["seconds"])
+        return float(metrics["last_eval"])
 
 
 class _MultirunSummary(Callback):

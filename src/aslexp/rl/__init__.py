@@ -1,3 +1,3 @@
-"""Learning layer of the imitation wing: PPO with torchrl (``ppo``), the agent's model
-(``policy``), checkpoints (``checkpoint``), deterministic evaluation and baselines
-(``evaluate``) and figures/tables (``report``)."""
+"""Learning layer of the imitation wing: PPO with torchrl (``ppo``), many environments per learner
+(``vector``), the agent's model (``policy``), checkpoints (``checkpoint``), deterministic evaluation
+and baselines (``evaluate``) and figures/tables (``report``)."""

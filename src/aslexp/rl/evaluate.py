@@ -1,4 +1,9 @@
-"""Deterministic evaluation of a policy (or of the reference-driven baselines) on an imitation env."""
+"""Deterministic evaluation of a policy (or of the reference-driven baselines) on an imitation env.
+
+An evaluation is several deterministic episodes that start at different phases of the motion
+(:func:`evaluate_phases`; PPO's ``eval_episodes`` / ``eval_phases``), so that one lucky start
+state does not make the number; the baselines are measured under the same protocol.
+"""
 
 from __future__ import annotations
 
@@ -13,26 +18,50 @@ if TYPE_CHECKING:  # rl takes any env with the ImitationEnv interface; no import
     from aslexp.envs.imitation import ImitationEnv
 
 
+Policy = Callable[[np.ndarray, "ImitationEnv"], np.ndarray]
+
+
 @dataclass
 class Evaluation:
-    """Result of one deterministic episode from phase 0."""
+    """Result of one deterministic episode."""
 
     mean_reward: float  # sum of step rewards / planned steps (an early end scores 0 for the rest)
     steps: int
     terms: dict[str, float]
     ended_early: bool
     trajectory: dict[str, np.ndarray] = field(default_factory=dict)
+    phase: float = 0.0  # of the motion at the start
 
 
-def evaluate(env: ImitationEnv, policy: Callable[[np.ndarray, ImitationEnv], np.ndarray],
-             steps: int | None = None, record: bool = False, frames_every: int = 0) -> Evaluation:
-    """Run ``policy(obs, env) -> action`` for ``steps`` control steps from time 0, deterministically.
+@dataclass
+class EvaluationSummary:
+    """Deterministic episodes from several start phases: the mean is the evaluation's reward."""
+
+    mean_reward: float  # mean over the episodes
+    std: float  # over the episodes (population std)
+    rewards: list[float]  # per episode, in the order of ``phases``
+    phases: tuple[float, ...]
+    terms: dict[str, float]  # per-term means over the episodes
+    ended_early: int  # episodes that ended before their planned steps
+
+
+def even_phases(count: int) -> tuple[float, ...]:
+    """``count`` start phases spread evenly over the motion: 0, 1/count, 2/count, ..."""
+    if count < 1:
+        raise ValueError(f"evaluation needs at least one episode, got {count}")
+    return tuple(k / count for k in range(count))
+
+
+def evaluate(env: ImitationEnv, policy: Policy, steps: int | None = None, record: bool = False,
+             frames_every: int = 0, phase: float = 0.0) -> Evaluation:
+    """Run ``policy(obs, env) -> action`` for ``steps`` control steps from ``phase`` of the motion
+    (0: its start), deterministically.
 
     With ``record`` the trajectory holds time, simulated and reference joint positions and
     velocities (for the figures); with ``frames_every`` > 0 also rendered frames.
     """
     steps = steps or env.spec_env.episode_steps
-    obs, _ = env.reset(options={"time": 0.0})
+    obs, _ = env.reset(options={"phase": float(phase)})
     rewards, term_sums = [], {}
     traj: dict[str, list] = {"time": [], "q_sim": [], "q_ref": [], "qd_sim": [], "qd_ref": [], "reward": [],
                              "frames": []}
@@ -61,16 +90,34 @@ def evaluate(env: ImitationEnv, policy: Callable[[np.ndarray, ImitationEnv], np.
     return Evaluation(
         mean_reward=float(np.sum(rewards) / steps), steps=len(rewards),
         terms={k: v / n for k, v in term_sums.items()}, ended_early=ended_early, trajectory=trajectory,
+        phase=float(phase),
     )
 
 
-def reference_policy(lookahead: int) -> Callable[[np.ndarray, ImitationEnv], np.ndarray]:
+def evaluate_phases(env: ImitationEnv, policy: Policy, steps: int | None = None,
+                    phases: tuple[float, ...] = (0.0,)) -> EvaluationSummary:
+    """One deterministic episode of ``steps`` control steps from each start phase; their mean."""
+    if not phases:
+        raise ValueError("evaluation needs at least one start phase")
+    episodes = [evaluate(env, policy, steps, phase=phase) for phase in phases]
+    rewards = [e.mean_reward for e in episodes]
+    names = dict.fromkeys(k for e in episodes for k in e.terms)
+    return EvaluationSummary(
+        mean_reward=float(np.mean(rewards)), std=float(np.std(rewards)), rewards=rewards,
+        phases=tuple(float(p) for p in phases),
+        terms={k: float(np.mean([e.terms[k] for e in episodes if k in e.terms])) for k in names},
+        ended_early=sum(e.ended_early for e in episodes),
+    )
+
+
+def reference_policy(lookahead: int) -> Policy:
     """The no-learning baseline: PD targets = the reference ``lookahead`` control steps ahead."""
     return lambda obs, env: env.reference_action(lookahead)
 
 
-def baselines(env: ImitationEnv, steps: int | None = None) -> dict[str, float]:
-    """Mean reward of the reference-tracking baselines.
+def baselines(env: ImitationEnv, steps: int | None = None, phases: tuple[float, ...] = (0.0,)) -> dict[str, float]:
+    """Mean reward of the reference-tracking baselines, each evaluated as a policy is: one
+    deterministic episode from each of ``phases``, averaged (pass the PPO config's phases).
 
     ``reference`` and ``lookahead``: the reference now / one control step ahead as held PD
     targets with zero velocity targets. When the env's controller has target options on
@@ -82,11 +129,11 @@ def baselines(env: ImitationEnv, steps: int | None = None) -> dict[str, float]:
     thesis_pd = getattr(env, "thesis_pd", contextlib.nullcontext)
     with thesis_pd():
         out = {
-            "reference": evaluate(env, reference_policy(0), steps).mean_reward,
-            "lookahead": evaluate(env, reference_policy(1), steps).mean_reward,
+            "reference": evaluate_phases(env, reference_policy(0), steps, phases).mean_reward,
+            "lookahead": evaluate_phases(env, reference_policy(1), steps, phases).mean_reward,
         }
     controller = getattr(env, "controller_spec", None)
     if controller is not None and not controller.is_thesis_pd:
         lookahead = env.spec_env.reference_lookahead  # a zero correction in residual mode
-        out["reference_velocity_pd"] = evaluate(env, reference_policy(lookahead), steps).mean_reward
+        out["reference_velocity_pd"] = evaluate_phases(env, reference_policy(lookahead), steps, phases).mean_reward
     return out

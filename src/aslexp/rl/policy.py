@@ -3,7 +3,9 @@
 The actor acts in a normalised action space: the environment action is
 ``center + half_range * a`` with ``a ~ Normal(mlp(obs), exp(log_std))`` and a state-independent,
 learned log standard deviation (as in the thesis' Stable-Baselines3 policy). Observations are
-normalised by running statistics held in the agent, updated from each rollout.
+normalised by running statistics held in the agent (the learner), updated from each rollout's
+observations of all environments at once: merging per-worker statistics would give the same
+mean and variance (the parallel-variance update is exact), and the workers never need them.
 """
 
 from __future__ import annotations
@@ -109,13 +111,22 @@ class Agent(nn.Module):
         self.register_buffer("action_center", torch.as_tensor(action_center, dtype=torch.float32))
         self.register_buffer("action_half_range", torch.as_tensor(action_half_range, dtype=torch.float32))
 
+    @property
+    def head(self) -> GaussianHead:
+        """The actor's network: normalised observation -> (loc, scale) of the normalised action."""
+        return self.actor.module[0].module
+
+    @property
+    def device(self) -> torch.device:
+        return self.action_center.device
+
     def to_env_action(self, normalised: torch.Tensor) -> torch.Tensor:
         return self.action_center + self.action_half_range * normalised
 
     @torch.no_grad()
     def act(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:
-        """Environment action for a raw observation (mean action when deterministic)."""
-        x = self.normalizer(torch.as_tensor(obs, dtype=torch.float32))
-        loc, scale = self.actor.module[0].module(x)
+        """Environment action(s) for raw observation(s) (mean action when deterministic)."""
+        x = self.normalizer(torch.as_tensor(obs, dtype=torch.float32, device=self.device))
+        loc, scale = self.head(x)
         a = loc if deterministic else loc + scale * torch.randn_like(loc)
-        return self.to_env_action(a).numpy()
+        return self.to_env_action(a).cpu().numpy()

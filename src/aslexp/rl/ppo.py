@@ -1,15 +1,33 @@
 """PPO for imitation, CleanRL-style: collect a rollout, GAE, clipped-surrogate epochs, repeat.
 
-The rollout loop steps one gymnasium environment directly (on two cores torchrl's collectors
-and ParallelEnv cost more than they give); the rollout becomes a TensorDict and the learning
-side is torchrl's: :class:`~torchrl.objectives.value.GAE` and
-:class:`~torchrl.objectives.ClipPPOLoss`. Every ``eval_interval`` environment steps the policy
-is evaluated deterministically (``on_eval`` is called: the job reports to the sweep there) and
-a checkpoint is written; ``resume_from`` continues a run from its checkpoint.
+Collection steps ``num_envs`` environments as one gymnasium vector environment (one in this
+process by default; with more, one worker process each: :mod:`aslexp.rl.vector` says why
+gymnasium's ``AsyncVectorEnv`` and not torchrl's ``ParallelEnv``). The policy runs once per step
+for all environments (batched inference); each environment keeps its own episode (returns,
+lengths, and same-step resets: a truncated episode is bootstrapped from its last observation,
+a terminated one is not). The rollout becomes a ``(num_envs, steps)`` TensorDict and the
+learning side is torchrl's: :class:`~torchrl.objectives.value.GAE` (time is the last batch
+dimension) and :class:`~torchrl.objectives.ClipPPOLoss`, on ``device`` (``auto``: CUDA when
+there is one). Rollout inference stays on the CPU by default (``rollout_device``): a batch of a
+few observations per step is faster there than a round trip to a GPU.
+
+``steps_per_rollout`` is the whole batch of one update, shared by the environments
+(``ceil(steps_per_rollout / num_envs)`` steps each): ``num_envs`` changes the speed, not the
+algorithm. (Stable-Baselines3's ``n_steps`` is per environment: the thesis code's 10 environments
+x ``n_steps`` 4096 is ``steps_per_rollout: 40960`` here.)
+
+Every ``eval_interval`` environment steps the policy is evaluated deterministically from
+``eval_episodes`` start phases (``on_eval(step, reward, row)`` is called: the job reports to the
+sweep there) and a checkpoint is written; ``resume_from`` continues a run from its checkpoint.
+The headline is ``last_eval`` (mean of the last ``eval_last_k`` evaluations), never the best
+of many; ``best_eval`` is kept beside it. After every update ``on_progress(row)`` receives the
+row written to progress.csv (for loggers), and a log line with steps, steps/s and ETA is
+written at least every ``progress_interval`` seconds of work.
 """
 
 from __future__ import annotations
 
+import copy
 import csv
 import logging
 import math
@@ -19,6 +37,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import torch
 from tensordict import TensorDict
@@ -26,7 +45,9 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from aslexp.rl.checkpoint import load_checkpoint, save_checkpoint
+from aslexp.rl.evaluate import EvaluationSummary, even_phases, evaluate_phases
 from aslexp.rl.policy import Agent, ModelSpec
+from aslexp.rl.vector import cpu_cores, make_vector_env, mean_terms, resolve_mode, sum_counters, worker_seeds
 
 log = logging.getLogger("aslexp.ppo")
 LOG_PROB = "action_log_prob"
@@ -34,13 +55,13 @@ LOG_PROB = "action_log_prob"
 
 @dataclass(frozen=True)
 class PPOConfig:
-    """``conf/ppo/*.yaml`` as plain values."""
+    """``conf/ppo/*.yaml`` as plain values (``conf/ppo/base.yaml`` documents every key)."""
 
     name: str = "custom"
     hidden_sizes: tuple[int, ...] = (1024, 1024)
     activation: str = "relu"
     learning_rate: float = 3e-4
-    steps_per_rollout: int = 4096
+    steps_per_rollout: int = 4096  # per update, all environments together
     minibatch_size: int = 256
     epochs: int = 3
     gamma: float = 0.95
@@ -56,12 +77,34 @@ class PPOConfig:
     total_steps: int = 50_000_000
     eval_interval: int = 50_000
     eval_steps: int = 300
+    eval_episodes: int = 4  # deterministic episodes per evaluation, from phases 0, 1/n, 2/n, ...
+    eval_phases: tuple[float, ...] | None = None  # explicit start phases (then eval_episodes is unused)
+    eval_last_k: int = 1  # the headline last_eval is the mean of the last k evaluations
     max_minutes: float | None = None
-    target_reward: float | None = None  # stop once the evaluation reward exceeds this
+    target_reward: float | None = None  # stop once the headline evaluation reward exceeds this
     # Environment steps during which only the critic learns: a policy that starts near a good
     # controller (residual actions) is otherwise moved by advantages that are mostly critic error.
     critic_warmup_steps: int = 0
+    num_envs: int = 1
+    vector_env: str = "auto"  # auto (sync for 1 env, async for more) | sync | async
+    device: str = "auto"  # the learner's: auto (cuda if available) | cpu | cuda | cuda:N
+    rollout_device: str = "cpu"  # policy inference while collecting: cpu | learner
     torch_threads: int = 1
+    progress_interval: float = 5.0  # seconds of work between progress log lines
+
+    def __post_init__(self) -> None:
+        checks = [("num_envs", self.num_envs >= 1, "at least 1"),
+                  ("steps_per_rollout", self.steps_per_rollout >= self.num_envs, f"at least num_envs ({self.num_envs})"),
+                  ("eval_episodes", self.eval_episodes >= 1, "at least 1"),
+                  ("eval_last_k", self.eval_last_k >= 1, "at least 1"),
+                  ("rollout_device", self.rollout_device in ("cpu", "learner"), "cpu or learner"),
+                  ("eval_phases", self.eval_phases is None or (len(self.eval_phases) > 0 and all(
+                      0.0 <= p < 1.0 for p in self.eval_phases)), "null or a non-empty list of phases in [0, 1)")]
+        for key, ok, expected in checks:
+            if not ok:
+                raise ValueError(f"ppo config: {key} must be {expected}, got {getattr(self, key)!r}")
+        resolve_mode(self.vector_env, self.num_envs)
+        resolve_device(self.device)  # an unknown or absent device fails here, before any work
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "PPOConfig":
@@ -71,51 +114,161 @@ class PPOConfig:
         values = dict(values)
         if "hidden_sizes" in values:
             values["hidden_sizes"] = tuple(int(h) for h in values["hidden_sizes"])
+        if values.get("eval_phases") is not None:
+            values["eval_phases"] = tuple(float(p) for p in values["eval_phases"])
         return cls(**values)
 
     @property
     def model(self) -> ModelSpec:
         return ModelSpec(self.hidden_sizes, self.activation, self.ortho_init, self.log_std_init)
 
+    @property
+    def steps_per_env(self) -> int:
+        return math.ceil(self.steps_per_rollout / self.num_envs)
+
+    @property
+    def batch_size(self) -> int:
+        """Transitions per update: ``steps_per_rollout`` rounded up to a multiple of ``num_envs``."""
+        return self.steps_per_env * self.num_envs
+
+    @property
+    def phases(self) -> tuple[float, ...]:
+        """Start phases of the evaluation episodes."""
+        return self.eval_phases if self.eval_phases is not None else even_phases(self.eval_episodes)
+
+    @property
+    def eval_protocol(self) -> dict[str, Any]:
+        """How an evaluation is made, for metrics files and reports."""
+        return {"episodes": len(self.phases), "phases": list(self.phases), "steps": self.eval_steps,
+                "last_k": self.eval_last_k, "deterministic": True}
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` -> CUDA if torch sees a GPU, else CPU; an unavailable device is an error."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except RuntimeError as exc:
+        raise ValueError(f"ppo config: device must be auto, cpu, cuda or cuda:N, got {name!r}") from exc
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"ppo config: device {name!r} but torch {torch.__version__} finds no CUDA device "
+                         f"(use ppo.device=auto or cpu)")
+    return device
+
 
 @dataclass
 class TrainResult:
     steps: int
     seconds: float
-    best_eval: float
-    last_eval: float
+    best_eval: float  # the best single evaluation (secondary: a maximum over noisy evaluations)
+    last_eval: float  # the headline: mean of the last eval_last_k evaluations
     history: list[dict[str, Any]] = field(default_factory=list)
     stopped: str = "total_steps"  # total_steps | max_minutes | target_reward
 
 
 def make_agent(env, config: PPOConfig) -> Agent:
-    low, high = env.action_space.low.astype(np.float64), env.action_space.high.astype(np.float64)
-    return Agent(env.observation_space.shape[0], env.action_space.shape[0], config.model,
-                 (low + high) / 2, (high - low) / 2)
+    """An agent for an environment (or a vector environment: its single spaces)."""
+    obs_space = getattr(env, "single_observation_space", env.observation_space)
+    act_space = getattr(env, "single_action_space", env.action_space)
+    low, high = act_space.low.astype(np.float64), act_space.high.astype(np.float64)
+    return Agent(obs_space.shape[0], act_space.shape[0], config.model, (low + high) / 2, (high - low) / 2)
+
+
+class EpisodeStats:
+    """Per-environment running return and length; the episodes that ended since the last pop."""
+
+    def __init__(self, num_envs: int) -> None:
+        self.returns = np.zeros(num_envs)
+        self.lengths = np.zeros(num_envs, dtype=np.int64)
+        self.ended: list[tuple[float, int, bool]] = []  # (return, length, terminated)
+
+    def step(self, rewards: np.ndarray, terminated: np.ndarray, truncated: np.ndarray) -> None:
+        self.returns += rewards
+        self.lengths += 1
+        for i in np.flatnonzero(terminated | truncated):
+            self.ended.append((float(self.returns[i]), int(self.lengths[i]), bool(terminated[i])))
+            self.returns[i], self.lengths[i] = 0.0, 0
+
+    def pop(self) -> dict[str, float]:
+        """Means over the episodes that ended (none: an empty dict, never a made-up value)."""
+        if not self.ended:
+            return {}
+        returns, lengths, terminated = (np.asarray(v) for v in zip(*self.ended))
+        self.ended = []
+        return {"episodes": len(returns), "episode_return": float(returns.mean()),
+                "episode_length": float(lengths.mean()), "episode_terminated": float(terminated.mean())}
+
+
+class Progress:
+    """A log line with steps, steps/s and ETA at least every ``interval`` seconds of work."""
+
+    def __init__(self, config: PPOConfig, start_steps: int, elapsed_before: float) -> None:
+        self.config = config
+        self.start_steps, self.elapsed_before = start_steps, elapsed_before
+        self.start = self.last = time.perf_counter()
+        self.note = ""  # appended to each line (the last evaluation)
+
+    def elapsed(self) -> float:
+        """Training seconds of the run, earlier processes included (what max_minutes counts)."""
+        return self.elapsed_before + time.perf_counter() - self.start
+
+    def rate(self, steps: int) -> float:
+        return (steps - self.start_steps) / max(time.perf_counter() - self.start, 1e-9)
+
+    def tick(self, steps: int) -> None:
+        if time.perf_counter() - self.last >= self.config.progress_interval:
+            self.report(steps)
+
+    def report(self, steps: int) -> None:
+        cfg, rate = self.config, self.rate(steps)
+        eta, limit = max(cfg.total_steps - steps, 0) / max(rate, 1e-9), "total_steps"
+        if cfg.max_minutes is not None and 60 * cfg.max_minutes - self.elapsed() < eta:
+            eta, limit = max(60 * cfg.max_minutes - self.elapsed(), 0.0), "max_minutes"
+        log.info("step %s/%s (%.0f%%)  %s steps/s  ETA %s (%s)%s", f"{steps:,}", f"{cfg.total_steps:,}",
+                 100 * steps / max(cfg.total_steps, 1), f"{rate:,.0f}", _duration(eta), limit, self.note)
+        self.last = time.perf_counter()
 
 
 class PPOTrainer:
-    """Owns the agent, the optimiser, the loss and the training state of one run."""
+    """Owns the agent, the optimiser, the loss, the training environments and the run's state.
 
-    def __init__(self, env, eval_env, config: PPOConfig, out_dir: str | Path, seed: int = 0,
-                 on_eval: Callable[[int, float, dict[str, Any]], None] | None = None) -> None:
+    ``env`` is an environment factory (a picklable callable; required for ``num_envs`` > 1) or,
+    for one environment in this process, an environment instance (left open: the caller owns it).
+    ``eval_env`` is an environment instance (``None``: no evaluation, e.g. in benchmarks).
+    """
+
+    def __init__(self, env: gym.Env | Callable[[], gym.Env], eval_env, config: PPOConfig, out_dir: str | Path,
+                 seed: int = 0, on_eval: Callable[[int, float, dict[str, Any]], None] | None = None,
+                 on_progress: Callable[[dict[str, Any]], None] | None = None) -> None:
         torch.set_num_threads(max(1, int(config.torch_threads)))
-        self.env, self.eval_env, self.config = env, eval_env, config
+        self.config, self.eval_env = config, eval_env
+        self.device = resolve_device(config.device)
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
-        self.on_eval = on_eval
+        self.on_eval, self.on_progress = on_eval, on_progress
         torch.manual_seed(seed)
         self.rng = np.random.default_rng(seed)
         self.seed = seed
-        self.agent = make_agent(env, config)
+        if resolve_mode(config.vector_env, config.num_envs) == "async":
+            cores = cpu_cores()
+            log.info("starting %d environment worker process(es)%s", config.num_envs,
+                     f" on {cores} cores: they will share them" if config.num_envs > cores else "")
+        self.envs = make_vector_env(env, config.num_envs, config.vector_env)
+        self._owns_envs = not isinstance(env, gym.Env)
+        self.num_envs = config.num_envs
+        self.agent = make_agent(self.envs, config).to(self.device)
+        # The policy that collects: the learner's own, or a CPU copy refreshed after every update.
+        same = config.rollout_device == "learner" or self.device.type == "cpu"
+        self.rollout_agent = self.agent if same else copy.deepcopy(self.agent).cpu()
         self.loss = ClipPPOLoss(
             self.agent.actor, self.agent.critic, clip_epsilon=config.clip_epsilon,
             entropy_bonus=config.entropy_coef > 0, entropy_coeff=config.entropy_coef or None,
-            critic_coeff=config.value_coef, loss_critic_type="l2", normalize_advantage=True,
+            critic_coeff=config.value_coef, loss_critic_type="l2", normalize_advantage=True, device=self.device,
         )
         self.loss.set_keys(sample_log_prob=LOG_PROB)
         self.gae = GAE(gamma=config.gamma, lmbda=config.gae_lambda, value_network=self.agent.critic,
-                       average_gae=False)
+                       average_gae=False, device=self.device)
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=config.learning_rate,
                                           weight_decay=config.weight_decay)
         self.steps = 0
@@ -123,7 +276,18 @@ class PPOTrainer:
         self.elapsed = 0.0  # training seconds before this process (resume)
         self.best_eval = -math.inf
         self.history: list[dict[str, Any]] = []
-        self._obs = None
+        self.episodes = EpisodeStats(self.num_envs)
+        self.progress: Progress | None = None
+        self._obs: np.ndarray | None = None
+
+    def close(self) -> None:
+        """Stop the worker processes (an environment instance passed in stays open)."""
+        if self._owns_envs:
+            self.envs.close()
+
+    def counters(self) -> dict[str, int]:
+        """Episodes, NaN actions, divergences and early ends, summed over the training environments."""
+        return sum_counters(self.envs)
 
     # -- checkpoints ----------------------------------------------------------------------
     def state(self) -> dict[str, Any]:
@@ -132,12 +296,16 @@ class PPOTrainer:
             "steps": self.steps, "iteration": self.iteration, "elapsed": self.elapsed,
             "best_eval": self.best_eval, "history": self.history, "config": asdict(self.config),
             "seed": self.seed, "torch_rng": torch.get_rng_state(), "numpy_rng": self.rng.bit_generator.state,
+            "num_envs": self.num_envs, "device": str(self.device),  # informative: any other value resumes
         }
 
     def save(self, name: str = "last.pt") -> Path:
         return save_checkpoint(self.out_dir / "checkpoints" / name, self.state())
 
     def restore(self, path: str | Path) -> None:
+        """Continue from a checkpoint (written with any ``num_envs`` or device). The environments
+        start new episodes: their state is not saved, so a resumed run is not bit-identical to
+        an uninterrupted one."""
         payload = load_checkpoint(path)
         try:
             self.agent.load_state_dict(payload["agent"])
@@ -149,59 +317,83 @@ class PPOTrainer:
         self.history = list(payload["history"])
         torch.set_rng_state(payload["torch_rng"])
         self.rng.bit_generator.state = payload["numpy_rng"]
-        log.info("resumed from %s at step %d", path, self.steps)
+        self._sync_rollout_agent()
+        self._obs = None
+        log.info("resumed from %s at step %d (saved with %s environment(s), now %d)", path, self.steps,
+                 payload.get("num_envs", 1), self.num_envs)
+
+    def _sync_rollout_agent(self) -> None:
+        if self.rollout_agent is not self.agent:
+            self.rollout_agent.load_state_dict(self.agent.state_dict())
 
     # -- rollout ----------------------------------------------------------------------------
     def collect(self) -> TensorDict:
-        """One rollout of ``steps_per_rollout`` steps as a (T,) TensorDict of normalised observations."""
-        n, env, agent = self.config.steps_per_rollout, self.env, self.agent
-        obs_size, act_size = env.observation_space.shape[0], env.action_space.shape[0]
-        raw_obs = np.empty((n + 1, obs_size), np.float32)
-        actions = torch.empty(n, act_size)
-        rewards = np.empty(n, np.float32)
-        terminated = np.zeros(n, bool)
-        done = np.zeros(n, bool)
-        next_raw = np.empty((n, obs_size), np.float32)
-        head = agent.actor.module[0].module
-        if self._obs is None:
-            self._obs, _ = env.reset(seed=int(self.rng.integers(2**31)))
+        """One rollout: ``steps_per_env`` steps of every environment as a ``(num_envs, steps)``
+        TensorDict of normalised observations (on the rollout device)."""
+        envs, agent, n_envs, n = self.envs, self.rollout_agent, self.num_envs, self.config.steps_per_env
+        device = agent.device
+        obs_size, act_size = envs.single_observation_space.shape[0], envs.single_action_space.shape[0]
+        raw_obs = np.empty((n, n_envs, obs_size), np.float32)
+        next_raw = np.empty((n, n_envs, obs_size), np.float32)
+        actions = torch.empty(n, n_envs, act_size, device=device)
+        rewards = np.empty((n, n_envs), np.float32)
+        terminated = np.empty((n, n_envs), bool)
+        done = np.empty((n, n_envs), bool)
+        if self._obs is None:  # a new run, or a resumed one: every environment starts an episode
+            self._obs, _ = envs.reset(seed=worker_seeds(self.seed, n_envs, self.steps))
+            self.episodes = EpisodeStats(n_envs)
         with torch.no_grad():
             for t in range(n):
                 raw_obs[t] = self._obs
-                loc, scale = head(agent.normalizer(torch.from_numpy(self._obs)))
+                loc, scale = agent.head(agent.normalizer(torch.from_numpy(raw_obs[t]).to(device)))
                 a = loc + scale * torch.randn_like(loc)
                 actions[t] = a
-                obs, reward, term, trunc, _ = env.step(agent.to_env_action(a).numpy())
-                rewards[t], terminated[t], done[t] = reward, term, term or trunc
+                obs, reward, term, trunc, info = envs.step(agent.to_env_action(a).cpu().numpy())
                 next_raw[t] = obs
-                self._obs = env.reset()[0] if (term or trunc) else obs
+                ended = term | trunc
+                for i in np.flatnonzero(ended):  # same-step reset: obs already starts the next episode
+                    next_raw[t, i] = info["final_obs"][i]
+                rewards[t], terminated[t], done[t] = reward, term, ended
+                self.episodes.step(reward, term, trunc)
+                self._obs = obs
+                if self.progress is not None:
+                    self.progress.tick(self.steps + (t + 1) * n_envs)
+        # (steps, envs) -> (envs, steps): torchrl's GAE takes time as the last batch dimension.
+        raw = torch.from_numpy(np.ascontiguousarray(raw_obs.swapaxes(0, 1))).to(device)
+        next_raw_t = torch.from_numpy(np.ascontiguousarray(next_raw.swapaxes(0, 1))).to(device)
+        actions = actions.transpose(0, 1).contiguous()
         # Normalise with the statistics the actions were taken under, then update them.
         norm = agent.normalizer
-        observation = norm(torch.from_numpy(raw_obs[:n]))
-        next_observation = norm(torch.from_numpy(next_raw))
+        observation, next_observation = norm(raw), norm(next_raw_t)
         with torch.no_grad():  # same parameters as during the rollout: one batched pass
-            loc, scale = head(observation)
+            loc, scale = agent.head(observation)
             log_probs = torch.distributions.Normal(loc, scale).log_prob(actions).sum(-1)
-        norm.update(torch.from_numpy(raw_obs[:n]))
-        self.steps += n
+        self.agent.normalizer.update(raw.to(self.device))
+        if agent is not self.agent:
+            agent.normalizer.load_state_dict(self.agent.normalizer.state_dict())
+        self.steps += n * n_envs
+
+        def per_env(values: np.ndarray) -> torch.Tensor:
+            return torch.from_numpy(np.ascontiguousarray(values.swapaxes(0, 1))).unsqueeze(-1).to(device)
+
         return TensorDict({
             "observation": observation, "action": actions, LOG_PROB: log_probs,
-            "next": {"observation": next_observation,
-                     "reward": torch.from_numpy(rewards).unsqueeze(-1),
-                     "done": torch.from_numpy(done).unsqueeze(-1),
-                     "terminated": torch.from_numpy(terminated).unsqueeze(-1)},
-        }, batch_size=[n])
+            "next": {"observation": next_observation, "reward": per_env(rewards),
+                     "done": per_env(done), "terminated": per_env(terminated)},
+        }, batch_size=[n_envs, n])
 
     # -- learning ---------------------------------------------------------------------------
     def learn(self, batch: TensorDict) -> dict[str, float]:
         cfg = self.config
+        batch = batch.to(self.device)
         with torch.no_grad():
-            self.gae(batch)
+            self.gae(batch)  # per environment along time; bootstraps unless terminated
+        batch = batch.reshape(-1)
         stats = {"loss_objective": 0.0, "loss_critic": 0.0, "kl": 0.0, "clip_fraction": 0.0}
         updates = 0
         stop = False
         for _ in range(cfg.epochs):
-            order = torch.from_numpy(self.rng.permutation(len(batch)))
+            order = torch.from_numpy(self.rng.permutation(len(batch))).to(self.device)
             for start in range(0, len(batch), cfg.minibatch_size):
                 minibatch = batch[order[start:start + cfg.minibatch_size]]
                 losses = self.loss(minibatch)
@@ -226,24 +418,32 @@ class PPOTrainer:
                     break
             if stop:
                 break
+        self._sync_rollout_agent()
         return {k: v / max(updates, 1) for k, v in stats.items()} | {"updates": updates}
 
-    def evaluate(self) -> tuple[float, dict[str, float]]:
-        from aslexp.rl.evaluate import evaluate
+    def evaluate(self) -> EvaluationSummary:
+        """Deterministic episodes from the configured start phases (see :func:`evaluate_phases`)."""
+        if self.eval_env is None:
+            raise ValueError("this trainer has no evaluation environment")
+        agent = self.rollout_agent
+        return evaluate_phases(self.eval_env, lambda obs, env: agent.act(obs, deterministic=True),
+                               self.config.eval_steps, self.config.phases)
 
-        result = evaluate(self.eval_env, lambda obs, env: self.agent.act(obs, deterministic=True),
-                          self.config.eval_steps)
-        return result.mean_reward, result.terms
+    def last_eval(self) -> float:
+        """The headline: mean of the last ``eval_last_k`` evaluations (NaN before the first)."""
+        values = [h["eval_reward"] for h in self.history if "eval_reward" in h][-self.config.eval_last_k:]
+        return float(np.mean(values)) if values else float("nan")
 
     # -- the loop ---------------------------------------------------------------------------
     def train(self) -> TrainResult:
         cfg = self.config
-        start, elapsed_before = time.perf_counter(), self.elapsed
+        self.progress = progress = Progress(cfg, self.steps, self.elapsed)
         next_eval = (self.steps // cfg.eval_interval + 1) * cfg.eval_interval
         stopped = "total_steps"
-        # The last row may be a rollout without an evaluation (a run stopped by max_minutes).
-        last_eval = next((h["eval_reward"] for h in reversed(self.history) if "eval_reward" in h), float("nan"))
-        progress_path = self.out_dir / "progress.csv"
+        csv_file = ProgressCSV(self.out_dir / "progress.csv")
+        log.info("PPO %s: %d environment(s) (%s), %d steps per update, learner on %s, rollout on %s",
+                 cfg.name, self.num_envs, resolve_mode(cfg.vector_env, self.num_envs), cfg.batch_size,
+                 self.device, self.rollout_agent.device)
         while self.steps < cfg.total_steps:
             t0 = time.perf_counter()
             batch = self.collect()
@@ -251,61 +451,87 @@ class PPOTrainer:
             stats = self.learn(batch)
             t2 = time.perf_counter()
             self.iteration += 1
-            elapsed = elapsed_before + time.perf_counter() - start
-            terms = self.env.pop_term_means() if hasattr(self.env, "pop_term_means") else {}
+            elapsed = progress.elapsed()
+            terms = mean_terms(self.envs)
             row: dict[str, Any] = {
                 "step": self.steps, "seconds": round(elapsed, 2),
-                "env_steps_per_s": round(cfg.steps_per_rollout / (t1 - t0), 1),
-                "steps_per_s": round(cfg.steps_per_rollout / (t2 - t0), 1),
+                "env_steps_per_s": round(cfg.batch_size / (t1 - t0), 1),
+                "steps_per_s": round(cfg.batch_size / (t2 - t0), 1),
                 **{f"train_{k}": round(v, 5) for k, v in terms.items()},
+                **{f"train_{k}": round(v, 5) for k, v in self.episodes.pop().items()},
                 **{k: round(v, 6) for k, v in stats.items()},
-                "log_std": round(float(self.agent.actor.module[0].module.log_std.detach().mean()), 4),
+                "log_std": round(float(self.agent.head.log_std.detach().mean()), 4),
+                **{f"count_{k}": v for k, v in self.counters().items()},
             }
-            counters = getattr(self.env, "counters", {})
-            row.update({f"count_{k}": v for k, v in counters.items()})
             time_up = cfg.max_minutes is not None and elapsed > 60 * cfg.max_minutes
-            # A run stopped by the clock is evaluated too: its best reward is never left undefined.
-            if self.steps >= next_eval or self.steps >= cfg.total_steps or time_up:
+            # A run stopped by the clock is evaluated too: its last reward is never left undefined.
+            evaluated = self.eval_env is not None and (self.steps >= next_eval or self.steps >= cfg.total_steps
+                                                       or time_up)
+            if evaluated:
                 next_eval = (self.steps // cfg.eval_interval + 1) * cfg.eval_interval
-                last_eval, eval_terms = self.evaluate()
-                row["eval_reward"] = round(last_eval, 5)
-                row.update({f"eval_{k}": round(v, 5) for k, v in eval_terms.items()})
-                self.history.append(row)
+                summary = self.evaluate()
+                row.update({"eval_reward": round(summary.mean_reward, 5), "eval_reward_std": round(summary.std, 5),
+                            "eval_reward_min": round(min(summary.rewards), 5),
+                            **{f"eval_{k}": round(v, 5) for k, v in summary.terms.items()}})
+            self.history.append(row)
+            if evaluated:
                 self.elapsed = elapsed
-                if last_eval > self.best_eval:
-                    self.best_eval = last_eval
+                row["last_eval"] = round(self.last_eval(), 5)
+                if row["eval_reward"] > self.best_eval:  # rounded as last_eval is: they compare exactly
+                    self.best_eval = row["eval_reward"]
                     self.save("best.pt")
+                row["best_eval"] = round(self.best_eval, 5)
                 self.save("last.pt")
-                rate = self.steps / max(elapsed, 1e-9)
-                eta = (cfg.total_steps - self.steps) / max(rate, 1e-9)
-                log.info("step %d  eval %.4f (best %.4f)  train %.4f  %.0f steps/s  ETA %.0f s",
-                         self.steps, last_eval, self.best_eval, terms.get("reward", float("nan")), rate, eta)
-                if self.on_eval is not None:
-                    self.on_eval(self.steps, last_eval, row)  # may raise optuna.TrialPruned
+                progress.note = f"  eval {row['eval_reward']:.4f} (last {row['last_eval']:.4f}, best {self.best_eval:.4f})"
+                progress.report(self.steps)
             else:
-                self.history.append(row)
-            _append_csv(progress_path, row)
-            if cfg.target_reward is not None and last_eval > cfg.target_reward:
+                progress.tick(self.steps)
+            csv_file.append(row)
+            if self.on_progress is not None:
+                self.on_progress(row)
+            if evaluated and self.on_eval is not None:
+                self.on_eval(self.steps, row["eval_reward"], row)  # may raise optuna.TrialPruned
+            if cfg.target_reward is not None and self.last_eval() > cfg.target_reward:
                 stopped = "target_reward"
                 break
             if time_up:
                 stopped = "max_minutes"
                 break
-        self.elapsed = elapsed_before + time.perf_counter() - start
+        self.elapsed = progress.elapsed()
+        self.progress = None
         self.save("last.pt")
-        return TrainResult(self.steps, self.elapsed, self.best_eval, last_eval, self.history, stopped)
+        return TrainResult(self.steps, self.elapsed, self.best_eval, self.last_eval(), self.history, stopped)
 
 
-def _append_csv(path: Path, row: dict[str, Any]) -> None:
-    """Append a row; the header is the union of keys seen so far (rewritten when it grows)."""
-    rows = []
-    if path.exists():
-        with open(path, newline="", encoding="utf-8") as fh:
-            rows = list(csv.DictReader(fh))
-    keys = list(dict.fromkeys([k for r in rows for k in r] + list(row)))
-    rows.append({k: row.get(k, "") for k in row})
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=keys)
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({k: r.get(k, "") for k in keys})
+class ProgressCSV:
+    """progress.csv: one row per update, appended; the header is the union of the keys seen so
+    far (the file is rewritten only when a row brings a new key, e.g. the first evaluation)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.keys: list[str] = []
+        if path.exists():
+            with open(path, newline="", encoding="utf-8") as fh:
+                self.keys = list(csv.DictReader(fh).fieldnames or [])
+
+    def append(self, row: dict[str, Any]) -> None:
+        new = [k for k in row if k not in self.keys]
+        if new or not self.path.exists():
+            rows = []
+            if self.path.exists():
+                with open(self.path, newline="", encoding="utf-8") as fh:
+                    rows = list(csv.DictReader(fh))
+            self.keys += new
+            with open(self.path, "w", newline="", encoding="utf-8") as fh:
+                writer = csv.DictWriter(fh, fieldnames=self.keys, restval="")
+                writer.writeheader()
+                writer.writerows(rows)
+        with open(self.path, "a", newline="", encoding="utf-8") as fh:
+            csv.DictWriter(fh, fieldnames=self.keys, restval="").writerow(row)
+
+
+def _duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    hours, rest = divmod(seconds, 3600)
+    minutes, secs = divmod(rest, 60)
+    return f"{hours}h{minutes:02d}m" if hours else f"{minutes}m{secs:02d}s"
