@@ -47,3 +47,9 @@ def postgres_url() -> str | None:
         return url
     except Exception:  # noqa: BLE001 - any failure means: no server to test against
         return None
+
+
+def run_cli(*args: str, cwd: Path | None = None, check: bool = True) -> subprocess.CompletedProcess:
+    """``python -m aslexp.runs.cli ...`` (what ``aslexp runs|sweep ...`` dispatches to)."""
+    return subprocess.run([sys.executable, "-m", "aslexp.runs.cli", *args], cwd=cwd,
+                          capture_output=True, text=True, check=check, timeout=120)

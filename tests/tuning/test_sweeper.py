@@ -12,7 +12,7 @@ import time
 import uuid
 from pathlib import Path
 
-from sweep_helpers import load_study, run_sweep, sweep_command
+from sweep_helpers import load_study, run_cli, run_sweep, sweep_command
 from optuna.trial import TrialState
 
 from aslexp.tuning.worker import ATTR_ERROR, ATTR_STATE, ATTR_WORKER, INTERRUPTED
@@ -45,27 +45,35 @@ def test_budget_is_the_study_total_and_a_rerun_resumes(tmp_path: Path) -> None:
         assert info["main_metric"]["value"] == after[number][1]
 
 
-def test_failed_and_nan_trials_are_recorded_and_the_sweep_goes_on(tmp_path: Path) -> None:
+def test_failed_and_nan_trials_tell_one_story_in_study_run_folder_and_status(tmp_path: Path) -> None:
+    """A raising trial and a NaN trial: FAIL in the study with the real error, "failed" with the
+    same error in their run.json, and the same text in `sweep status`; the sweep goes on."""
     sweep = tmp_path / "sweep"
     run_sweep(sweep, "hydra/sweeper/sampler=random", "hydra.sweeper.n_trials=6",
-              "fail_if='x > 0.4'", "nan_if='x < -0.4'")
+              "hydra.sweeper.sampler.seed=0", "fail_if='x > 0.4'", "nan_if='x < -0.4'")
     trials = load_study(sweep).trials
     assert len(trials) == 6
+    status = run_cli("sweep", "status", str(sweep), cwd=tmp_path).stdout
     for t in trials:
         x = t.params["x"]
+        run = json.loads((sweep / str(t.number) / "run.json").read_text())
         if x > 0.4:
             assert t.state == TrialState.FAIL
-            assert "RuntimeError: quadratic: fail_if" in t.user_attrs[ATTR_ERROR]
+            assert t.user_attrs[ATTR_ERROR].startswith("RuntimeError: quadratic: fail_if 'x > 0.4' holds")
         elif x < -0.4:
             assert t.state == TrialState.FAIL
-            assert "objective returned nan" in t.user_attrs[ATTR_ERROR]
+            assert t.user_attrs[ATTR_ERROR] == "the objective is nan, not a finite number"
         else:
             assert t.state == TrialState.COMPLETE and math.isfinite(t.value)
+            assert run["status"] == "completed" and run["main_metric"]["value"] == t.value
+            continue
+        assert run["status"] == "failed" and run["error"] == t.user_attrs[ATTR_ERROR]
+        assert f"trial {t.number}: {t.user_attrs[ATTR_ERROR]}" in status
     states = {("raise" if t.params["x"] > 0.4 else "nan" if t.params["x"] < -0.4 else "ok")
               for t in trials}
-    assert states == {"raise", "nan", "ok"}, "seed 7 should give all three kinds of trial"
+    assert states == {"raise", "nan", "ok"}, "seed 0 gives all three kinds of trial"
     raised = next(t for t in trials if t.params["x"] > 0.4)
-    assert json.loads((sweep / str(raised.number) / "run.json").read_text())["status"] == "failed"
+    assert "Traceback" in json.loads((sweep / str(raised.number) / "run.json").read_text())["traceback"]
 
 
 def test_median_pruner_stops_hopeless_trials(tmp_path: Path) -> None:

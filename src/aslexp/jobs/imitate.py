@@ -19,13 +19,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from aslexp.data.root import resolve_data_root
-from aslexp.jobs._common import CONF_DIR, begin, run_dir, seed_everything, to_dict
+from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
+from aslexp.runs.record import Run
 from aslexp.tuning.context import trial_reporter
 
 log = logging.getLogger("aslexp.imitate")
@@ -68,8 +68,8 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None) -> dict[str, Any]
     log.info("motion %s: baselines %s", cfg["motion"]["name"], {k: round(v, 4) for k, v in base.items()})
 
     def on_eval(step: int, value: float, row: dict[str, Any]) -> None:
-        if reporter is not None:
-            reporter.report(value, step)
+        if reporter is not None:  # the last evaluation is final: never pruned
+            reporter.report(value, step, final=step >= ppo.total_steps)
 
     trainer = PPOTrainer(train_env, eval_env, ppo, out_dir, seed=int(cfg.get("seed") or 0), on_eval=on_eval)
     resume = _resume_path(cfg.get("resume"))
@@ -135,20 +135,23 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None) -> dict[str, Any]
     return metrics
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="imitate")
-def main(cfg: DictConfig) -> float:
-    """Hydra entry point; returns the best evaluation reward (the sweep objective)."""
+def _imitate_run(cfg: DictConfig, run: Run) -> float:
     import torch
 
     torch.set_num_threads(int(cfg.ppo.get("torch_threads", 1)))
-    with begin("imitate", cfg) as run:
-        seed_everything(int(cfg.seed))
-        metrics = imitate(to_dict(cfg), run_dir(), trial_reporter(cfg))
-        run.save_metrics(metrics)
-        run.set_main_metric("eval_reward", metrics["best_eval"], "maximize")
-        log.info("best eval %.4f (lookahead baseline %.4f) after %d steps, %.0f s",
-                 metrics["best_eval"], metrics["baselines"]["lookahead"], metrics["steps"], metrics["seconds"])
-        return float(metrics["best_eval"])
+    seed_everything(int(cfg.seed))
+    metrics = imitate(to_dict(cfg), run.dir, trial_reporter(cfg))
+    run.save_metrics(metrics)
+    run.set_main_metric("eval_reward", metrics["best_eval"], "maximize")
+    log.info("best eval %.4f (lookahead baseline %.4f) after %d steps, %.0f s",
+             metrics["best_eval"], metrics["baselines"]["lookahead"], metrics["steps"], metrics["seconds"])
+    return float(metrics["best_eval"])
+
+
+@job_main("imitate")
+def main(cfg: DictConfig) -> float:
+    """Hydra entry point; returns the best evaluation reward (the sweep objective)."""
+    return run_guarded("imitate", cfg, lambda run: _imitate_run(cfg, run))
 
 
 class _MultirunSummary(Callback):
