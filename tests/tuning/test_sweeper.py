@@ -12,7 +12,7 @@ import time
 import uuid
 from pathlib import Path
 
-from sweep_helpers import load_study, run_cli, run_sweep, sweep_command
+from sweep_helpers import load_study, run_cli, run_sweep, sweep_command, wait_for
 from optuna.trial import TrialState
 
 from aslexp.tuning.worker import ATTR_ERROR, ATTR_STATE, ATTR_WORKER, INTERRUPTED
@@ -111,14 +111,6 @@ def test_hyperband_pruner_from_config(tmp_path: Path) -> None:
     assert json.loads((sweep / "sweep.json").read_text())["pruner"]["name"] == "hyperband"
 
 
-def _wait_for(predicate, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.1)
-    raise AssertionError(f"timed out waiting for {what}")
-
 
 def _count(sweep: Path, state: TrialState) -> int:
     if not (sweep / "optuna.journal").exists() or not (sweep / "sweep.json").exists():
@@ -132,7 +124,7 @@ def test_sigkill_mid_sweep_then_resume_loses_no_finished_trial(tmp_path: Path) -
                             cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
     try:
-        _wait_for(lambda: _count(sweep, TrialState.COMPLETE) >= 2
+        wait_for(lambda: _count(sweep, TrialState.COMPLETE) >= 2
                   and _count(sweep, TrialState.RUNNING) == 1, 60, "2 finished trials and a running one")
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
@@ -168,7 +160,7 @@ def test_sigint_marks_the_running_trial_interrupted_and_resume_completes(tmp_pat
         return bool(run_file and run_file.exists()
                     and json.loads(run_file.read_text())["status"] == "running")
 
-    _wait_for(job_running, 60, "a finished trial and a running job")
+    wait_for(job_running, 60, "a finished trial and a running job")
     os.killpg(proc.pid, signal.SIGINT)
     _, stderr = proc.communicate(timeout=30)
     assert proc.returncode != 0, stderr[-3000:]

@@ -142,7 +142,7 @@ def build_wlasl_lex(
             candidates.append((instance, match.entry))
 
     clips, loaded = [], []
-    rejected: Counter = Counter()
+    rejected: list[str] = []
     for instance, entry in tqdm(candidates, desc="keypoints", unit="clip", mininterval=2,
                                 leave=False, disable=len(candidates) < 500):  # fmt: skip
         try:
@@ -152,14 +152,13 @@ def build_wlasl_lex(
                 raise
             log.warning("skipping video %s: %s", instance.video_id, error)
             skipped["bad_keypoint_file"] += 1
-            rejected[str(error)] += 1
+            rejected.append(str(error))
             continue
         clips.append(clip[..., channel_index])
         loaded.append((instance, entry))
     if candidates and not clips:
-        examples = "; ".join(f"{text} ({n}x)" if n > 1 else text for text, n in rejected.most_common(2))
         raise DataError(f"keypoint source {params.source!r}: all {len(candidates)} keypoint files "
-                        f"of the labelled clips were rejected, e.g. {examples}")
+                        f"of the labelled clips were rejected, e.g. {rejected[0]}")
     zero_frames = getattr(source.source, "zero_frames", {})
     if zero_frames:
         total = sum(zero_frames.get(i.video_id, 0) for i, _ in loaded)
