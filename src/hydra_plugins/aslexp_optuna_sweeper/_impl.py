@@ -159,12 +159,12 @@ class SweeperImpl(Sweeper):
         self.sweep_dir = sweep_dir
         if self.worker_index == 0:
             if self.home != sweep_dir:
-                log.info("%s holds another study (%s): study %r and its trials live in %s",
-                         sweep_dir, "sweep.json", study_name, self.home)
-            log.info("study %r in %s: %s, budget %d trials (%d exist), %d worker(s), "
-                     "sampler %s, pruner %s", study_name, redact(spec), self.direction,
-                     self.n_trials, existing, self.n_workers, self.sampler_spec.get("name"),
-                     self.pruner_spec.get("name"))
+                log.info("%s belongs to another study (its sweep.json): study %r lives in %s",
+                         sweep_dir, study_name, self.home)
+            log.info("sweep folder %s: study %r in %s, %s, budget %d trials (%d exist), "
+                     "%d worker(s), sampler %s, pruner %s", self.home, study_name, redact(spec),
+                     self.direction, self.n_trials, existing, self.n_workers,
+                     self.sampler_spec.get("name"), self.pruner_spec.get("name"))
 
         children = self._spawn_workers(sweep_dir) if self.n_workers > 1 else []
         settings = WorkerSettings(storage_spec=spec, study_name=study_name,
@@ -187,7 +187,8 @@ class SweeperImpl(Sweeper):
         log.info("%s ran %d trial(s): %s", label, len(summary.trials), dict(summary.states))
         if self.worker_index == 0:
             counts = state_counts(study.get_trials(deepcopy=False))
-            log.info("study %r now: %s", study_name, dict(sorted(counts.items())))
+            log.info("study %r now: %s (sweep folder %s)", study_name, dict(sorted(counts.items())),
+                     self.home)
             if counts.get("complete"):
                 best = study.best_trial
                 log.info("best trial %d: value %.6g, params %s", best.number, best.value, best.params)
