@@ -282,7 +282,8 @@ def _run_worker(study: optuna.Study, distributions: Mapping[str, BaseDistributio
             except Exception as err:  # noqa: BLE001 - a launcher error fails this trial only
                 log.error("trial %d could not be launched:\n%s", trial.number,
                           "".join(traceback.format_exception(err)))
-                outcome = Outcome("failed", error=f"launch failed: {type(err).__name__}: {err}")
+                text = " ".join(str(err).split())  # one line (cluster errors come in several)
+                outcome = Outcome("failed", error=f"launch failed: {type(err).__name__}: {text}")
             recorded = record_outcome(study, trial, outcome)
             summary.trials.append(trial.number)
             summary.states[recorded] += 1
