@@ -31,8 +31,7 @@ SHARED = PROJECT_ROOT.parent / "shared" / "data"
 
 # Documented value -> test value, by override key (or sbatch option). The trial budget: one trial,
 # or one per worker where there are several.
-_SMALL = {"hydra.sweeper.n_workers": "2",
-          "hydra.launcher.partition": "debug", "hydra.launcher.timeout_min": "10",
+_SMALL = {"hydra.launcher.partition": "debug", "hydra.launcher.timeout_min": "10",
           "hydra.launcher.cpus_per_task": "1", "hydra.launcher.gpus_per_node": "0",
           "hydra.launcher.mem_gb": "2"}
 _SBATCH = {"--array": "1-2", "--partition": "debug", "--cpus-per-task": "1", "--time": "10"}
@@ -73,12 +72,17 @@ def documented(path: Path, keep=lambda line: True) -> list[Command]:
 def _tiny(args: list[str], tmp: Path, pg_url: str | None) -> list[str]:
     """The documented overrides, with small budgets and this machine's resources."""
     out, keys = [], set()
-    trials = "2" if any(a.startswith("hydra.sweeper.n_workers=") for a in args) else "1"
+    # Several workers on this machine: two, a trial each. On Slurm one (recipe A's trials in
+    # flight together are tested in test_slurm.py): every Slurm trial costs a job start.
+    workers = "1" if "hydra/launcher=slurm" in args else "2"
+    trials = workers if any(a.startswith("hydra.sweeper.n_workers=") for a in args) else "1"
     for arg in args:
         key, eq, value = arg.partition("=")
         keys.add(key.lstrip("+~"))
         if key == "hydra.sweeper.n_trials":
             arg = f"{key}={trials}"
+        elif key == "hydra.sweeper.n_workers":
+            arg = f"{key}={workers}"
         elif eq and key in _SMALL:
             arg = f"{key}={_SMALL[key]}"
         elif key == "hydra.sweeper.storage" and "postgresql://" in value:
@@ -191,8 +195,8 @@ def test_the_sweeps_doc_slurm_recipes_run_on_a_real_cluster(workspace):
     for command in commands:
         (_run_sbatch if command.script else _run)(command, tmp, env, pg_url)
     runs = [json.loads(p.read_text()) for p in (tmp / "shared" / "sweeps" / "mlp").rglob("run.json")]
-    # Recipe A: 2 workers, a trial each; recipe B (its own study: studies/<name>/): 2 tasks, 1 trial.
-    assert len(runs) == 2 + 1 and all(r["status"] == "completed" and r["slurm"] for r in runs)
+    # Recipe A: one trial; recipe B (its own study: studies/<name>/): 2 tasks, 1 trial.
+    assert len(runs) == 1 + 1 and all(r["status"] == "completed" and r["slurm"] for r in runs)
 
 
 def test_the_readme_sweep_and_run_commands_run(workspace):
