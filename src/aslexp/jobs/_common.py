@@ -259,32 +259,19 @@ def run_guarded(job: str, cfg: DictConfig, body: Callable[[Run], float]) -> floa
             raise
         raise JobAbort(str(err)) from None
     log.info("%s: run folder %s", job, run.dir)
-    status = "completed"
     try:
         with sigterm_raises():
             value = float(body(run))
-        if math.isfinite(value):
-            run.finish("completed")
-            return value
-        status = "failed"
-        error = f"the objective is {value}, not a finite number"
-        run.finish("failed", error)
-        if multirun:
-            log.error("%s failed (%s): run folder %s", job, error, run.dir)
-            return value
-        raise JobFailed(ValueError(error), run.dir)
     except optuna.TrialPruned as exc:
-        status = "pruned"
         run.finish("pruned", str(exc))
+        log.info("%s pruned: run folder %s", job, run.dir)
         raise
     except KeyboardInterrupt as exc:
-        status = "interrupted"
         with signals_held():
             run.finish("interrupted", f"interrupted ({'SIGTERM' if isinstance(exc, Terminated) else 'Ctrl-C'})")
         exc.aslexp_note = f"run folder {run.dir} recorded as interrupted"  # type: ignore[attr-defined]
         raise
     except Exception as exc:  # noqa: BLE001 - recorded, then reported or turned into NaN
-        status = "failed"
         trace = "".join(traceback.format_exception(exc))
         run.finish("failed", one_line(exc), trace)
         _log_to_files_only(f"{job} failed:\n{trace}")
@@ -295,6 +282,16 @@ def run_guarded(job: str, cfg: DictConfig, body: Callable[[Run], float]) -> floa
         if multirun:
             raise
         raise JobFailed(exc, run.dir) from exc
-    finally:
-        if status in ("completed", "pruned"):
-            log.info("%s %s: run folder %s", job, status, run.dir)
+    except BaseException as exc:  # SystemExit and the like: the run did not finish
+        run.finish("failed", one_line(exc))
+        raise
+    if math.isfinite(value):
+        run.finish("completed")
+        log.info("%s completed: run folder %s", job, run.dir)
+        return value
+    error = f"the objective is {value}, not a finite number"
+    run.finish("failed", error)
+    if multirun:
+        log.error("%s failed (%s): run folder %s", job, error, run.dir)
+        return value
+    raise JobFailed(ValueError(error), run.dir)
