@@ -6,5 +6,8 @@ bash scripts/setup.sh
 # Optional services and worker environments used by some tests (each script is idempotent).
 [ -f scripts/setup_mediapipe.sh ] && bash scripts/setup_mediapipe.sh
 [ -f scripts/ci_postgres.sh ] && bash scripts/ci_postgres.sh
+# A real single-node Slurm on loopback for tests/platform/test_slurm.py (as root). If it cannot
+# start, the Slurm tests fail under CI=true and skip elsewhere (they say why).
+[ -f scripts/ci_slurm.sh ] && { bash scripts/ci_slurm.sh || echo "test.sh: scripts/ci_slurm.sh failed (see above)"; }
 export MPLBACKEND=Agg
 exec .venv/bin/python -m pytest -q "$@"

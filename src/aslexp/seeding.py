@@ -5,12 +5,13 @@ from __future__ import annotations
 import random
 
 import numpy as np
-import torch
 
 
 def seed_everything(seed: int, deterministic: bool | None = None) -> None:
     """Seed python, numpy and torch. ``deterministic`` (if not None) sets torch's
     deterministic-kernels flag, process-wide, warning instead of failing where none exists."""
+    import torch  # here, not at import: every job imports this module, not every job uses torch
+
     random.seed(seed)
     np.random.seed(seed % (2**32))
     torch.manual_seed(seed)

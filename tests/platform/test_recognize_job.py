@@ -6,6 +6,7 @@ import json
 import math
 
 import yaml
+from platform_helpers import error_lines, folder_hashes
 
 FAST = ["experiment=debug", "classifier=logreg", "classifier.params.max_iter=200"]
 
@@ -41,14 +42,20 @@ def test_single_run_writes_its_whole_directory(aslexp, tmp_path):
     assert "seed=3" in overrides
 
 
-def test_a_finished_run_is_never_overwritten(aslexp, tmp_path):
+def test_a_refused_rerun_leaves_the_finished_run_byte_identical(aslexp, tmp_path):
+    """Issue 11.1: the refusal comes before Hydra writes .hydra/*.yaml or the log."""
     run_dir = tmp_path / "run"
     aslexp("recognize", *FAST, f"hydra.run.dir={run_dir}")
-    before = (run_dir / "metrics.json").read_bytes()
-    again = aslexp("recognize", *FAST, "seed=1", f"hydra.run.dir={run_dir}", check=False)
-    assert again.returncode != 0
-    assert "holds a finished run" in again.stderr
-    assert (run_dir / "metrics.json").read_bytes() == before
+    before = folder_hashes(run_dir)
+    assert ".hydra/config.yaml" in before and "recognize.log" in before
+    again = aslexp("recognize", "experiment=debug", "classifier=majority", "property=flexion",
+                   "seed=5", f"hydra.run.dir={run_dir}", check=False)
+    assert again.returncode == 2
+    assert folder_hashes(run_dir) == before  # config, overrides, log, run.json: not a byte changed
+    lines = error_lines(again.stderr)
+    assert len(lines) == 1 and "holds a finished run" in lines[0] and "nothing was changed" in lines[0]
+    assert "add overwrite=true" in lines[0] and "+overwrite" not in lines[0]
+    assert "Traceback" not in again.stderr + again.stdout
 
 
 def test_multirun_goes_on_past_a_failing_job_and_reports(aslexp, tmp_path):
@@ -79,9 +86,11 @@ def test_multirun_goes_on_past_a_failing_job_and_reports(aslexp, tmp_path):
 
 def test_optuna_sweep_keeps_its_study_and_trial_directories(aslexp, tmp_path):
     sweep_dir = tmp_path / "optuna"
+    # Sampler seed 7: trials 0-2 draw pooling=mean_std (pooling=none fits on every frame and
+    # took minutes); trial N's draws depend only on (seed, N).
     aslexp("recognize", "-m", "+sweeps=classifier_logreg", "experiment=debug",
            "classifier.params.max_iter=200", "hydra.sweeper.n_trials=3",
-           f"hydra.sweep.dir={sweep_dir}")
+           "hydra.sweeper.sampler.seed=7", f"hydra.sweep.dir={sweep_dir}")
     storage = [p for p in sweep_dir.iterdir() if p.suffix in (".journal", ".db")]
     assert storage, f"no study storage in {sorted(p.name for p in sweep_dir.iterdir())}"
     trial_runs = [json.loads(p.read_text()) for p in sweep_dir.rglob("run.json")]
@@ -104,3 +113,4 @@ def test_optuna_sweep_keeps_its_study_and_trial_directories(aslexp, tmp_path):
     assert len(finished) == 3
     assert all(-1.0 <= t.value <= 1.0 for t in finished)
     assert {"classifier.params.C", "classifier.params.pooling"} <= set(finished[0].params)
+    assert {t.params["classifier.params.pooling"] for t in finished} == {"mean_std"}

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import optuna
@@ -47,3 +48,19 @@ def postgres_url() -> str | None:
         return url
     except Exception:  # noqa: BLE001 - any failure means: no server to test against
         return None
+
+
+def run_cli(*args: str, cwd: Path | None = None, check: bool = True) -> subprocess.CompletedProcess:
+    """``python -m aslexp.runs.cli ...`` (what ``aslexp runs|sweep ...`` dispatches to)."""
+    return subprocess.run([sys.executable, "-m", "aslexp.runs.cli", *args], cwd=cwd,
+                          capture_output=True, text=True, check=check, timeout=120)
+
+
+def wait_for(predicate, timeout: float, what: str) -> None:
+    """Poll ``predicate`` every 0.1 s; fail naming ``what`` after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"timed out waiting for {what}")

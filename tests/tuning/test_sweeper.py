@@ -12,7 +12,7 @@ import time
 import uuid
 from pathlib import Path
 
-from sweep_helpers import load_study, run_sweep, sweep_command
+from sweep_helpers import load_study, run_cli, run_sweep, sweep_command, wait_for
 from optuna.trial import TrialState
 
 from aslexp.tuning.worker import ATTR_ERROR, ATTR_STATE, ATTR_WORKER, INTERRUPTED
@@ -45,27 +45,35 @@ def test_budget_is_the_study_total_and_a_rerun_resumes(tmp_path: Path) -> None:
         assert info["main_metric"]["value"] == after[number][1]
 
 
-def test_failed_and_nan_trials_are_recorded_and_the_sweep_goes_on(tmp_path: Path) -> None:
+def test_failed_and_nan_trials_tell_one_story_in_study_run_folder_and_status(tmp_path: Path) -> None:
+    """A raising trial and a NaN trial: FAIL in the study with the real error, "failed" with the
+    same error in their run.json, and the same text in `sweep status`; the sweep goes on."""
     sweep = tmp_path / "sweep"
     run_sweep(sweep, "hydra/sweeper/sampler=random", "hydra.sweeper.n_trials=6",
-              "fail_if='x > 0.4'", "nan_if='x < -0.4'")
+              "hydra.sweeper.sampler.seed=0", "fail_if='x > 0.4'", "nan_if='x < -0.4'")
     trials = load_study(sweep).trials
     assert len(trials) == 6
+    status = run_cli("sweep", "status", str(sweep), cwd=tmp_path).stdout
     for t in trials:
         x = t.params["x"]
+        run = json.loads((sweep / str(t.number) / "run.json").read_text())
         if x > 0.4:
             assert t.state == TrialState.FAIL
-            assert "RuntimeError: quadratic: fail_if" in t.user_attrs[ATTR_ERROR]
+            assert t.user_attrs[ATTR_ERROR].startswith("RuntimeError: quadratic: fail_if 'x > 0.4' holds")
         elif x < -0.4:
             assert t.state == TrialState.FAIL
-            assert "objective returned nan" in t.user_attrs[ATTR_ERROR]
+            assert t.user_attrs[ATTR_ERROR] == "the objective is nan, not a finite number"
         else:
             assert t.state == TrialState.COMPLETE and math.isfinite(t.value)
+            assert run["status"] == "completed" and run["main_metric"]["value"] == t.value
+            continue
+        assert run["status"] == "failed" and run["error"] == t.user_attrs[ATTR_ERROR]
+        assert f"trial {t.number}: {t.user_attrs[ATTR_ERROR]}" in status
     states = {("raise" if t.params["x"] > 0.4 else "nan" if t.params["x"] < -0.4 else "ok")
               for t in trials}
-    assert states == {"raise", "nan", "ok"}, "seed 7 should give all three kinds of trial"
+    assert states == {"raise", "nan", "ok"}, "seed 0 gives all three kinds of trial"
     raised = next(t for t in trials if t.params["x"] > 0.4)
-    assert json.loads((sweep / str(raised.number) / "run.json").read_text())["status"] == "failed"
+    assert "Traceback" in json.loads((sweep / str(raised.number) / "run.json").read_text())["traceback"]
 
 
 def test_median_pruner_stops_hopeless_trials(tmp_path: Path) -> None:
@@ -103,14 +111,6 @@ def test_hyperband_pruner_from_config(tmp_path: Path) -> None:
     assert json.loads((sweep / "sweep.json").read_text())["pruner"]["name"] == "hyperband"
 
 
-def _wait_for(predicate, timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return
-        time.sleep(0.1)
-    raise AssertionError(f"timed out waiting for {what}")
-
 
 def _count(sweep: Path, state: TrialState) -> int:
     if not (sweep / "optuna.journal").exists() or not (sweep / "sweep.json").exists():
@@ -124,7 +124,7 @@ def test_sigkill_mid_sweep_then_resume_loses_no_finished_trial(tmp_path: Path) -
                             cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             start_new_session=True)
     try:
-        _wait_for(lambda: _count(sweep, TrialState.COMPLETE) >= 2
+        wait_for(lambda: _count(sweep, TrialState.COMPLETE) >= 2
                   and _count(sweep, TrialState.RUNNING) == 1, 60, "2 finished trials and a running one")
     finally:
         os.killpg(proc.pid, signal.SIGKILL)
@@ -160,7 +160,7 @@ def test_sigint_marks_the_running_trial_interrupted_and_resume_completes(tmp_pat
         return bool(run_file and run_file.exists()
                     and json.loads(run_file.read_text())["status"] == "running")
 
-    _wait_for(job_running, 60, "a finished trial and a running job")
+    wait_for(job_running, 60, "a finished trial and a running job")
     os.killpg(proc.pid, signal.SIGINT)
     _, stderr = proc.communicate(timeout=30)
     assert proc.returncode != 0, stderr[-3000:]

@@ -14,7 +14,7 @@ import pytest
 from optuna.distributions import FloatDistribution
 from optuna.trial import TrialState
 
-from aslexp.tuning.algorithms import AlgorithmSpecError, make_pruner, make_sampler
+from aslexp.tuning.algorithms import AlgorithmSpecError, PerTrialSeedSampler, make_pruner, make_sampler
 from aslexp.tuning.context import ENV_VAR, NullReporter, TrialContext, trial_reporter
 from aslexp.tuning.storage import open_storage, redact
 from aslexp.tuning.study import StudyError, create_or_resume_study, resolve_study_name
@@ -118,8 +118,9 @@ def test_specs_and_names_fail_clearly(journal: str) -> None:
         make_pruner({"name": "medain"})
     with pytest.raises(AlgorithmSpecError, match="hydra.sweeper.sampler"):
         make_sampler({"name": "tpe", "no_such_option": 1})
-    assert make_sampler({"name": "random", "seed": 1}, seed_offset=5)._rng.rng.random() == \
-        make_sampler({"name": "random", "seed": 6})._rng.rng.random()
+    assert isinstance(make_sampler({"name": "random", "seed": 1}), PerTrialSeedSampler)
+    assert not isinstance(make_sampler({"name": "qmc", "seed": 1}), PerTrialSeedSampler)  # seed = design
+    assert not isinstance(make_sampler({"name": "tpe"}), PerTrialSeedSampler)  # OS entropy
     with pytest.raises(StudyError, match="study_name=NAME"):
         resolve_study_name("postgresql://u@127.0.0.1/db", None, "quadratic")
     _study(journal)

@@ -39,8 +39,8 @@ from aslexp.data.matching import match_glosses
 from aslexp.data.preprocess import PADDINGS, preprocess_clips
 from aslexp.data.root import resolve_data_root
 from aslexp.data.splits import RARE_RULES, SPLIT_KINDS, make_splits
-from aslexp.data.wlasl import load_wlasl
-from aslexp.keypoints import SubsetSource, read_layout, write_layout
+from aslexp.data.wlasl import WLASL_JSON, load_wlasl
+from aslexp.keypoints import SubsetSource, get_source, read_layout, write_layout
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +48,7 @@ log = logging.getLogger(__name__)
 FORMAT_VERSION = 2
 SPLIT_FILES = ("train", "val", "train+val", "test")
 MANIFEST = "manifest.json"
+INPUTS = "inputs.json"  # size and mtime of every file a cached build read (its staleness check)
 SKIP_REASONS = ("no_keypoints", "keypoints_not_in_wlasl", "gloss_not_in_lexicon",
                 "missing_property_value", "bad_keypoint_file", "no_valid_frame", "rare_class")  # fmt: skip
 
@@ -140,7 +141,8 @@ def build_wlasl_lex(
         else:
             candidates.append((instance, match.entry))
 
-    clips, loaded, first_error = [], [], None
+    clips, loaded = [], []
+    rejected: list[str] = []
     for instance, entry in tqdm(candidates, desc="keypoints", unit="clip", mininterval=2,
                                 leave=False, disable=len(candidates) < 500):  # fmt: skip
         try:
@@ -150,13 +152,13 @@ def build_wlasl_lex(
                 raise
             log.warning("skipping video %s: %s", instance.video_id, error)
             skipped["bad_keypoint_file"] += 1
-            first_error = first_error or error
+            rejected.append(str(error))
             continue
         clips.append(clip[..., channel_index])
         loaded.append((instance, entry))
     if candidates and not loaded:  # every file is wrong for this source: say why, not "too few clips"
-        raise DataError(f"keypoint source {params.source!r} could read none of its {len(candidates)} "
-                        f"labelled clips; the first: {first_error} (files in another format need "
+        raise DataError(f"keypoint source {params.source!r}: all {len(candidates)} keypoint files of the "
+                        f"labelled clips were rejected, e.g. {rejected[0]} (files in another format need "
                         "their source and layout: conf/pose/array_folder.yaml, pose=mediapipe_hands, ...)")  # fmt: skip
     zero_frames = getattr(source.source, "zero_frames", {})  # sources that mark all-zero frames
     if zero_frames:
@@ -324,10 +326,65 @@ def load_wlasl_lex(out_dir: str | Path) -> RecognitionDataset:
 
 
 def cache_key(params: WlaslLexParams, root: str | Path | None = None) -> str:
-    """A short hash of the parameters, the data root and the format version."""
+    """A short hash of the parameters, the data root and the format version (the cache folder).
+
+    What the build read is checked apart, on every reuse: see :func:`input_fingerprint`.
+    """
     payload = {"format_version": FORMAT_VERSION, "params": params.to_dict(),
                "data_root": str(resolve_data_root(root))}  # fmt: skip
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def input_files(params: WlaslLexParams, root: str | Path | None = None) -> list[Path]:
+    """The files a build with ``params`` reads: the lexicon, the WLASL metadata, and every file
+    of the keypoint source (its folder, or its array and id files)."""
+    data_root = resolve_data_root(root)
+    paths = [data_root / lexicon_spec(params.lexicon).relpath, data_root / WLASL_JSON]
+    source_paths = [params.source_path] if params.source_path else []
+    default_path = get_source(params.source).default_path
+    if not source_paths and default_path is not None:
+        source_paths = [data_root / default_path]
+    source_paths += [v for v in params.source_options.values()
+                     if isinstance(v, (str, os.PathLike)) and Path(v).is_file()]
+    for path in map(Path, source_paths):
+        if path.is_dir():
+            paths += sorted(p for p in path.iterdir() if p.is_file() and not p.name.startswith("."))
+        else:
+            paths.append(path)
+    return paths
+
+
+def input_fingerprint(params: WlaslLexParams, root: str | Path | None = None) -> dict[str, list[int]]:
+    """``{file: [size, mtime_ns]}`` of :func:`input_files` (a missing file: ``[-1, -1]``).
+
+    Stat only (milliseconds for thousands of files): a file damaged, replaced, added or removed
+    changes it; a rewrite that keeps both size and mtime (``cp -p`` of other bytes) does not.
+    """
+    fingerprint = {}
+    for path in input_files(params, root):
+        try:
+            stat = path.stat()
+            fingerprint[str(path)] = [stat.st_size, stat.st_mtime_ns]
+        except OSError:
+            fingerprint[str(path)] = [-1, -1]
+    return fingerprint
+
+
+def _stale_inputs(build: Path, current: dict[str, list[int]]) -> str | None:
+    """Why the build in ``build`` no longer matches its inputs (None if it does)."""
+    try:
+        recorded = json.loads((build / INPUTS).read_text(encoding="utf-8"))["files"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return f"it records no {INPUTS} (built by an older aslexp)"
+    changed = sorted(f for f in current.keys() & recorded.keys() if list(recorded[f]) != current[f])
+    added = sorted(current.keys() - recorded.keys())
+    removed = sorted(recorded.keys() - current.keys())
+    if not (changed or added or removed):
+        return None
+    parts = [f"{len(v)} {k}" for k, v in (("changed", changed), ("added", added),
+                                            ("removed", removed)) if v]
+    first = (changed or added or removed)[0]
+    return f"its input files differ from when it was built ({', '.join(parts)}; e.g. {first})"
 
 
 def build_or_load(
@@ -348,16 +405,23 @@ def build_or_load(
     key = cache_key(params, root)
     final = cache_dir / f"wlasl_lex-{params.lexicon}-{params.property}-{params.split}-{key}"
     manifest_path = final / MANIFEST
+    # Taken before the build reads anything: a file changed during the build shows next time.
+    fingerprint = input_fingerprint(params, root)
     if manifest_path.is_file():
         manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
         if manifest.get("format_version") == FORMAT_VERSION and manifest.get("params") == params.to_dict():
-            log.info("reusing WLASL-Lex build %s", final)
-            return load_wlasl_lex(final), final
-        log.warning("%s: manifest parameters differ from the request; rebuilding", final)
+            stale = _stale_inputs(final, fingerprint)
+            if stale is None:
+                log.info("reusing WLASL-Lex build %s", final)
+                return load_wlasl_lex(final), final
+            log.warning("WLASL-Lex build %s is stale: %s; rebuilding", final, stale)
+        else:
+            log.warning("%s: manifest parameters differ from the request; rebuilding", final)
     cache_dir.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{final.name}.", dir=cache_dir))
     try:
         dataset = build_wlasl_lex(staging, params, root=root, strict=strict)
+        _write_json(staging / INPUTS, {"files": fingerprint})
         if final.exists():
             shutil.rmtree(final)
         os.replace(staging, final)

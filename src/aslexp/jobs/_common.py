@@ -1,21 +1,201 @@
-"""Shared plumbing for the Hydra entry points (the only place, with cli.py, that knows Hydra)."""
+"""Shared plumbing for the Hydra entry points (the only place, with cli.py, that knows Hydra).
+
+Every job is declared with :func:`job_main` and runs its body through :func:`run_guarded`:
+
+* **A finished run is never rewritten.** :class:`RunGuard`, a Hydra callback that every job
+  config lists (``conf/hydra/callbacks/aslexp.yaml``), refuses a run folder that holds a finished
+  run in ``on_run_start``, before Hydra writes ``.hydra/`` or opens the job's log there; a plain
+  multirun into a folder holding finished runs is refused the same way (the Optuna sweeper
+  instead gives every trial a folder of its own).
+* **One line per error.** Bad input, a refused run or a crash prints one line on stderr (what,
+  where, what to do) and exits non-zero (2: bad input or refused, 1: the job failed, 130/143:
+  SIGINT/SIGTERM). ``--debug`` or ``HYDRA_FULL_ERROR=1`` prints the traceback as well; the
+  run's ``run.json`` and log always keep it.
+* **The run folder tells the truth.** run.json ends as completed, failed (with the error),
+  pruned or interrupted (Ctrl-C, SIGTERM, ``scancel``); a job whose objective is not a finite
+  number is failed, as the sweep records it. The run folder is printed at start and end.
+"""
 
 from __future__ import annotations
 
+import functools
 import logging
+import math
+import os
+import sys
+import traceback
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from hydra.core.hydra_config import HydraConfig
+from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from aslexp.runs.record import Run, start_run
+from aslexp.runs.logfmt import install_float_rounding
+from aslexp.runs.process import Terminated, sigterm_raises, signals_held
+from aslexp.runs.record import RUN_FILE, Run, RunExistsError, finished_run, refuse_finished_run, start_run
 from aslexp.seeding import seed_everything  # noqa: F401  (re-exported for the jobs)
 
 PROJECT_ROOT = Path(__file__).resolve().parents[3]
 CONF_DIR = str(PROJECT_ROOT / "conf")
 
 log = logging.getLogger("aslexp")
+
+_OUR_SWEEPER = "hydra_plugins.aslexp_optuna_sweeper."
+_DEBUG_ENV = "ASLEXP_DEBUG"  # "1": tracebacks on; set for child processes from the first one
+
+
+# --------------------------------------------------------------------------- stopping cleanly
+
+
+class JobAbort(BaseException):
+    """Stop the job with a one-line message and an exit code, before anything ran.
+
+    A BaseException on purpose: Hydra turns an Exception raised in a callback into a warning
+    and carries on (it would then write into the refused folder).
+    """
+
+    def __init__(self, message: str, code: int = 2) -> None:
+        super().__init__(message)
+        self.message = message
+        self.code = code
+
+
+class JobFailed(BaseException):
+    """A single run's error, recorded in its run folder, on its way to the one-line report.
+
+    A BaseException so that Hydra does not catch it and print its own report around it.
+    """
+
+    def __init__(self, error: BaseException, run_dir: Path | None) -> None:
+        super().__init__(str(error))
+        self.error = error
+        self.run_dir = run_dir
+
+
+def one_line(error: BaseException) -> str:
+    """An exception as one line: type and message, continuation lines joined."""
+    text = str(error).strip() or type(error).__name__
+    lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
+    lines = [ln for ln in lines if not ln.startswith(("full_key:", "object_type=", "reference_type="))]
+    text = " ".join(lines)
+    name = type(error).__name__
+    if name in ("ConfigCompositionException", "MissingConfigException", "OverrideParseException",
+                "ConfigKeyError", "InterpolationResolutionError"):
+        return text  # Hydra's own messages already say what is wrong
+    return f"{name}: {text}"
+
+
+def _bad_input(error: BaseException) -> bool:
+    return type(error).__module__.split(".")[0] in ("hydra", "omegaconf")
+
+
+def _debug_requested(argv: list[str]) -> bool:
+    if "--debug" in argv:
+        return True
+    if _DEBUG_ENV in os.environ:  # set by the first aslexp process for its children
+        return os.environ[_DEBUG_ENV] == "1"
+    return os.environ.get("HYDRA_FULL_ERROR") == "1"
+
+
+def _exit_for(error: BaseException, prog: str, debug: bool) -> int:
+    """Print the one-line report of ``error`` (plus its traceback under --debug); exit code."""
+    if isinstance(error, JobAbort):
+        print(f"{prog}: {error.message}", file=sys.stderr, flush=True)
+        return error.code
+    if isinstance(error, KeyboardInterrupt):
+        what = "SIGTERM" if isinstance(error, Terminated) else "Ctrl-C"
+        note = getattr(error, "aslexp_note", None)
+        if debug:
+            traceback.print_exception(error)
+        print(f"{prog}: interrupted ({what})" + (f": {note}" if note else ""), file=sys.stderr,
+              flush=True)
+        return 143 if isinstance(error, Terminated) else 130
+    run_dir = None
+    if isinstance(error, JobFailed):
+        error, run_dir = error.error, error.run_dir
+    if debug:
+        traceback.print_exception(error)
+    where = f" (run folder {run_dir})" if run_dir else ""
+    hint = "" if debug or run_dir else "; --debug shows the traceback"
+    print(f"{prog}: {one_line(error)}{where}{hint}", file=sys.stderr, flush=True)
+    return 2 if _bad_input(error) else 1
+
+
+def job_main(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Callable[[], Any]]:
+    """``@job_main("recognize")``: ``hydra.main`` with aslexp's error handling around it.
+
+    The decorated ``main()`` runs the Hydra app; any error ends the process with one line on
+    stderr and a non-zero exit (see the module docstring). ``--debug`` anywhere on the command
+    line keeps the tracebacks (it is removed before Hydra parses the overrides).
+    """
+    import hydra
+
+    def decorate(task: Callable[[DictConfig], Any]) -> Callable[[], Any]:
+        hydra_app = hydra.main(version_base="1.3", config_path=CONF_DIR, config_name=config_name)(task)
+
+        @functools.wraps(task)
+        def main() -> Any:
+            prog = f"aslexp {config_name}"
+            debug = _debug_requested(sys.argv[1:])
+            sys.argv = [a for i, a in enumerate(sys.argv) if i == 0 or a != "--debug"]
+            os.environ[_DEBUG_ENV] = "1" if debug else "0"
+            os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra re-raises; the report is ours
+            try:
+                return hydra_app()
+            except SystemExit:
+                raise
+            except BaseException as error:  # noqa: BLE001 - every error becomes one line
+                sys.exit(_exit_for(error, prog, debug))
+
+        return main
+
+    return decorate
+
+
+# --------------------------------------------------------------------------- the run guard
+
+
+def _resolved(config: DictConfig, key: str) -> str | None:
+    HydraConfig.instance().set_config(config)  # ${hydra:...} in paths needs it
+    value = OmegaConf.select(config, key)
+    return None if value is None else str(value)
+
+
+class RunGuard(Callback):
+    """Refuse, before Hydra writes anything, to run into a folder that holds finished runs."""
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        if OmegaConf.select(config, "overwrite", default=False):
+            return
+        run_dir = _resolved(config, "hydra.run.dir")
+        if run_dir is None:
+            return
+        try:
+            refuse_finished_run(run_dir)
+        except RunExistsError as err:
+            raise JobAbort(str(err)) from None
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        target = str(OmegaConf.select(config, "hydra.sweeper._target_", default="") or "")
+        if target.startswith(_OUR_SWEEPER):
+            return  # the Optuna sweeper resumes in its folder and never reuses a trial folder
+        if OmegaConf.select(config, "overwrite", default=False):
+            return
+        sweep_dir = _resolved(config, "hydra.sweep.dir")
+        if sweep_dir is None or not Path(sweep_dir).is_dir():
+            return
+        finished = [p.parent for p in sorted(Path(sweep_dir).rglob(RUN_FILE)) if finished_run(p.parent)]
+        if finished:
+            raise JobAbort(
+                f"{sweep_dir} holds {len(finished)} finished run(s) of an earlier multirun (e.g. "
+                f"{finished[0]}); nothing was changed: choose another hydra.sweep.dir (the default "
+                "has the date and time), or add overwrite=true to run into it again"
+            )
+
+
+# --------------------------------------------------------------------------- inside the job
 
 
 def run_dir() -> Path:
@@ -33,7 +213,6 @@ def to_dict(cfg: DictConfig | Any) -> Any:
 def begin(job: str, cfg: DictConfig) -> Run:
     """Start the run record in the Hydra output dir (refuses to overwrite a finished run)."""
     import shlex
-    import sys
 
     overrides = list(HydraConfig.get().overrides.task)
     extra = {
@@ -52,26 +231,67 @@ def in_multirun() -> bool:
     return HydraConfig.get().mode == RunMode.MULTIRUN
 
 
-def run_guarded(job: str, cfg: DictConfig, body) -> float:
+def _log_to_files_only(message: str) -> None:
+    """Write ``message`` to the job's log file(s) only (the console gets the one-line report)."""
+    record = log.makeRecord(log.name, logging.ERROR, __file__, 0, message, None, None)
+    for handler in logging.getLogger().handlers:
+        if isinstance(handler, logging.FileHandler):
+            handler.handle(record)
+
+
+def run_guarded(job: str, cfg: DictConfig, body: Callable[[Run], float]) -> float:
     """Run ``body(run) -> float`` inside a run record and return its objective.
 
-    In a multirun, unless ``fail_fast``, an exception is logged and recorded in run.json as a
-    failed run and the job returns NaN, so that one bad trial never ends the whole sweep (Optuna
-    records a NaN trial as failed). Pruning (optuna.TrialPruned) and Ctrl-C always propagate.
+    run.json ends as: completed; failed (an exception, or an objective that is not a finite
+    number), with the error's one line and its traceback; pruned (optuna.TrialPruned); or
+    interrupted (Ctrl-C, SIGTERM). In a multirun, unless ``fail_fast``, a failed job returns NaN
+    so that one bad job never ends the sweep (the sweeper reads the real error from run.json).
+    In a single run the error ends the process with one line (see :func:`job_main`).
     """
     import optuna
 
-    run = begin(job, cfg)
+    install_float_rounding()
+    multirun = in_multirun()
     try:
-        value = float(body(run))
-    except (optuna.TrialPruned, KeyboardInterrupt) as exc:
-        run.finish("pruned" if isinstance(exc, optuna.TrialPruned) else "interrupted", repr(exc))
-        raise
-    except Exception as exc:  # noqa: BLE001 - recorded, then re-raised or turned into NaN
-        run.finish("failed", f"{type(exc).__name__}: {exc}")
-        if cfg.get("fail_fast", False) or not in_multirun():
+        run = begin(job, cfg)
+    except RunExistsError as err:
+        if multirun:
             raise
-        log.exception("%s failed; recorded in %s/run.json, the sweep goes on", job, run.dir)
-        return float("nan")
-    run.finish("completed")
-    return value
+        raise JobAbort(str(err)) from None
+    log.info("%s: run folder %s", job, run.dir)
+    try:
+        with sigterm_raises():
+            value = float(body(run))
+    except optuna.TrialPruned as exc:
+        run.finish("pruned", str(exc))
+        log.info("%s pruned: run folder %s", job, run.dir)
+        raise
+    except KeyboardInterrupt as exc:
+        with signals_held():
+            run.finish("interrupted", f"interrupted ({'SIGTERM' if isinstance(exc, Terminated) else 'Ctrl-C'})")
+        exc.aslexp_note = f"run folder {run.dir} recorded as interrupted"  # type: ignore[attr-defined]
+        raise
+    except Exception as exc:  # noqa: BLE001 - recorded, then reported or turned into NaN
+        trace = "".join(traceback.format_exception(exc))
+        run.finish("failed", one_line(exc), trace)
+        _log_to_files_only(f"{job} failed:\n{trace}")
+        if multirun and not cfg.get("fail_fast", False):
+            log.error("%s failed (%s); recorded in %s/run.json, the sweep goes on", job,
+                      one_line(exc), run.dir)
+            return float("nan")
+        if multirun:
+            raise
+        raise JobFailed(exc, run.dir) from exc
+    except BaseException as exc:  # SystemExit and the like: the run did not finish
+        run.finish("failed", one_line(exc))
+        raise
+    if math.isfinite(value):
+        run.finish("completed")
+        log.info("%s completed: run folder %s", job, run.dir)
+        return value
+    error = f"the objective is {value}, not a finite number"
+    run.finish("failed", error)
+    if multirun:
+        log.error("%s failed (%s): run folder %s", job, error, run.dir)
+        return value
+    raise JobFailed(ValueError(error), run.dir)

@@ -4,7 +4,7 @@
     aslexp imitate motion=A ppo=hand_thesis ppo.num_envs=8    # Table D.1 PPO (long), 8 workers
     aslexp imitate motion=A env=residual ppo=fast seed=1      # fast settings for this hardware
     aslexp imitate motion=A ppo.total_steps=0                 # baselines and plots only
-    aslexp imitate hydra.run.dir=outputs/imitate/X +resume=outputs/imitate/X   # continue a run
+    aslexp imitate hydra.run.dir=outputs/imitate/X resume=outputs/imitate/X   # continue a run
     aslexp imitate -m experiment=letters                     # letters x seeds (figure 5.9)
     aslexp imitate -m experiment=letters_thesis              # the same as the thesis ran it, beside it
 
@@ -23,14 +23,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-import hydra
 from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from aslexp.data.root import resolve_data_root
-from aslexp.jobs._common import CONF_DIR, begin, run_dir, seed_everything, to_dict
+from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
 from aslexp.runs.loggers import make_logger
+from aslexp.runs.record import Run
 from aslexp.tuning.context import trial_reporter
 
 log = logging.getLogger("aslexp.imitate")
@@ -82,8 +82,8 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
 
     def on_eval(step: int, value: float, row: dict[str, Any]) -> None:
         history_logger.flush()  # the rollouts since the last evaluation, and this evaluation
-        if reporter is not None:
-            reporter.report(value, step)
+        if reporter is not None:  # the last evaluation is final: never pruned
+            reporter.report(value, step, final=step >= ppo.total_steps)
 
     trainer = PPOTrainer(make_train_env, eval_env, ppo, out_dir, seed=int(cfg.get("seed") or 0), on_eval=on_eval)
     history_logger = HistoryLogger(metric_logger or MetricLogger(), trainer.history)
@@ -155,25 +155,28 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     return metrics
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="imitate")
-def main(cfg: DictConfig) -> float:
-    """Hydra entry point; returns the last evaluation reward (the sweep objective; never the best of many)."""
+def _imitate_run(cfg: DictConfig, run: Run) -> float:
     import torch
 
     torch.set_num_threads(int(cfg.ppo.get("torch_threads", 1)))
-    with begin("imitate", cfg) as run:
-        seed_everything(int(cfg.seed))
-        metric_logger, metrics = make_logger(to_dict(cfg.logger), run_dir(), to_dict(cfg)), {}
-        try:
-            metrics = imitate(to_dict(cfg), run_dir(), trial_reporter(cfg), metric_logger)
-        finally:
-            metric_logger.close(metrics)
-        run.save_metrics(metrics)
-        run.set_main_metric("eval_reward", metrics["last_eval"], "maximize")
-        log.info("last eval %.4f (best %.4f; lookahead baseline %.4f) after %d steps, %.0f s",
-                 metrics["last_eval"], metrics["best_eval"], metrics["baselines"]["lookahead"], metrics["steps"],
-                 metrics["seconds"])
-        return float(metrics["last_eval"])
+    seed_everything(int(cfg.seed))
+    metric_logger, metrics = make_logger(to_dict(cfg.logger), run.dir, to_dict(cfg)), {}
+    try:
+        metrics = imitate(to_dict(cfg), run.dir, trial_reporter(cfg), metric_logger)
+    finally:
+        metric_logger.close(metrics)
+    run.save_metrics(metrics)
+    run.set_main_metric("eval_reward", metrics["last_eval"], "maximize")
+    log.info("last eval %.4f (best %.4f; lookahead baseline %.4f) after %d steps, %.0f s",
+             metrics["last_eval"], metrics["best_eval"], metrics["baselines"]["lookahead"], metrics["steps"],
+             metrics["seconds"])
+    return float(metrics["last_eval"])
+
+
+@job_main("imitate")
+def main(cfg: DictConfig) -> float:
+    """Hydra entry point; returns the last evaluation reward (the sweep objective; never the best of many)."""
+    return run_guarded("imitate", cfg, lambda run: _imitate_run(cfg, run))
 
 
 class _MultirunSummary(Callback):

@@ -17,11 +17,11 @@ import operator
 import re
 import time
 
-import hydra
 import numpy as np
 from omegaconf import DictConfig
 
-from aslexp.jobs._common import CONF_DIR, begin, log
+from aslexp.jobs._common import job_main, log, run_guarded
+from aslexp.runs.record import Run
 from aslexp.tuning.context import trial_reporter
 
 _CONDITION = re.compile(r"^\s*([xy])\s*(<=|>=|<|>|==|!=)\s*([-+0-9.eE]+)\s*$")
@@ -49,29 +49,33 @@ def objective(x: float, y: float) -> float:
     return -((x - 0.3) ** 2) - (y + 1.0) ** 2
 
 
-@hydra.main(version_base=None, config_path=CONF_DIR, config_name="quadratic")
-def main(cfg: DictConfig) -> float:
-    with begin("quadratic", cfg) as run:
-        point = {"x": float(cfg.x), "y": float(cfg.y)}
-        value = objective(point["x"], point["y"])
-        if cfg.noise:
-            value += float(np.random.default_rng(int(cfg.seed)).normal(0.0, float(cfg.noise)))
-        reporter = trial_reporter(cfg)
-        for step in range(int(cfg.steps)):
-            if cfg.sleep:
-                time.sleep(float(cfg.sleep))
-            # Converges to the final value; worse points stay worse at every step.
-            reporter.report(value - 0.1 * (int(cfg.steps) - 1 - step), step)
-        if not cfg.steps and cfg.sleep:
+def quadratic(cfg: DictConfig, run: Run) -> float:
+    point = {"x": float(cfg.x), "y": float(cfg.y)}
+    value = objective(point["x"], point["y"])
+    if cfg.noise:
+        value += float(np.random.default_rng(int(cfg.seed)).normal(0.0, float(cfg.noise)))
+    reporter = trial_reporter(cfg)
+    steps = int(cfg.steps)
+    for step in range(steps):
+        if cfg.sleep:
             time.sleep(float(cfg.sleep))
-        if condition_holds(cfg.fail_if, point):
-            raise RuntimeError(f"quadratic: fail_if {cfg.fail_if!r} holds at x={point['x']}, y={point['y']}")
-        if condition_holds(cfg.nan_if, point):
-            value = math.nan
-        run.save_metrics({"objective": value, **point})
-        run.set_main_metric("objective", value, "maximize")
-        log.info("objective(x=%.6g, y=%.6g) = %.6g", point["x"], point["y"], value)
+        # Converges to the final value; worse points stay worse at every step.
+        reporter.report(value - 0.1 * (steps - 1 - step), step, final=step == steps - 1)
+    if not cfg.steps and cfg.sleep:
+        time.sleep(float(cfg.sleep))
+    if condition_holds(cfg.fail_if, point):
+        raise RuntimeError(f"quadratic: fail_if {cfg.fail_if!r} holds at x={point['x']}, y={point['y']}")
+    if condition_holds(cfg.nan_if, point):
+        value = math.nan
+    run.save_metrics({"objective": value, **point})
+    run.set_main_metric("objective", value, "maximize")
+    log.info("objective(x=%.6g, y=%.6g) = %.6g", point["x"], point["y"], value)
     return value
+
+
+@job_main("quadratic")
+def main(cfg: DictConfig) -> float:
+    return run_guarded("quadratic", cfg, lambda run: quadratic(cfg, run))
 
 
 if __name__ == "__main__":

@@ -10,11 +10,10 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig
 
 from aslexp.data.wlasl_lex import WlaslLexParams, build_or_load
-from aslexp.jobs._common import CONF_DIR, run_guarded, seed_everything, to_dict
+from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
 from aslexp.recognition.experiment import run_recognition
 from aslexp.runs.loggers import make_logger
 from aslexp.tuning.context import trial_reporter
@@ -52,10 +51,12 @@ def recognize(cfg: DictConfig, run) -> float:
     )
     metric_logger = make_logger(to_dict(cfg.logger), run.dir, to_dict(cfg))
     reporter = trial_reporter(cfg)
+    max_epochs = int(cfg.trainer.get("max_epochs") or 0)
 
     def on_epoch_end(epoch: int, val_mcc: float, metrics: dict | None = None) -> None:
         metric_logger.log({"val_mcc": val_mcc, **(metrics or {})}, step=epoch)
-        reporter.report(val_mcc, epoch)
+        # The last epoch's report is final: a pruner never discards a finished fit.
+        reporter.report(val_mcc, epoch, final=epoch >= max_epochs)
 
     seeds = [int(cfg.seed) + i for i in range(int(cfg.n_seeds))]
     summary: dict = {}  # the logger's run summary (and TensorBoard hparams metrics)
@@ -94,7 +95,7 @@ def recognize(cfg: DictConfig, run) -> float:
     return float(result["val_mcc"])
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="recognize")
+@job_main("recognize")
 def main(cfg: DictConfig) -> float:
     return run_guarded("recognize", cfg, lambda run: recognize(cfg, run))
 

@@ -25,13 +25,13 @@ import logging
 from pathlib import Path
 from typing import Any
 
-import hydra
 import yaml
 from omegaconf import DictConfig
 
 from aslexp.data.root import resolve_data_root
-from aslexp.jobs._common import CONF_DIR, begin, run_dir, seed_everything, to_dict
+from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
 from aslexp.runs.loggers import make_logger
+from aslexp.runs.record import Run
 
 log = logging.getLogger("aslexp.tune_pd")
 
@@ -83,25 +83,28 @@ def tune_pd(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
             "controller_options": not plain}
 
 
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="tune_pd")
+def _tune_pd_run(cfg: DictConfig, run: Run) -> float:
+    seed_everything(int(cfg.seed))
+    metric_logger, metrics = make_logger(to_dict(cfg.logger), run.dir, to_dict(cfg)), {}
+    try:
+        metrics = tune_pd(to_dict(cfg), run.dir)
+        metric_logger.log(metrics, step=0)  # one evaluation: the tracking errors and reward
+    finally:
+        metric_logger.close(metrics)
+    run.save_metrics(metrics)
+    run.set_main_metric("tracking_error", metrics["objective"], "minimize")
+    # No trial_reporter here: the objective is one value at the end, so a pruner could only
+    # discard a finished trial (a median pruner marked 26 of 40 as pruned before this).
+    log.info("kp/kd %s: objective %.5f (pose %.5f rad, velocity %.5f rad/s, reward %.4f)",
+             metrics["gains"].get("default"), metrics["objective"], metrics["pose_error"],
+             metrics["velocity_error"], metrics["reward"])
+    return float(metrics["objective"])
+
+
+@job_main("tune_pd")
 def main(cfg: DictConfig) -> float:
     """Hydra entry point; returns the tracking objective (minimise)."""
-    with begin("tune_pd", cfg) as run:
-        seed_everything(int(cfg.seed))
-        metric_logger, metrics = make_logger(to_dict(cfg.logger), run_dir(), to_dict(cfg)), {}
-        try:
-            metrics = tune_pd(to_dict(cfg), run_dir())
-            metric_logger.log(metrics, step=0)  # one evaluation: the tracking errors and reward
-        finally:
-            metric_logger.close(metrics)
-        run.save_metrics(metrics)
-        run.set_main_metric("tracking_error", metrics["objective"], "minimize")
-        # No trial_reporter here: the objective is one value at the end, so a pruner could only
-        # discard a finished trial (a median pruner marked 26 of 40 as pruned before this).
-        log.info("kp/kd %s: objective %.5f (pose %.5f rad, velocity %.5f rad/s, reward %.4f)",
-                 metrics["gains"].get("default"), metrics["objective"], metrics["pose_error"],
-                 metrics["velocity_error"], metrics["reward"])
-        return float(metrics["objective"])
+    return run_guarded("tune_pd", cfg, lambda run: _tune_pd_run(cfg, run))
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """``aslexp runs ...`` and ``aslexp sweep ...``: find, compare and repeat runs and sweeps.
 
     aslexp runs list [PATH ...] [--job J] [--status S] [--since DATE] [--where KEY=VALUE]
-                     [--sort time|metric] [--limit N] [--format table|json]
+                     [--sort time|metric] [--limit N] [--format table|json]   (PATH: ./outputs)
     aslexp runs diff RUN_A RUN_B [--json]
     aslexp sweep status SWEEP_DIR [--json]
     aslexp sweep best SWEEP_DIR [--json]
@@ -24,9 +24,7 @@ from pathlib import Path
 log = logging.getLogger("aslexp")
 
 
-def _default_roots() -> list[Path]:
-    roots = [p for p in (Path("outputs"), Path("multirun")) if p.is_dir()]
-    return roots or [Path(".")]
+DEFAULT_ROOT = Path("outputs")  # where the jobs write (hydra.run.dir / hydra.sweep.dir)
 
 
 def runs_main(argv: list[str]) -> int:
@@ -34,7 +32,7 @@ def runs_main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="aslexp runs", description="Find and compare runs.")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p_list = sub.add_parser("list", help="table of runs under PATH (default: outputs/ multirun/)")
+    p_list = sub.add_parser("list", help="table of runs under PATH (default: ./outputs)")
     p_list.add_argument("paths", nargs="*", type=Path)
     p_list.add_argument("--job", help="only runs of this job (recognize, imitate, tune_pd, ...)")
     p_list.add_argument("--status", help="only runs with this status (completed, failed, pruned, ...)")
@@ -56,7 +54,15 @@ def runs_main(argv: list[str]) -> int:
     if args.command == "list":
         from aslexp.runs.listing import format_json, format_table, list_runs
 
-        roots = args.paths or _default_roots()
+        roots = args.paths
+        if not roots:
+            # Never the whole current folder: it may hold anything (other projects' runs too).
+            if not DEFAULT_ROOT.is_dir():
+                print(f"aslexp runs list: no ./{DEFAULT_ROOT} here (where the jobs write); pass "
+                      "the folders to search: aslexp runs list DIR ...", file=sys.stderr)
+                return 2
+            print(f"runs under ./{DEFAULT_ROOT} (pass folders to search elsewhere)", file=sys.stderr)
+            roots = [DEFAULT_ROOT]
         for root in roots:
             if not root.exists():
                 print(f"aslexp runs list: {root}: no such directory", file=sys.stderr)
@@ -122,7 +128,7 @@ def sweep_main(argv: list[str]) -> int:
     try:
         study, info = open_sweep(args.sweep_dir, storage=args.storage, study_name=args.study)
         if args.command == "status":
-            summary = sweep_report.status_summary(study, info)
+            summary = sweep_report.status_summary(study, info, args.sweep_dir)
             print(json.dumps(summary, indent=2, default=str) if args.json
                   else sweep_report.format_status(summary, args.sweep_dir))
         elif args.command == "best":

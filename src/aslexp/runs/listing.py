@@ -2,6 +2,9 @@
 
 A run directory is any folder with a run.json (see :mod:`aslexp.runs.record`); its overrides
 come from Hydra's ``.hydra/overrides.yaml`` and its resolved config from ``.hydra/config.yaml``.
+A run whose run.json still says "running" but whose process on this machine is gone (killed,
+out of memory, the machine's power) is listed as ``lost``; a sweep's resume records its trials
+as interrupted.
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ from typing import Any
 
 import yaml
 
+from aslexp.runs.process import process_is_gone
 from aslexp.runs.record import RUN_FILE, read_json
 
 log = logging.getLogger(__name__)
@@ -86,8 +90,11 @@ def summarise(run_dir: Path) -> RunSummary | None:
         return None
     main = info.get("main_metric") or {}
     value = main.get("value")
+    status = info.get("status")
+    if status == "running" and process_is_gone(info.get("process")):
+        status = "lost"
     return RunSummary(path=run_dir, job=info.get("job"), started=info.get("started"),
-                      status=info.get("status"), overrides=read_overrides(run_dir),
+                      status=status, overrides=read_overrides(run_dir),
                       metric_name=main.get("name"),
                       metric_value=float(value) if isinstance(value, (int, float)) else None,
                       metric_goal=main.get("goal"), info=info)

@@ -4,7 +4,9 @@ Layout of a run directory (the jobs fill it; tools under ``aslexp.runs`` only re
 
     .hydra/            resolved config, hydra config, overrides (written by Hydra)
     run.json           job, command line, git commit and dirty flag, seed, host, versions,
-                       start/end time, status (running|completed|failed), error, main metric
+                       the process (host, pid, start; Slurm job when there is one),
+                       start/end time, status (running|completed|failed|pruned|interrupted),
+                       error (one line) and traceback, main metric
     metrics.json       the job's numbers (the main metric among them)
     <job>.log          the log
     ...                plots (PNG), tables (CSV), checkpoints
@@ -29,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from aslexp.files import atomic_path
+from aslexp.runs.process import process_identity, slurm_context
 
 RUN_FILE = "run.json"
 METRICS_FILE = "metrics.json"
@@ -41,6 +44,31 @@ _TRACKED_PACKAGES = (
 
 class RunExistsError(RuntimeError):
     """Raised when a job would overwrite a finished run."""
+
+
+def finished_run(run_dir: str | os.PathLike) -> dict[str, Any] | None:
+    """The run.json of ``run_dir`` if it records a finished (completed) run, else None."""
+    path = Path(run_dir) / RUN_FILE
+    if not path.is_file():
+        return None
+    try:
+        info = read_json(path)
+    except (OSError, ValueError):
+        return None
+    return info if isinstance(info, dict) and info.get("status") == "completed" else None
+
+
+def refuse_finished_run(run_dir: str | os.PathLike) -> None:
+    """Raise :class:`RunExistsError` if ``run_dir`` holds a finished run (nothing is changed)."""
+    previous = finished_run(run_dir)
+    if previous is not None:
+        metric = previous.get("main_metric") or {}
+        shown = f", {metric.get('name')}={metric.get('value')}" if metric.get("name") else ""
+        raise RunExistsError(
+            f"{run_dir} holds a finished run ({previous.get('job')}, finished "
+            f"{previous.get('finished')}{shown}); nothing was changed: choose another "
+            "hydra.run.dir, or add overwrite=true to replace it"
+        )
 
 
 def _now() -> str:
@@ -125,11 +153,14 @@ class Run:
     def save_metrics(self, metrics: dict[str, Any]) -> None:
         write_json(self.dir / METRICS_FILE, metrics)
 
-    def finish(self, status: str = "completed", error: str | None = None) -> None:
+    def finish(self, status: str = "completed", error: str | None = None,
+               traceback_text: str | None = None) -> None:
         self.info["status"] = status
         self.info["finished"] = _now()
         if error is not None:
             self.info["error"] = error
+        if traceback_text is not None:
+            self.info["traceback"] = traceback_text
         self._save()
 
     def __enter__(self) -> "Run":
@@ -143,7 +174,8 @@ class Run:
         elif type(exc).__name__ == "TrialPruned":  # optuna's: a sweep stopped it early, by design
             self.finish("pruned", str(exc))
         else:
-            self.finish("failed", "".join(traceback.format_exception_only(exc_type, exc)).strip())
+            self.finish("failed", "".join(traceback.format_exception_only(exc_type, exc)).strip(),
+                        "".join(traceback.format_exception(exc_type, exc, tb)))
         return False
 
 
@@ -154,20 +186,14 @@ def start_run(
     overwrite: bool = False,
     extra: dict[str, Any] | None = None,
 ) -> Run:
-    """Record the start of a run in ``run_dir``; refuse to overwrite a finished run."""
+    """Record the start of a run in ``run_dir``; refuse to overwrite a finished run.
+
+    (The jobs refuse earlier, before Hydra writes anything: see ``aslexp.jobs._common``.)
+    """
     run_dir = Path(run_dir)
+    if not overwrite:
+        refuse_finished_run(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    existing = run_dir / RUN_FILE
-    if existing.exists() and not overwrite:
-        try:
-            previous = read_json(existing)
-        except (OSError, json.JSONDecodeError):
-            previous = {}
-        if previous.get("status") == "completed":
-            raise RunExistsError(
-                f"{run_dir} holds a finished run ({previous.get('job')}, "
-                f"{previous.get('finished')}); choose another hydra.run.dir or pass +overwrite=true"
-            )
     info: dict[str, Any] = {
         "job": job,
         "command": command_line(),
@@ -175,6 +201,8 @@ def start_run(
         "git": git_state(),
         "seed": seed,
         "host": socket.gethostname(),
+        "process": process_identity(),
+        "slurm": slurm_context(),
         "platform": platform.platform(),
         "versions": dict(library_versions()),
         "started": _now(),
@@ -188,6 +216,23 @@ def start_run(
     run = Run(run_dir, info)
     run._save()
     return run
+
+
+def mark_interrupted(run_dir: str | os.PathLike, reason: str) -> bool:
+    """Record a run that never finished as interrupted (its process was killed or cancelled).
+
+    Only a run.json still saying "running" changes; returns whether it did.
+    """
+    path = Path(run_dir) / RUN_FILE
+    try:
+        info = read_json(path)
+    except (OSError, ValueError):
+        return False
+    if not isinstance(info, dict) or info.get("status") != "running":
+        return False
+    info.update(status="interrupted", finished=_now(), error=reason)
+    write_json(path, info)
+    return True
 
 
 def is_finite(value: Any) -> bool:

@@ -20,6 +20,7 @@ from aslexp.tuning.study import best_summary, status_summary
 log = logging.getLogger(__name__)
 
 REPORT_DIR = "report"
+_FAILED_SHOWN = 10
 
 
 def format_status(summary: dict[str, Any], sweep_dir: Path) -> str:
@@ -37,6 +38,18 @@ def format_status(summary: dict[str, Any], sweep_dir: Path) -> str:
     lines.append("  " + ("  ".join(shown) if shown else "no trials yet"))
     if counts.get("interrupted"):
         lines.append("  (interrupted: lost to a stopped or dead worker; not counted, re-run on resume)")
+    if summary.get("lost"):
+        lines.append(f"  ({summary['lost']} of the running trials' workers are gone: they are marked "
+                     "interrupted when the sweep resumes)")
+    if summary.get("other_studies"):
+        lines.append("other studies in this folder: " + ", ".join(summary["other_studies"]))
+    failed = summary.get("failed") or []
+    if failed:
+        lines.append("failed and interrupted trials (the error their run.json records too):")
+        shown = failed[-_FAILED_SHOWN:]
+        if len(failed) > len(shown):
+            lines.append(f"  ... {len(failed) - len(shown)} earlier ones (--json lists all)")
+        lines += [f"  trial {t['number']}: {t['error']}" for t in shown]
     best = summary.get("best")
     if best:
         lines.append(f"best: trial {best['number']} value {best['value']:.6g} params {best['params']}")

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pybullet
+from aslexp.sim._pybullet import pybullet  # noqa: I001 - first: silences its import banner
 from pybullet_utils import bullet_client
 
 from aslexp.quaternion import rotate, wxyz_to_xyzw

@@ -1,9 +1,12 @@
 """How a job talks to the sweep that launched it: intermediate values and pruning.
 
 Jobs call ``reporter = trial_reporter(cfg)`` once and ``reporter.report(value, step)`` after each
-epoch or evaluation. Outside an Optuna sweep the reporter records nothing and never prunes.
-Inside one, the sweeper tells the job which trial it runs; ``report`` forwards the value to
-the study and raises ``optuna.TrialPruned`` when the pruner says stop.
+epoch or evaluation (``final=True`` with the last one, when they know it). Outside an Optuna
+sweep the reporter records nothing and never prunes. Inside one, the sweeper tells the job which
+trial it runs; ``report`` forwards the value to the study and raises ``optuna.TrialPruned`` when
+the pruner says stop, but only where stopping saves work: never at a trial's first report (a
+trial that reports once, such as a classical model's single fit, always completes) and never
+at its final one. A pruner never discards a finished trial.
 
 The sweeper passes the trial as JSON in the environment variable ``ASLEXP_TRIAL`` (set through
 ``hydra.job.env_set``, so it reaches the job in-process, in a submitit subprocess or on a Slurm
@@ -72,7 +75,7 @@ class NullReporter:
     active = False
     number: int | None = None
 
-    def report(self, value: float, step: int) -> None:
+    def report(self, value: float, step: int, final: bool = False) -> None:
         return None
 
 
@@ -84,15 +87,22 @@ class TrialReporter:
     def __init__(self, trial: Any) -> None:
         self.trial = trial
         self.number: int = trial.number
+        self.reports = 0
 
-    def report(self, value: float, step: int) -> None:
+    def report(self, value: float, step: int, final: bool = False) -> None:
+        """Record ``value`` at ``step``; raise optuna.TrialPruned if the pruner says stop.
+
+        The first report and a ``final`` one are recorded but never pruned: there is no work
+        left to save, only a finished result to lose.
+        """
         import optuna
 
         value = float(value)
         if not math.isfinite(value):
             log.warning("trial %d: intermediate value at step %d is %s", self.number, step, value)
         self.trial.report(value, int(step))
-        if self.trial.should_prune():
+        self.reports += 1
+        if self.reports > 1 and not final and self.trial.should_prune():
             raise optuna.TrialPruned(f"trial {self.number} pruned at step {step} (value {value:.6g})")
 
 

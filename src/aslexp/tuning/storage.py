@@ -9,7 +9,13 @@ A storage spec is one string:
   Optuna's RDB storage. PostgreSQL serves many machines; SQLite suits one process only.
 
 Passwords: prefer ``~/.pgpass`` or ``PGPASSWORD`` to a password in the URL; tools that write the
-storage into files (sweep.json) strip the password with :func:`redact`.
+storage into files (sweep.json) strip the password with :func:`redact`. PostgreSQL needs the
+driver: ``pip install 'aslexp[postgres]'``.
+
+A journal file whose last record was torn (a writer killed or a disk filled mid-append) is
+repaired when it is opened: the file is backed up, the partial record cut off, and a warning
+names the file and the byte offset. The torn record was never acknowledged to anyone, so nothing
+that happened is lost. Damage inside the file is refused with the file, line and byte offset.
 """
 
 from __future__ import annotations
@@ -17,9 +23,11 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import hashlib
+import json
 import logging
 import os
 import random
+import shutil
 import threading
 import time
 from collections.abc import Iterator
@@ -77,20 +85,16 @@ def open_storage(spec: str, retries: int = 5) -> BaseStorage:
     Several workers starting at once may race to create an RDB schema; that is retried.
     """
     if not is_database_url(spec):
-        path = Path(spec)
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            return JournalStorage(JournalFileBackend(str(path), lock_obj=FlockJournalLock(path)))
-        except OSError as err:
-            raise StorageError(f"cannot open journal file {path}: {err}") from err
+        return _open_journal(Path(spec))
+    if urlsplit(spec).scheme.startswith("postgresql"):
+        _require_postgres_driver(spec)
     last: Exception | None = None
     for attempt in range(retries):
         try:
             return RDBStorage(spec, engine_kwargs={"pool_pre_ping": True})
         except ImportError as err:
             raise StorageError(
-                f"storage {redact(spec)}: the database driver is missing ({err}); "
-                "for PostgreSQL install psycopg2-binary"
+                f"storage {redact(spec)}: the database driver is missing ({err})"
             ) from err
         except Exception as err:  # noqa: BLE001 - SQLAlchemy/driver errors vary by backend
             last = err
@@ -101,6 +105,98 @@ def open_storage(spec: str, retries: int = 5) -> BaseStorage:
     if last is not None and ("password" in str(last) or "authentication" in str(last)):
         hint = " (give the password in ~/.pgpass, PGPASSWORD, or the URL via --storage)"
     raise StorageError(f"cannot open storage {redact(spec)}{hint}: {last}") from last
+
+
+POSTGRES_EXTRA_HINT = "pip install 'aslexp[postgres]'"
+
+
+def _require_postgres_driver(spec: str) -> None:
+    """PostgreSQL storage needs psycopg (the ``postgres`` extra): say so in one line."""
+    import importlib.util
+
+    driver = urlsplit(spec).scheme.partition("+")[2] or "psycopg"
+    module = {"psycopg": "psycopg", "psycopg2": "psycopg2", "asyncpg": "asyncpg",
+              "pg8000": "pg8000"}.get(driver, driver)
+    if importlib.util.find_spec(module) is None:
+        raise StorageError(f"storage {redact(spec)} is PostgreSQL, whose driver {module} is not "
+                           f"installed: {POSTGRES_EXTRA_HINT}")
+
+
+def _open_journal(path: Path) -> JournalStorage:
+    """A journal file storage, its torn tail (if any) repaired first."""
+    lock = FlockJournalLock(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if path.exists():
+            with _held(lock):
+                repair_torn_tail(path)
+        try:
+            return JournalStorage(JournalFileBackend(str(path), lock_obj=lock))
+        except (ValueError, UnicodeDecodeError) as err:  # JSONDecodeError is a ValueError
+            raise StorageError(damage_report(path) or f"journal file {path} cannot be read: {err}") from None
+    except OSError as err:
+        raise StorageError(f"cannot open journal file {path}: {err}") from err
+
+
+@contextlib.contextmanager
+def _held(lock: BaseJournalFileLock) -> Iterator[None]:
+    lock.acquire()
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+def repair_torn_tail(path: Path) -> int | None:
+    """Cut a torn last record off a journal file (call with the journal's write lock held).
+
+    Optuna appends one JSON record per line; a file that does not end in a newline holds a
+    record whose writer died mid-write. It is cut off after a backup copy (``<file>.torn-<time>``)
+    and a warning naming the file and the byte offset. Returns that offset, None if intact.
+    """
+    size = path.stat().st_size
+    if size == 0:
+        return None
+    with open(path, "rb") as fh:
+        fh.seek(size - 1)
+        if fh.read(1) == b"\n":
+            return None
+        # Find the end of the last complete record.
+        offset, block = size, 1 << 16
+        while offset > 0:
+            start = max(0, offset - block)
+            fh.seek(start)
+            chunk = fh.read(offset - start)
+            newline = chunk.rfind(b"\n")
+            if newline >= 0:
+                offset = start + newline + 1
+                break
+            offset = start
+    backup = path.with_name(f"{path.name}.torn-{time.strftime('%Y%m%d-%H%M%S')}")
+    shutil.copy2(path, backup)
+    with open(path, "r+b") as fh:
+        fh.truncate(offset)
+        fh.flush()
+        os.fsync(fh.fileno())
+    log.warning("%s: the last record was torn (%d bytes from byte %d, no newline: a writer died "
+                "mid-append); cut off, the file as it was is kept in %s", path, size - offset,
+                offset, backup)
+    return offset
+
+
+def damage_report(path: Path) -> str | None:
+    """Where a journal file is damaged inside (first unreadable line), or None."""
+    offset = 0
+    with open(path, "rb") as fh:
+        for number, line in enumerate(fh, start=1):
+            try:
+                json.loads(line)
+            except ValueError as err:
+                return (f"journal file {path} is damaged at line {number} (byte {offset}): "
+                        f"{err}; it cannot be repaired automatically: restore it from a backup, "
+                        "or start a new sweep folder")
+            offset += len(line)
+    return None
 
 
 class FlockJournalLock(BaseJournalFileLock):
@@ -152,14 +248,14 @@ def budget_lock(spec: str, study_name: str) -> Iterator[None]:
     docs/sweeps.md: the budget may then be exceeded by at most workers - 1 trials).
     """
     if not is_database_url(spec):
-        with _file_lock(Path(spec).with_name(Path(spec).name + ".budget-lock")):
+        with file_lock(Path(spec).with_name(Path(spec).name + ".budget-lock")):
             yield
         return
     scheme = urlsplit(spec).scheme
     if scheme.startswith("sqlite"):
         # sqlite:///relative.db and sqlite:////absolute.db: drop exactly one leading slash.
         db_path = urlsplit(spec).path[1:]
-        with _file_lock(Path(db_path + ".budget-lock") if db_path and db_path != ":memory:" else None):
+        with file_lock(Path(db_path + ".budget-lock") if db_path and db_path != ":memory:" else None):
             yield
         return
     if scheme.startswith("postgresql"):
@@ -170,7 +266,8 @@ def budget_lock(spec: str, study_name: str) -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def _file_lock(path: Path | None) -> Iterator[None]:
+def file_lock(path: Path | None) -> Iterator[None]:
+    """An exclusive ``flock`` on ``path`` (created if needed); the kernel drops it on death."""
     if path is None:  # in-memory SQLite: one process, nothing to serialise
         yield
         return

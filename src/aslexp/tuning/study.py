@@ -2,13 +2,18 @@
 
 A sweep directory holds ``sweep.json`` (written by the sweeper: job, study name, storage without
 password, direction, budget, search space, fixed overrides), the default journal storage
-``optuna.journal``, and one run directory per trial, named by trial number.
+``optuna.journal``, and one run directory per trial, named by trial number (through
+``hydra.sweep.subdir``). The folder belongs to the first study that ran in it; another study
+run into the same folder (``hydra.sweeper.study_name=other``) gets a home of its own,
+``studies/<name>/``, with its own sweep.json and trial folders, so that no two trials ever
+share a folder: ``aslexp sweep status SWEEP_DIR/studies/other`` shows it.
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import os
+import re
 import shlex
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
@@ -18,18 +23,21 @@ from typing import Any
 import optuna
 from optuna.trial import FrozenTrial, TrialState
 
+from aslexp.runs.process import process_is_gone
 from aslexp.runs.record import read_json, write_json
 from aslexp.tuning.storage import (
     default_storage,
+    file_lock,
     is_database_url,
     open_storage,
     redact,
     resolve_spec,
     study_names,
 )
-from aslexp.tuning.worker import ATTR_ERROR, ATTR_OVERRIDES, ATTR_RUN_DIR, state_counts
+from aslexp.tuning.worker import ATTR_ERROR, ATTR_OVERRIDES, ATTR_RUN_DIR, ATTR_WORKER, state_counts
 
 SWEEP_FILE = "sweep.json"
+STUDIES_DIR = "studies"  # homes of the further studies of a sweep folder
 
 
 class StudyError(RuntimeError):
@@ -84,6 +92,38 @@ def read_sweep_info(sweep_dir: str | os.PathLike) -> SweepInfo | None:
     return SweepInfo.from_dict(read_json(path))
 
 
+def safe_name(name: str) -> str:
+    """A study name as a folder name."""
+    return re.sub(r"[^A-Za-z0-9_.=-]+", "_", name).strip("._") or "study"
+
+
+def study_home(sweep_dir: str | os.PathLike, info: SweepInfo, write: bool = True) -> Path:
+    """The folder of this study's sweep.json and trials; registers the study there.
+
+    The sweep folder itself for its first study, ``<sweep dir>/studies/<name>`` for any other.
+    Decided under a lock, so two studies started together into a new folder do not both take
+    it. ``write``: (re)write the study's sweep.json (worker 0 does; other workers only when
+    it is missing).
+    """
+    sweep_dir = Path(sweep_dir)
+    sweep_dir.mkdir(parents=True, exist_ok=True)
+    with file_lock(sweep_dir / ".sweep.lock"):
+        first = read_sweep_info(sweep_dir)
+        if first is None or first.study_name == info.study_name:
+            home = sweep_dir
+        else:
+            home = sweep_dir / STUDIES_DIR / safe_name(info.study_name)
+        if write or not (home / SWEEP_FILE).exists():
+            write_sweep_info(home, info)
+    return home
+
+
+def other_studies(sweep_dir: str | os.PathLike) -> list[Path]:
+    """The homes of the further studies run into ``sweep_dir``."""
+    root = Path(sweep_dir) / STUDIES_DIR
+    return sorted(p for p in root.glob("*") if (p / SWEEP_FILE).is_file()) if root.is_dir() else []
+
+
 def resolve_study_name(spec: str, requested: str | None, default: str) -> str:
     """The study to use: as requested; in a journal file, its only study or ``default``.
 
@@ -129,9 +169,15 @@ def create_or_resume_study(spec: str, study_name: str, direction: str,
 
 def open_sweep(sweep_dir: str | os.PathLike, storage: str | None = None,
                study_name: str | None = None) -> tuple[optuna.Study, SweepInfo | None]:
-    """Load the study of a sweep directory (for status, best, report, dashboard)."""
+    """Load the study of a sweep directory (for status, best, report, dashboard).
+
+    ``study_name`` other than the folder's own study: that study's home under studies/.
+    """
     sweep_dir = Path(sweep_dir)
     info = read_sweep_info(sweep_dir)
+    if study_name and info is not None and info.study_name != study_name:
+        home = sweep_dir / STUDIES_DIR / safe_name(study_name)
+        info = read_sweep_info(home) or info
     if storage is None:
         storage = os.environ.get("ASLEXP_OPTUNA_STORAGE") or (info.storage if info else None)
     if storage is None:
@@ -172,17 +218,26 @@ def trial_summary(trial: FrozenTrial) -> dict[str, Any]:
     }
 
 
-def status_summary(study: optuna.Study, info: SweepInfo | None) -> dict[str, Any]:
+def status_summary(study: optuna.Study, info: SweepInfo | None,
+                   sweep_dir: str | os.PathLike | None = None) -> dict[str, Any]:
+    """Counts by state against the budget, the best trial; ``lost``: running trials whose
+    worker (on this machine) is gone; ``other_studies``: further studies in ``sweep_dir``."""
     trials = study.get_trials(deepcopy=False)
     counts = state_counts(trials)
+    lost = sum(1 for t in trials if t.state == TrialState.RUNNING
+               and process_is_gone(t.user_attrs.get(ATTR_WORKER)))
     summary: dict[str, Any] = {
         "study_name": study.study_name,
         "direction": study.direction.name.lower(),
         "n_trials_budget": info.n_trials if info else None,
         "trials": len(trials),
         "counts": dict(sorted(counts.items())),
+        "lost": lost,
+        "other_studies": [str(p) for p in other_studies(sweep_dir)] if sweep_dir else [],
         "best": None,
     }
+    summary["failed"] = [trial_summary(t) for t in trials
+                         if t.state == TrialState.FAIL and t.user_attrs.get(ATTR_ERROR)]
     completed = [t for t in trials if t.state == TrialState.COMPLETE]
     if completed:
         summary["best"] = trial_summary(study.best_trial)

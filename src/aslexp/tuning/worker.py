@@ -11,17 +11,18 @@ study. Guarantees, for journal-file, SQLite and PostgreSQL storages:
   journal file and in the database) and run by the worker that created it only.
 * **Dead workers.** A RUNNING trial whose worker is gone is marked FAIL with
   ``aslexp_state = "interrupted"`` before anyone counts: at once when the worker ran on this host
-  and its process no longer exists, otherwise when its heartbeat is older than ``grace_period``.
-  Interrupted trials do not count, so the sweep runs a replacement.
+  and its process no longer exists (a zombie counts as gone), otherwise when its heartbeat is
+  older than ``grace_period``. Interrupted trials do not count, so the sweep runs a replacement.
+* **One story.** The trial's run folder is known before its job starts; whenever the study
+  records a trial as interrupted, a run.json still saying "running" says so too.
+* **Signals.** Ctrl-C or SIGTERM records the running trial as interrupted; further signals
+  during that bookkeeping are held off, so it is never cut in half.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import os
-import signal
-import socket
 import threading
 import time
 import traceback
@@ -34,6 +35,8 @@ import optuna
 from optuna.distributions import BaseDistribution
 from optuna.trial import FrozenTrial, Trial, TrialState
 
+from aslexp.runs.process import process_identity, process_is_gone, sigterm_raises, signals_held
+from aslexp.runs.record import mark_interrupted
 from aslexp.tuning.storage import budget_lock
 
 log = logging.getLogger(__name__)
@@ -74,47 +77,8 @@ class WorkerSummary:
 
 # --------------------------------------------------------------------------- worker identity
 
-
-def _boot_id() -> str:
-    try:
-        with open("/proc/sys/kernel/random/boot_id", encoding="ascii") as fh:
-            return fh.read().strip()
-    except OSError:
-        return ""
-
-
-def _process_start(pid: int) -> str | None:
-    """Start time of a process in clock ticks since boot (Linux), to tell a reused pid apart."""
-    try:
-        with open(f"/proc/{pid}/stat", encoding="ascii") as fh:
-            text = fh.read()
-        return text.rsplit(")", 1)[1].split()[19]
-    except (OSError, IndexError):
-        return None
-
-
-def worker_identity() -> dict[str, Any]:
-    pid = os.getpid()
-    return {"host": socket.gethostname(), "boot": _boot_id(), "pid": pid,
-            "start": _process_start(pid)}
-
-
-def worker_is_dead(identity: Mapping[str, Any]) -> bool:
-    """True only when ``identity`` ran on this very machine and its process is gone."""
-    me = worker_identity()
-    if identity.get("host") != me["host"] or identity.get("boot") != me["boot"]:
-        return False
-    pid = int(identity.get("pid", -1))
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    except PermissionError:
-        return False
-    start = _process_start(pid)
-    return identity.get("start") is not None and start is not None and start != identity["start"]
+worker_identity = process_identity  # {"host", "boot", "pid", "start"} of this process
+worker_is_dead = process_is_gone    # True only for a process of this machine that is gone
 
 
 # --------------------------------------------------------------------------- trial bookkeeping
@@ -182,8 +146,18 @@ def fail_stale_trials(study: optuna.Study, grace_period: float, now: float | Non
             continue
         if _mark_failed(study, t._trial_id, reason, interrupted=True):
             log.warning("trial %d marked failed (interrupted): %s", t.number, reason)
+            _mark_run_interrupted(t.user_attrs.get(ATTR_RUN_DIR), reason)
             failed.append(t.number)
     return failed
+
+
+def _mark_run_interrupted(run_dir: str | None, reason: str) -> None:
+    """The trial's run.json says interrupted too (if it still says running)."""
+    if run_dir:
+        try:
+            mark_interrupted(run_dir, reason)
+        except OSError as err:  # an unreachable folder must not stop the sweep
+            log.warning("could not mark %s interrupted: %s", run_dir, err)
 
 
 class Heartbeat:
@@ -234,6 +208,7 @@ def record_outcome(study: optuna.Study, trial: Trial, outcome: Outcome) -> str:
             return "pruned"
         if outcome.state == INTERRUPTED:
             _mark_failed(study, trial_id, outcome.error or "interrupted", interrupted=True)
+            _mark_run_interrupted(outcome.run_dir, outcome.error or "interrupted")
             return INTERRUPTED
         return _fail(study, trial, outcome.error or "failed")
     except (RuntimeError, ValueError) as err:  # finished meanwhile (e.g. failed as stale)
@@ -247,14 +222,6 @@ def _fail(study: optuna.Study, trial: Trial, error: str) -> str:
 
 
 # --------------------------------------------------------------------------- the loop
-
-
-class _Stop(KeyboardInterrupt):
-    """SIGTERM turned into an exception, so that a stopped worker records its trial."""
-
-
-def _raise_on_sigterm(signum: int, frame: Any) -> None:
-    raise _Stop(f"signal {signum}")
 
 
 @dataclass
@@ -274,12 +241,20 @@ def run_worker(
     launch: Callable[[Trial], Outcome],
     on_asked: Callable[[Trial], None] | None = None,
 ) -> WorkerSummary:
-    """Run trials until the study's budget is spent; ``launch`` runs one trial's job."""
+    """Run trials until the study's budget is spent; ``launch`` runs one trial's job.
+
+    ``on_asked(trial)`` runs under the budget lock right after the trial is created (the
+    sweeper records the trial's overrides and run folder there).
+    """
+    with sigterm_raises():
+        return _run_worker(study, distributions, settings, launch, on_asked)
+
+
+def _run_worker(study: optuna.Study, distributions: Mapping[str, BaseDistribution],
+                settings: WorkerSettings, launch: Callable[[Trial], Outcome],
+                on_asked: Callable[[Trial], None] | None) -> WorkerSummary:
     summary = WorkerSummary()
     identity = worker_identity()
-    previous_handler = None
-    if threading.current_thread() is threading.main_thread():
-        previous_handler = signal.signal(signal.SIGTERM, _raise_on_sigterm)
     trial: Trial | None = None
     try:
         while True:
@@ -307,7 +282,8 @@ def run_worker(
             except Exception as err:  # noqa: BLE001 - a launcher error fails this trial only
                 log.error("trial %d could not be launched:\n%s", trial.number,
                           "".join(traceback.format_exception(err)))
-                outcome = Outcome("failed", error=f"launch failed: {type(err).__name__}: {err}")
+                text = " ".join(str(err).split())  # one line (cluster errors come in several)
+                outcome = Outcome("failed", error=f"launch failed: {type(err).__name__}: {text}")
             recorded = record_outcome(study, trial, outcome)
             summary.trials.append(trial.number)
             summary.states[recorded] += 1
@@ -319,14 +295,24 @@ def run_worker(
             _check_direction(study, outcome)
     except KeyboardInterrupt as err:
         if trial is not None:  # asked but not yet told: give it back for a resume to re-run
-            reason = f"interrupted by {str(err) or type(err).__name__} in {settings.worker_label}"
-            record_outcome(study, trial, Outcome(INTERRUPTED, error=reason))
-            log.warning("trial %d %s; it will be run again on resume", trial.number, reason)
+            what = "SIGTERM" if "SIGTERM" in str(err) else "Ctrl-C"
+            reason = f"interrupted ({what}) in {settings.worker_label}"
+            with signals_held():
+                record_outcome(study, trial, Outcome(INTERRUPTED, error=reason,
+                                                     run_dir=trial_run_dir(study, trial)))
+            log.debug("trial %d %s", trial.number, reason)
+            err.aslexp_note = (f"trial {trial.number} recorded as interrupted; the same command "  # type: ignore[attr-defined]
+                               "resumes the sweep and runs it again")
         raise
-    finally:
-        if previous_handler is not None:
-            signal.signal(signal.SIGTERM, previous_handler)
     return summary
+
+
+def trial_run_dir(study: optuna.Study, trial: Trial) -> str | None:
+    """The run folder recorded for ``trial`` when it was asked for (None if none was)."""
+    try:
+        return study._storage.get_trial_user_attrs(trial._trial_id).get(ATTR_RUN_DIR)
+    except Exception:  # noqa: BLE001 - bookkeeping only
+        return None
 
 
 def _check_direction(study: optuna.Study, outcome: Outcome) -> None:

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import logging
 import os
+import re
+import signal
 import subprocess
 import sys
 import time
@@ -17,12 +19,14 @@ from pathlib import Path
 from typing import Any
 
 import optuna
+from hydra.core.hydra_config import HydraConfig
 from hydra.core.plugins import Plugins
 from hydra.core.utils import JobReturn, JobStatus
 from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
+from aslexp.runs.logfmt import install_float_rounding
 from aslexp.runs.record import RUN_FILE, read_json
 from aslexp.tuning.algorithms import AlgorithmSpecError, make_pruner, make_sampler
 from aslexp.tuning.context import (
@@ -37,10 +41,12 @@ from aslexp.tuning.study import (
     SweepInfo,
     create_or_resume_study,
     resolve_study_name,
-    write_sweep_info,
+    study_home,
 )
 from aslexp.tuning.worker import (
     ATTR_OVERRIDES,
+    ATTR_RUN_DIR,
+    INTERRUPTED,
     DirectionMismatchError,
     Outcome,
     WorkerSettings,
@@ -59,8 +65,12 @@ log = logging.getLogger(__name__)
 # Overrides the sweeper sets itself on the worker processes it spawns.
 _SPAWN_KEYS = ("hydra.sweep.dir", "hydra.sweeper.n_workers", "hydra.sweeper.worker_index",
                "hydra.job.name", "hydra.sweeper.check_search_space")
-# Seed shift between workers (a prime, so that worker and resume shifts rarely coincide).
-_WORKER_SEED_STRIDE = 7919
+# Slurm states of a job that ended without a result because it was stopped from outside (not
+# because the trial failed): its trial is interrupted and runs again.
+_STOPPED_FROM_OUTSIDE = ("CANCELLED", "PREEMPTED", "NODE_FAIL", "BOOT_FAIL", "REQUEUED",
+                         "DEADLINE")
+# Seconds the sweeper waits for its workers after Ctrl-C before it signals them itself.
+_CHILD_GRACE = 5.0
 
 
 class SweeperImpl(Sweeper):
@@ -116,12 +126,13 @@ class SweeperImpl(Sweeper):
             self._sweep(arguments)
         except (SearchSpaceError, StudyError, StorageError, AlgorithmSpecError,
                 DirectionMismatchError) as err:
-            # Bad input, not a bug: say what is wrong without a traceback.
-            print(f"Error: {err}", file=sys.stderr, flush=True)
+            # Bad input, not a bug: say what is wrong in one line, without a traceback.
+            print(f"aslexp {self.config.hydra.job.name}: {err}", file=sys.stderr, flush=True)
             raise SystemExit(2) from err
 
     def _sweep(self, arguments: list[str]) -> None:
         silence_optuna()
+        install_float_rounding()
         space = parse_search_space(self.params, list(arguments))
         sweep_dir = Path(str(self.config.hydra.sweep.dir)).resolve()
         spec = resolve_spec(self.storage, sweep_dir)
@@ -132,24 +143,28 @@ class SweeperImpl(Sweeper):
 
         study = create_or_resume_study(spec, study_name, self.direction,
                                        pruner=make_pruner(self.pruner_spec))
+        # Seeded: each trial draws from its own stream, chosen by its number (never shared).
+        study.sampler = make_sampler(self.sampler_spec)
         existing = len(study.get_trials(deepcopy=False))
-        study.sampler = make_sampler(
-            self.sampler_spec, seed_offset=_WORKER_SEED_STRIDE * self.worker_index + existing
-        )
         label = f"worker {self.worker_index}"
+        # The folder's first study keeps it; another study gets studies/<name>/ (never a shared
+        # trial folder). Worker 0 (re)writes the study's sweep.json.
+        self.home = study_home(sweep_dir, SweepInfo(
+            job=job_name, study_name=study_name, storage=redact(spec),
+            direction=self.direction, n_trials=self.n_trials, params=space.sources,
+            fixed_overrides=space.fixed, sampler=self.sampler_spec, pruner=self.pruner_spec,
+            task_module=_task_module(self.task_function, strict=False),
+            command=" ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+        ), write=self.worker_index == 0)
+        self.sweep_dir = sweep_dir
         if self.worker_index == 0:
-            sweep_dir.mkdir(parents=True, exist_ok=True)
-            write_sweep_info(sweep_dir, SweepInfo(
-                job=job_name, study_name=study_name, storage=redact(spec),
-                direction=self.direction, n_trials=self.n_trials, params=space.sources,
-                fixed_overrides=space.fixed, sampler=self.sampler_spec, pruner=self.pruner_spec,
-                task_module=_task_module(self.task_function, strict=False),
-                command=" ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
-            ))
-            log.info("study %r in %s: %s, budget %d trials (%d exist), %d worker(s), "
-                     "sampler %s, pruner %s", study_name, redact(spec), self.direction,
-                     self.n_trials, existing, self.n_workers, self.sampler_spec.get("name"),
-                     self.pruner_spec.get("name"))
+            if self.home != sweep_dir:
+                log.info("%s belongs to another study (its sweep.json): study %r lives in %s",
+                         sweep_dir, study_name, self.home)
+            log.info("sweep folder %s: study %r in %s, %s, budget %d trials (%d exist), "
+                     "%d worker(s), sampler %s, pruner %s", self.home, study_name, redact(spec),
+                     self.direction, self.n_trials, existing, self.n_workers,
+                     self.sampler_spec.get("name"), self.pruner_spec.get("name"))
 
         children = self._spawn_workers(sweep_dir) if self.n_workers > 1 else []
         settings = WorkerSettings(storage_spec=spec, study_name=study_name,
@@ -158,18 +173,22 @@ class SweeperImpl(Sweeper):
         try:
             summary = run_worker(
                 study, space.distributions, settings,
-                launch=lambda trial: self._launch(trial, space, spec, study_name),
+                launch=lambda trial: self._launch(study, trial, space, spec, study_name),
                 on_asked=lambda trial: study._storage.set_trial_user_attr(
                     trial._trial_id, ATTR_OVERRIDES, space.overrides_for(trial.params)),
             )
+        except KeyboardInterrupt:
+            _stop_children(children, grace=_CHILD_GRACE)
+            raise
         except BaseException:
-            _stop_children(children)
+            _stop_children(children, grace=0.0)
             raise
         failed_children = _wait_children(children)
         log.info("%s ran %d trial(s): %s", label, len(summary.trials), dict(summary.states))
         if self.worker_index == 0:
             counts = state_counts(study.get_trials(deepcopy=False))
-            log.info("study %r now: %s", study_name, dict(sorted(counts.items())))
+            log.info("study %r now: %s (sweep folder %s)", study_name, dict(sorted(counts.items())),
+                     self.home)
             if counts.get("complete"):
                 best = study.best_trial
                 log.info("best trial %d: value %.6g, params %s", best.number, best.value, best.params)
@@ -178,18 +197,57 @@ class SweeperImpl(Sweeper):
 
     # ------------------------------------------------------------------ one trial
 
-    def _launch(self, trial: optuna.trial.Trial, space: SearchSpace, spec: str,
-                study_name: str) -> Outcome:
+    def _launch(self, study: optuna.Study, trial: optuna.trial.Trial, space: SearchSpace,
+                spec: str, study_name: str) -> Outcome:
         context = TrialContext(storage=spec, study_name=study_name, trial_id=trial._trial_id,
                                number=trial.number, pruner=self.pruner_spec)
+        subdir = self._claim_trial_folder(trial.number, space.overrides_for(trial.params))
+        run_dir = str(self.sweep_dir / subdir)
+        # Known before the job starts: a trial lost with its worker is marked in its run.json too.
+        study._storage.set_trial_user_attr(trial._trial_id, ATTR_RUN_DIR, run_dir)
         overrides = [*space.overrides_for(trial.params),
+                     f"hydra.sweep.subdir={quote(subdir)}",
                      f"++hydra.job.env_set.{ENV_VAR}={quote(context.to_json())}"]
         register_live_trial(study_name, trial)
         try:
             returns = self.launcher.launch([overrides], initial_job_idx=trial.number)
+        except Exception as err:  # noqa: BLE001 - a cluster job that ended without a result
+            state = _stopped_state(err)
+            if state is None:
+                raise
+            return Outcome(INTERRUPTED, error=f"its cluster job ended {state} (stopped from "
+                           "outside: scancel, preemption or a node failure)", run_dir=run_dir)
         finally:
             unregister_live_trial(study_name, trial.number)
         return outcome_of(returns[0], trial.number)
+
+    def _claim_trial_folder(self, number: int, overrides: list[str]) -> str:
+        """The trial's run folder (relative to the sweep dir), created now so it is its alone.
+
+        ``hydra.sweep.subdir`` as the job's config says (trial number as ``hydra.job.num``),
+        under the study's home; should that folder hold anything already (a study whose
+        storage was deleted, a subdir without the number), ``-2``, ``-3``, ... is appended.
+        """
+        config = self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
+        with open_dict(config):
+            config.hydra.job.id = number
+            config.hydra.job.num = number
+        saved = HydraConfig.instance().cfg
+        try:
+            HydraConfig.instance().set_config(config)
+            subdir = str(OmegaConf.select(config, "hydra.sweep.subdir"))
+        finally:
+            HydraConfig.instance().cfg = saved
+        base = (self.home / subdir).relative_to(self.sweep_dir)
+        candidate, k = base, 1
+        while True:
+            folder = self.sweep_dir / candidate
+            try:
+                folder.mkdir(parents=True, exist_ok=False)
+                return str(candidate)
+            except FileExistsError:
+                k += 1
+                candidate = base.with_name(f"{base.name}-{k}")
 
     def _check_search_space(self, space: SearchSpace) -> None:
         """Compose the job's config at sample points: a typo fails here, before any trial."""
@@ -239,13 +297,8 @@ def outcome_of(ret: JobReturn, number: int) -> Outcome:
     run_dir = None
     if ret.hydra_cfg is not None:
         run_dir = str(ret.hydra_cfg.hydra.runtime.output_dir)
-    goal = metric = None
-    if run_dir and (Path(run_dir) / RUN_FILE).exists():
-        try:
-            main = read_json(Path(run_dir) / RUN_FILE).get("main_metric") or {}
-            goal, metric = main.get("goal"), main.get("name")
-        except (OSError, ValueError):
-            pass
+    main = _run_record(run_dir).get("main_metric") or {}
+    goal, metric = main.get("goal"), main.get("name")
     result = ret._return_value
     if ret.status == JobStatus.COMPLETED:
         try:
@@ -253,6 +306,10 @@ def outcome_of(ret: JobReturn, number: int) -> Outcome:
         except (TypeError, ValueError):
             return Outcome("failed", error=f"the job returned {result!r}; a sweep needs the job "
                            "to return its main metric as a number", run_dir=run_dir)
+        recorded = _run_record(run_dir)
+        if recorded.get("status") == "failed":  # the job caught its error and returned NaN
+            return Outcome("failed", value=value, error=recorded.get("error") or "failed",
+                           run_dir=run_dir)
         return Outcome("complete", value=value, run_dir=run_dir, goal=goal, metric=metric)
     if isinstance(result, optuna.TrialPruned):
         return Outcome("pruned", error=str(result), run_dir=run_dir)
@@ -261,6 +318,28 @@ def outcome_of(ret: JobReturn, number: int) -> Outcome:
         text = "".join(traceback.format_exception_only(type(result), result)).strip()
         return Outcome("failed", error=text, run_dir=run_dir)
     return Outcome("failed", error=f"job ended with status {ret.status}", run_dir=run_dir)
+
+
+def _run_record(run_dir: str | None) -> dict[str, Any]:
+    """The job's run.json ({} when there is none or it is unreadable)."""
+    if not run_dir or not (Path(run_dir) / RUN_FILE).exists():
+        return {}
+    try:
+        info = read_json(Path(run_dir) / RUN_FILE)
+    except (OSError, ValueError):
+        return {}
+    return info if isinstance(info, dict) else {}
+
+
+def _stopped_state(err: BaseException) -> str | None:
+    """The Slurm state of a submitit job that ended without a result because it was stopped
+    from outside (e.g. ``CANCELLED by 0``); None for any other error."""
+    if type(err).__name__ != "UncompletedJobError":
+        return None
+    match = re.search(r"state: ([A-Z_]+)", str(err))
+    if match and match.group(1) in _STOPPED_FROM_OUTSIDE:
+        return match.group(1)
+    return None
 
 
 def _plain(node: Any) -> Any:
@@ -283,17 +362,29 @@ def _task_module(task_function: TaskFunction, strict: bool = True) -> str | None
     return module
 
 
-def _stop_children(children: list[subprocess.Popen], timeout: float = 30.0) -> None:
-    """Ask workers to stop (they record their running trial as interrupted), then wait."""
+def _stop_children(children: list[subprocess.Popen], grace: float, timeout: float = 30.0) -> None:
+    """Stop the spawned workers; each records its running trial as interrupted.
+
+    After Ctrl-C in a terminal every worker got the SIGINT too: they get ``grace`` seconds to
+    record their trial and exit on their own. Those still running then get SIGINT (SIGTERM,
+    and finally SIGKILL after ``timeout``; a killed worker's trial is found by the next start).
+    """
+    deadline = time.monotonic() + grace
+    for child in children:
+        try:
+            child.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            pass
     for child in children:
         if child.poll() is None:
-            child.terminate()
+            child.send_signal(signal.SIGINT if grace > 0 else signal.SIGTERM)
     deadline = time.monotonic() + timeout
     for child in children:
         try:
             child.wait(timeout=max(0.1, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
             child.kill()
+            child.wait()
 
 
 def _wait_children(children: list[subprocess.Popen]) -> dict[int, int]:

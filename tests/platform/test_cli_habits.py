@@ -1,0 +1,68 @@
+"""The command line a newcomer lives in (issue 15.8): fast per-job help, one way to pick an
+experiment, no test objective in the job list, no import banners."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
+HEAVY = ("torch", "hydra", "optuna", "pybullet", "aslexp.jobs.recognize", "aslexp.jobs.imitate")
+
+
+@pytest.mark.parametrize("job, own, foreign", [
+    ("recognize", {"classifier", "property", "split", "experiment", "classifier_mlp"}, {"motion", "ppo"}),
+    ("imitate", {"motion", "ppo", "reward", "experiment", "letters", "ppo_hand"}, {"classifier", "split"}),
+    ("tune_pd", {"controller", "pd_gains_10"}, {"classifier", "ppo", "experiment"}),
+])
+def test_job_help_shows_the_job_s_own_groups_without_importing_it(job, own, foreign):
+    code = ("import sys, contextlib, io; from aslexp.cli import main; out = io.StringIO()\n"
+            f"with contextlib.redirect_stdout(out): main([{job!r}, '--help'])\n"
+            f"print(sorted(m for m in {HEAVY!r} if m in sys.modules)); print(out.getvalue())")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    loaded, _, text = proc.stdout.partition("\n")
+    assert loaded == "[]", f"--help imported {loaded}"  # what makes Hydra's help take 5-15 s
+    words = set(text.replace(",", " ").replace("|", " ").split())
+    assert own <= words, own - words
+    assert not foreign & words, foreign & words
+    assert f"usage: aslexp {job}" in text
+
+
+def test_the_job_list_hides_the_test_objective_which_still_runs(aslexp, tmp_path):
+    listing = aslexp("--help").stdout
+    assert "recognize" in listing and "imitate" in listing and "quadratic" not in listing
+    ran = aslexp("quadratic", "x=0.5", "y=-1", f"hydra.run.dir={tmp_path / 'q'}")
+    assert "objective(x=0.5, y=-1) = -0.04" in ran.stdout
+
+
+@pytest.mark.parametrize("job, experiment, key", [("recognize", "debug", "num_frames: 32"),
+                                                  ("imitate", "letters_quick", "name: fast")])
+def test_experiment_without_plus_composes_for_both_jobs(aslexp, job, experiment, key):
+    out = aslexp(job, f"experiment={experiment}", "--cfg", "job").stdout
+    assert key in out
+
+
+def test_docs_pick_experiments_with_experiment_not_plus_experiment():
+    for doc in [PROJECT_ROOT / "README.md", *(PROJECT_ROOT / "docs").glob("*.md"),
+                *(PROJECT_ROOT / "conf" / "experiment").glob("*.yaml")]:
+        assert "+experiment=" not in doc.read_text(encoding="utf-8"), doc
+
+
+def test_importing_the_simulator_prints_no_pybullet_banner():
+    proc = subprocess.run([sys.executable, "-c", "import aslexp.sim.world, pybullet; print('ok')"],
+                          capture_output=True, text=True, check=True)
+    assert proc.stdout.strip() == "ok" and "pybullet build time" not in proc.stderr
+    assert "pybullet build time" in subprocess.run(  # the banner is real: it goes without the helper
+        [sys.executable, "-c", "import pybullet"], capture_output=True, text=True).stderr
+
+
+def test_postgres_storage_without_its_driver_names_the_extra():
+    from aslexp.tuning.storage import StorageError, open_storage
+
+    with pytest.raises(StorageError) as err:
+        open_storage("postgresql+pg8000://u:secret@127.0.0.1:1/db")
+    text = str(err.value)
+    assert "pip install 'aslexp[postgres]'" in text and "secret" not in text and "\n" not in text
