@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from aslexp.data.dataset import DataError
-from aslexp.data.keypoints import MEDIAPIPE_POSE_DIR
+from aslexp.keypoints.arrays import MEDIAPIPE_POSE_DIR
 from aslexp.data.wlasl_lex import INPUTS, WlaslLexParams, build_or_load
 
 SHARED = Path(__file__).resolve().parents[3] / "shared" / "data"
