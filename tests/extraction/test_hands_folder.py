@@ -73,7 +73,7 @@ def test_arrays_that_fit_no_layout_say_so(hand_folders, data_root):
     with pytest.raises(DataError) as error:
         _dataset(["pose=mediapipe_pose", f"pose.path={hand_folders / 'hands'}"], data_root)
     message = str(error.value)
-    assert "could read none of its 6" in message and "shape (10, 126)" in message and "(T, 132)" in message
+    assert "all 6 keypoint files" in message and "shape (10, 126)" in message and "(T, 132)" in message
     assert "\n" not in message and "array_folder" in message
 
 

@@ -15,7 +15,7 @@ HEAVY = ("torch", "hydra", "optuna", "pybullet", "aslexp.jobs.recognize", "aslex
 
 @pytest.mark.parametrize("job, own, foreign", [
     ("recognize", {"classifier", "property", "split", "experiment", "classifier_mlp"}, {"motion", "ppo"}),
-    ("imitate", {"motion", "ppo", "reward", "experiment", "letters", "ppo_hand"}, {"classifier", "split"}),
+    ("imitate", {"motion", "ppo", "reward", "experiment", "letters", "ppo_hand_thesis"}, {"classifier", "split"}),
     ("tune_pd", {"controller", "pd_gains_10"}, {"classifier", "ppo", "experiment"}),
 ])
 def test_job_help_shows_the_job_s_own_groups_without_importing_it(job, own, foreign):
