@@ -29,6 +29,7 @@ from __future__ import annotations
 from collections import deque
 
 from aslexp.data.dataset import DataError, KeypointLayout
+from aslexp.pose.slgcn27 import NAME as SLGCN27_SUBSET, SIGN27, slgcn27_subset
 
 MEDIAPIPE_POSE = KeypointLayout(
     name="mediapipe_pose",
@@ -52,29 +53,7 @@ MEDIAPIPE_POSE = KeypointLayout(
     channels=("x", "y", "z", "visibility"),
 )  # fmt: skip
 
-_HAND_POINTS = ("root", "thumb_tip", "index_mcp", "index_tip", "middle_mcp", "middle_tip",
-                "ring_mcp", "ring_tip", "little_mcp", "little_tip")  # fmt: skip
-SIGN27_COCO_WHOLEBODY = (0, 5, 6, 7, 8, 9, 10, 91, 95, 96, 99, 100, 103, 104, 107, 108, 111,
-                         112, 116, 117, 120, 121, 124, 125, 128, 129, 132)  # fmt: skip
-_SIGN27_EDGES_ORIGINAL = (
-    (5, 6), (5, 7), (6, 8), (8, 10), (7, 9), (9, 11),
-    (12, 13), (12, 14), (12, 16), (12, 18), (12, 20), (14, 15), (16, 17), (18, 19), (20, 21),
-    (22, 23), (22, 24), (22, 26), (22, 28), (22, 30), (24, 25), (26, 27), (28, 29), (30, 31),
-    (10, 12), (11, 22),
-)  # fmt: skip
-SIGN27 = KeypointLayout(
-    name="sign27",
-    names=(
-        "nose", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist",
-        "right_wrist",
-        *(f"left_hand_{p}" for p in _HAND_POINTS),
-        *(f"right_hand_{p}" for p in _HAND_POINTS),
-    ),
-    edges=tuple((i - 5, j - 5) for i, j in _SIGN27_EDGES_ORIGINAL),
-    center=0,
-    channels=("x", "y", "score"),
-)
-
+# SL-GCN's 27 points live in their own block (pose/slgcn27.py) with the maps onto other layouts.
 LAYOUTS: dict[str, KeypointLayout] = {layout.name: layout for layout in (MEDIAPIPE_POSE, SIGN27)}
 
 SUBSETS: dict[str, dict[str, tuple[int, ...]]] = {
@@ -108,8 +87,9 @@ def register_subsets(layout_name: str, subsets: dict[str, tuple[int, ...]]) -> N
 
 
 def subset_names(layout: KeypointLayout) -> tuple[str, ...]:
-    """Names of the subsets offered for ``layout`` ('all' always exists)."""
-    return tuple(SUBSETS.get(layout.name, {"all": ()}))
+    """Names of the subsets offered for ``layout`` ('all' always exists; 'slgcn27' for any layout
+    that pose/slgcn27.py maps onto SL-GCN's 27 points)."""
+    return tuple(SUBSETS.get(layout.name, {"all": ()})) + (SLGCN27_SUBSET,)
 
 
 def subset_indices(layout: KeypointLayout, subset: str | None) -> tuple[int, ...]:
@@ -147,6 +127,8 @@ def induced_edges(edges, keep: tuple[int, ...]) -> tuple[tuple[int, int], ...]:
 
 def subset_layout(layout: KeypointLayout, subset: str | None) -> tuple[KeypointLayout, tuple[int, ...]]:
     """The layout restricted to a named subset, and the kept node indices into ``layout``."""
+    if subset == SLGCN27_SUBSET:  # SL-GCN's own graph over the points the layout has
+        return slgcn27_subset(layout)
     keep = subset_indices(layout, subset)
     if subset in (None, "all"):
         return layout, keep

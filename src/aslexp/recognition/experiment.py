@@ -280,7 +280,7 @@ def _std(values: Sequence[float]) -> float:
 
 def _write_per_class(path: Path, test_per_seed: Sequence[Mapping[str, Any]]) -> None:
     """Per-class test metrics per seed, then their mean over seeds (seed = 'mean')."""
-    columns = ["seed", "label", "support", "predicted", "correct", "accuracy", "precision", "recall", "f1"]
+    columns = ["seed", "label", "support", "predicted", "correct", "thesis_a", "precision", "recall", "f1"]
     rows = [{"seed": m["seed"], **row} for m in test_per_seed for row in m["per_class"]]
     labels = [row["label"] for row in test_per_seed[0]["per_class"]]
     for index, label in enumerate(labels):
