@@ -66,6 +66,7 @@ def recognize(cfg: DictConfig, run) -> float:
             seeds=seeds,
             out_dir=run.dir,
             on_epoch_end=on_epoch_end,
+            split=to_dict(cfg.split),
         )
     finally:
         metric_logger.close()
@@ -82,14 +83,16 @@ def recognize(cfg: DictConfig, run) -> float:
         "dataset_dir": str(dataset_dir),
     }
     run.save_metrics(result)
-    run.set_main_metric("val_mcc", float(result["val_mcc"]), "maximize")
+    run.info["device"] = result["device"]  # where it trained (GPU name), beside the versions
+    objective = result["objective"]
+    run.set_main_metric(objective["name"], float(objective["value"]), "maximize")
     test = result.get("test", {})
     log.info(
-        "%s on %s (%s split): val MCC %.3f | test MCC %s, balanced acc %s",
-        cfg.classifier.name, cfg.property.name, cfg.split.name, result["val_mcc"],
+        "%s on %s (%s split): %s %.3f | test MCC %s, balanced acc %s",
+        cfg.classifier.name, cfg.property.name, cfg.split.name, objective["name"], objective["value"],
         test.get("mcc"), test.get("balanced_accuracy"),
     )
-    return float(result["val_mcc"])
+    return float(objective["value"])
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="recognize")
