@@ -373,8 +373,8 @@ def run_recognition(
         "test_per_split": per_split,
         "test_per_seed": test_runs,
         "test_confusion_matrix_total": total_matrix.astype(int).tolist(),
-        "baseline": {"name": chosen, "selected_by": "validation accuracy",
-                     "val_accuracy": {b: baselines[b]["val_accuracy"] for b in BASELINE_NAMES}, **baselines[chosen]},  # fmt: skip
+        "baseline": {**baselines[chosen], "name": chosen, "selected_by": "validation accuracy",
+                     "val_accuracy": {b: baselines[b]["val_accuracy"] for b in BASELINE_NAMES}},  # fmt: skip
         "baselines": baselines,
         "paired_vs_baseline": paired,
         "below_baseline": below,

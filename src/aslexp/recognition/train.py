@@ -283,7 +283,8 @@ def _batches(num_items: int, batch_size: int, rng: np.random.Generator, drop_las
     if drop_last and len(batches) > 1 and len(batches[-1]) < batch_size:
         batches.pop()
     elif len(batches) > 1 and len(batches[-1]) == 1:
-        batches[-2] = np.concatenate([batches[-2], batches.pop()])
+        last = batches.pop()  # (popping inside the assignment used to overwrite the wrong batch)
+        batches[-1] = np.concatenate([batches[-1], last])
     return batches
 
 
