@@ -174,8 +174,11 @@ def run_cell(cell: tuple[str, str, str], common: dict, deadline: float | None) -
     torch.set_num_threads(common["threads"])
     name, prop, split = cell
     model, params, preset = classifier_config(name)
+    from aslexp.recognition.device import resolve_device
+
+    on_cpu = resolve_device(common["device"]).type == "cpu"  # deterministic kernels cost time on a GPU
     trainer = {**trainer_config(preset), **common["trainer_values"], "device": common["device"],
-               "precision": common["precision"], "num_threads": common["threads"]}  # fmt: skip
+               "precision": common["precision"], "num_threads": common["threads"], "deterministic": on_cpu}  # fmt: skip
     split_options = {**read_yaml(CONF / "split" / f"{split}.yaml"), **common["split_values"]}
     data_params = WlaslLexParams(lexicon=common["lexicon"], property=prop, subset=common["subset"],
                                  channels=("x", "y", "visibility"), split=split, length=150, padding="loop",

@@ -1,15 +1,19 @@
-"""Training: early stopping on validation MCC, the final retrain, checkpoints.
+"""Training: validation (early stopping or a fixed budget), the final retrain, checkpoints.
 
 Two entry points, both for torch and scikit-learn classifiers:
 
 * :func:`fit` trains on ``train``, evaluates on ``val`` after each epoch, keeps the state of the
-  epoch with the best validation MCC, stops after ``patience`` epochs without improvement and
-  restores the best state. ``on_epoch_end(epoch, val_mcc)`` runs after every epoch; whatever it
-  raises (e.g. ``optuna.TrialPruned``) propagates unchanged.
+  epoch with the best validation score (``selection_metric``), stops after ``patience`` epochs
+  without improvement and restores the best state (or trains ``max_epochs`` and keeps the last).
+  ``on_epoch_end(epoch, val_score)`` runs after every epoch; whatever it raises (e.g.
+  ``optuna.TrialPruned``) propagates unchanged.
 * :func:`fit_final` trains a fresh classifier on ``train+val`` for a fixed number of epochs (the
   best epoch count :func:`fit` found) and predicts the test set once.
 
 scikit-learn classifiers have no epochs: ``fit`` is one "epoch" that fits and evaluates.
+Torch models train on ``device`` (the arrays are moved there once) with optional autocast, SGD or
+Adam, warm-up and step/multi-step schedules, and training-time augmentation (augment.py); a module
+with ``on_epoch_start(epoch_index)`` gets it called before every epoch (SL-GCN's schedules).
 """
 
 from __future__ import annotations
@@ -381,6 +385,8 @@ def _train_torch(
     torch.set_num_threads(config.num_threads)
     device = resolve_device(config.device)
     precision = check_precision(config.precision, device)
+    if device.type == "cuda":  # autotuned convolution kernels, unless bit-reproducibility was asked for
+        torch.backends.cudnn.benchmark = not config.deterministic
     module = classifier.module.to(device)
     classifier.eval_batch_size = config.eval_batch_size
     classifier.precision = precision

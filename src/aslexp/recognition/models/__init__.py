@@ -8,7 +8,9 @@ Defaults fit a 2-core CPU and a few hundred clips: ST-GCN with 5 blocks of [32, 
 channels (0.32 M parameters with the 33-node pose, vs 1.2 M for [64, 64, 128, 128, 256] and 3.1 M
 for the classic 10-block ST-GCN: far too many for ~200 training clips, and ~4x / ~10x the
 compute per epoch), and ``frame_stride`` 2 for the sequence models (25 fps -> 12.5 fps halves
-the cost; the stride-2 blocks of ST-GCN subsample time anyway).
+the cost; the stride-2 blocks of ST-GCN subsample time anyway). ``slgcn`` is SL-GCN with the
+authors' sizes (10 blocks up to 256 channels: a GPU model); ``rf`` and ``hgb`` are the feature
+baseline on pooled summary statistics.
 """
 
 from __future__ import annotations
