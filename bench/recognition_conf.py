@@ -123,3 +123,87 @@ def classifier_config(name: str) -> tuple[str, dict[str, Any], str]:
                 if "/trainer" in key:
                     preset = str(value)
     return str(raw["name"]), dict(raw.get("params") or {}), preset
+
+
+PRIMARY_GROUPS = {"data": "asllex2", "pose": "mediapipe_pose", "split": "phoneme", "trainer": None}
+_BY_PROPERTY = re.compile(r"^\$\{classifier\.by_property\.\$\{property\.name\}\.(\w+)\}$")
+_SELECT_BATCH = re.compile(r"^\$\{oc\.select:classifier\.batch_size,(\d+)\}$")
+
+
+def _experiment_layers(name: str) -> tuple[dict[str, str], list[dict[str, Any]]]:
+    """Group overrides and value layers of conf/experiment/<name>.yaml and what it includes."""
+    raw = read_yaml(CONF / "experiment" / f"{name}.yaml")
+    overrides: dict[str, str] = {}
+    layers: list[dict[str, Any]] = []
+    for entry in raw.pop("defaults", []) or []:
+        if isinstance(entry, str):  # another overlay of the group, e.g. thesis_ch3_protocol
+            included_overrides, included_layers = _experiment_layers(entry)
+            overrides.update(included_overrides)
+            layers += included_layers
+        else:
+            for key, value in entry.items():
+                overrides[key.replace("override", "").strip().strip("/").split("@")[0]] = str(value)
+    layers.append(raw)
+    return overrides, layers
+
+
+def resolve_classifier(name: str, prop: str) -> tuple[str, dict[str, Any], str, int | None]:
+    """(model, params, trainer preset, batch size or None) of a classifier config for a property,
+    resolving the per-property interpolations the *_thesis_ch3 configs use."""
+    raw = read_yaml(CONF / "classifier" / f"{name}.yaml")
+    model, params, preset = classifier_config(name)
+
+    def resolve(value: Any) -> Any:
+        if isinstance(value, str) and value.startswith("${"):
+            match = _BY_PROPERTY.match(value)
+            if not match:
+                raise ValueError(f"conf/classifier/{name}.yaml: {value!r} needs Hydra to resolve")
+            return raw["by_property"][prop][match.group(1)]
+        return value
+
+    batch = raw.get("batch_size")
+    return model, {k: resolve(v) for k, v in params.items()}, preset, None if batch is None else int(resolve(batch))
+
+
+def experiment_plan(name: str) -> dict[str, Any]:
+    """What `aslexp recognize experiment=<name>` composes, without Hydra: the group choices, the
+    values the overlay sets, and the multirun's lists (classifier, property, split)."""
+    overrides, layers = _experiment_layers(name)
+    choices = {**PRIMARY_GROUPS, **overrides}
+    values: dict[str, Any] = {}
+    for layer in layers:
+        for key, value in layer.items():
+            if key == "hydra":
+                values["sweep"] = {**values.get("sweep", {}), **(value.get("sweeper", {}).get("params") or {})}
+            elif isinstance(value, dict):
+                values[key] = {**values.get(key, {}), **value}
+            else:
+                values[key] = value
+    sweep = values.pop("sweep", {})
+
+    def listed(key: str, default: str) -> list[str]:
+        return [item.strip() for item in str(sweep.get(key, default)).split(",")]
+
+    return {
+        "choices": choices,
+        "data": {**read_yaml(CONF / "data" / f"{choices['data']}.yaml"), **values.get("data", {})},
+        "pose": {**read_yaml(CONF / "pose" / f"{choices['pose']}.yaml"), **values.get("pose", {})},
+        "split_values": values.get("split", {}),
+        "trainer_preset": choices.get("trainer"),
+        "trainer_values": values.get("trainer", {}),
+        "n_seeds": int(values.get("n_seeds", 1)),
+        "classifiers": listed("classifier", "stgcn"),
+        "properties": listed("property", "sign_type"),
+        "splits": listed("split", choices["split"]),
+    }
+
+
+def trainer_for(plan: dict[str, Any], classifier_preset: str, batch_size: int | None) -> dict[str, Any]:
+    """The trainer of one cell: the experiment's /trainer override wins over the classifier's own
+    (as Hydra composes it), then the experiment's trainer values."""
+    trainer = trainer_config(plan["trainer_preset"] or classifier_preset)
+    trainer.update(plan["trainer_values"])
+    match = _SELECT_BATCH.match(str(trainer.get("batch_size")))
+    if match:
+        trainer["batch_size"] = batch_size if batch_size is not None else int(match.group(1))
+    return trainer

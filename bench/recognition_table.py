@@ -1,19 +1,23 @@
 """Run and time the recognition table (experiment=recognition_table) on the real clip set.
 
 Two ways, the same table (settings from conf/: the classifier configs, the trainer each brings,
-and conf/experiment/recognition_table.yaml's split and trainer values):
+and the experiment overlay's groups and values, conf/experiment/recognition_table.yaml by default):
 
     python bench/recognition_table.py                                   # through the CLI (Hydra multirun)
     python bench/recognition_table.py --models logreg,svm,rf,hgb        # the CPU part
     python bench/recognition_table.py --direct --device cuda --jobs 4 --out $OUT/table \\
         --models mlp,lstm,gru,stgcn,slgcn,cnn3d --time-limit 540        # the deep part, no Hydra
+    python bench/recognition_table.py --direct --experiment thesis_ch4 --device cuda --out $OUT/ch4
 
-``--direct`` needs neither Hydra nor PyYAML nor matplotlib (a bare GPU node): it builds the
-datasets through the data layer, runs every cell (model x property x split, K repeated splits
-each) with ``run_recognition`` and writes run folders that ``aslexp report`` reads. It prints
+``--direct`` needs neither Hydra nor PyYAML nor matplotlib (a bare GPU node): it composes the
+overlay (``--experiment``: its data/split/trainer choices and values, its multirun lists) the way
+Hydra does for these files, builds the datasets through the data layer, runs every cell (model x
+property x split, K repeated splits each) with ``run_recognition`` and writes run folders that
+``aslexp report`` reads. It prints
 progress with rate and ETA, stops starting cells after ``--time-limit`` seconds (finished cells
-are complete folders) and ``--resume`` skips cells already finished in ``--out``, so a table can
-be filled by several calls. Model checkpoints are left out unless ``--keep-models``.
+are complete folders) and ``--resume`` / ``--skip-done DIR`` skip cells already finished in
+``--out`` / DIR, so a table can be filled by several calls (a GPU call whose $OUT starts empty
+carries the earlier calls' results in and names them with --skip-done). Model checkpoints are left out unless ``--keep-models``.
 Built datasets are cached under outputs/cache (not in --out, which stays small).
 ``--summarize DIR`` prints the figures of a finished table folder (wall-clock, time per model)
 and its report. Figures go to BENCHMARKS.md by hand.
@@ -34,7 +38,7 @@ from datetime import datetime
 from multiprocessing import get_context
 from pathlib import Path
 
-from recognition_conf import CONF, classifier_config, read_yaml, trainer_config
+from recognition_conf import CONF, _scalar, experiment_plan, read_yaml, resolve_classifier, trainer_for
 
 ROOT = Path(__file__).resolve().parents[1]
 ALL_MODELS = "logreg,svm,rf,hgb,mlp,lstm,gru,stgcn,slgcn,cnn3d"
@@ -43,11 +47,13 @@ ALL_PROPERTIES = "sign_type,major_location,minor_location,selected_fingers,flexi
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--models", default=ALL_MODELS)
-    parser.add_argument("--properties", default=ALL_PROPERTIES)
-    parser.add_argument("--splits", default="phoneme,gloss")
+    parser.add_argument("--experiment", default="recognition_table",
+                        help="--direct: the conf/experiment overlay to run (recognition_table, thesis_ch4, thesis_ch3, ...)")
+    parser.add_argument("--models", default=None, help="default: the experiment's (CLI mode: all)")
+    parser.add_argument("--properties", default=None, help="default: the experiment's (CLI mode: all six)")
+    parser.add_argument("--splits", default=None, help="default: the experiment's (CLI mode: phoneme,gloss)")
     parser.add_argument("--repeats", type=int, default=None, help="K repeated splits (default: the experiment's)")
-    parser.add_argument("--seeds", type=int, default=1, help="model seeds per split")
+    parser.add_argument("--seeds", type=int, default=None, help="model seeds per split (default: the experiment's)")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--jobs", type=int, default=1,
                         help="CLI: concurrent multiruns, one per split; --direct: concurrent cells (processes)")
@@ -59,9 +65,13 @@ def main() -> int:
     parser.add_argument("--threads", type=int, default=None, help="--direct: torch threads per job")
     parser.add_argument("--time-limit", type=float, default=None, help="--direct: start no cell after this many s")
     parser.add_argument("--resume", action="store_true", help="--direct: skip cells finished in --out")
+    parser.add_argument("--skip-done", type=Path, action="append", default=[], metavar="DIR",
+                        help="--direct: also skip cells finished in DIR (e.g. an earlier call's results)")
     parser.add_argument("--keep-models", action="store_true", help="--direct: keep model checkpoints")
-    parser.add_argument("--lexicon", default="asllex2")
-    parser.add_argument("--subset", default="upper_body")
+    parser.add_argument("--trainer-set", action="append", default=[], metavar="KEY=VALUE",
+                        help="--direct: a trainer value over everything else, e.g. max_epochs=2 (smoke runs)")
+    parser.add_argument("--lexicon", default=None, help="default: the experiment's (asllex2 for the table)")
+    parser.add_argument("--subset", default=None, help="keypoint subset (default: the experiment's)")
     parser.add_argument("--data-root", type=Path, default=None, help="--direct: the data root")
     parser.add_argument("overrides", nargs="*", help="CLI mode: extra Hydra overrides, e.g. trainer.max_epochs=20")
     args = parser.parse_args()
@@ -73,7 +83,9 @@ def main() -> int:
 
 
 def run_cli(args: argparse.Namespace, out: Path) -> int:
-    splits = args.splits.split(",")
+    args.models, args.properties = args.models or ALL_MODELS, args.properties or ALL_PROPERTIES
+    args.seeds, args.lexicon, args.subset = args.seeds or 1, args.lexicon or "asllex2", args.subset or "upper_body"
+    splits = (args.splits or "phoneme,gloss").split(",")
     groups = [splits] if args.jobs <= 1 else [[s] for s in splits]
     threads = max(1, 2 // max(1, len(groups)))
     extra = [f"split.repeats={args.repeats}"] if args.repeats else []
@@ -102,32 +114,37 @@ def run_cli(args: argparse.Namespace, out: Path) -> int:
     return 0
 
 
-def table_settings() -> tuple[dict, dict]:
-    """(split values, trainer values) that conf/experiment/recognition_table.yaml sets."""
-    experiment = read_yaml(CONF / "experiment" / "recognition_table.yaml")
-    return dict(experiment.get("split") or {}), dict(experiment.get("trainer") or {})
-
-
 def run_direct(args: argparse.Namespace, out: Path) -> int:
-    split_values, trainer_values = table_settings()
+    plan = experiment_plan(args.experiment)
     if args.repeats:
-        split_values["repeats"] = args.repeats
-    cells = [(model, prop, split) for split in args.splits.split(",") for prop in args.properties.split(",")
-             for model in args.models.split(",")]  # fmt: skip
-    if args.resume:
-        done = [c for c in cells if _finished(out / _cell_name(*c))]
+        plan["split_values"]["repeats"] = args.repeats
+    if args.seeds:
+        plan["n_seeds"] = args.seeds
+    if args.lexicon:
+        plan["data"]["lexicon"] = args.lexicon
+    if args.subset:
+        plan["pose"]["subset"] = args.subset
+    plan["trainer_overrides"] = {key: _scalar(value) for key, value in (item.split("=", 1) for item in args.trainer_set)}
+    models = args.models.split(",") if args.models else plan["classifiers"]
+    properties = args.properties.split(",") if args.properties else plan["properties"]
+    splits = args.splits.split(",") if args.splits else plan["splits"]
+    cells = [(model, prop, split) for split in splits for prop in properties for model in models]
+    finished_dirs = ([out] if args.resume else []) + list(args.skip_done)
+    if finished_dirs:
+        done = [c for c in cells if any(_finished(d / _cell_name(*c)) for d in finished_dirs)]
         cells = [c for c in cells if c not in done]
-        print(f"resume: {len(done)} cell(s) already finished in {out}")
+        print(f"{len(done)} cell(s) already finished in {', '.join(map(str, finished_dirs))}: skipped")
     threads = args.threads or max(1, (os.cpu_count() or 1) // max(1, args.jobs))
-    common = {"out": str(out), "split_values": split_values, "trainer_values": trainer_values,
-              "device": args.device, "precision": args.precision, "threads": threads, "seeds": args.seeds,
-              "lexicon": args.lexicon, "subset": args.subset, "keep_models": args.keep_models,
-              "data_root": str(args.data_root) if args.data_root else None}  # fmt: skip
-    print(f"{len(cells)} cell(s) -> {out}; {args.jobs} job(s) x {threads} thread(s); device {args.device} "
-          f"{args.precision}; split {split_values}; trainer {trainer_values}", flush=True)
+    common = {"out": str(out), "plan": plan, "device": args.device, "precision": args.precision, "threads": threads,
+              "keep_models": args.keep_models, "data_root": str(args.data_root) if args.data_root else None}  # fmt: skip
+    print(f"experiment={args.experiment}: {len(cells)} cell(s) -> {out}; {args.jobs} job(s) x {threads} thread(s); "
+          f"device {args.device} {args.precision}; {plan['data']['lexicon']}, {plan['pose']['subset']}, "
+          f"T={plan['data']['num_frames']} {plan['data']['padding']}; split {plan['split_values']}; "
+          f"{plan['n_seeds']} seed(s); trainer {plan['trainer_preset'] or 'per classifier'} + {plan['trainer_values']}",
+          flush=True)  # fmt: skip
     started = time.perf_counter()
     finished, skipped_late = 0, 0
-    deadline = started + args.time_limit if args.time_limit else None
+    deadline = time.time() + args.time_limit if args.time_limit else None
     with ProcessPoolExecutor(max_workers=max(1, args.jobs), mp_context=get_context("spawn")) as pool:
         futures = {pool.submit(run_cell, cell, common, deadline): cell for cell in cells}
         for future in as_completed(futures):
@@ -158,40 +175,45 @@ def _finished(run_dir: Path) -> bool:
 
 
 def run_cell(cell: tuple[str, str, str], common: dict, deadline: float | None) -> tuple[str, float]:
-    """One table cell in a worker process: the dataset, K splits, the run folder."""
+    """One table cell in a worker process: the dataset, the experiment's splits, the run folder."""
     import logging
 
     import torch
 
     from aslexp.data.wlasl_lex import WlaslLexParams, build_or_load
+    from aslexp.recognition.device import resolve_device
     from aslexp.recognition.experiment import run_recognition
     from aslexp.runs.record import start_run
 
-    if deadline is not None and time.perf_counter() > deadline:
+    if deadline is not None and time.time() > deadline:
         return "not started", 0.0
     started = time.perf_counter()
     logging.basicConfig(level=logging.WARNING)
     torch.set_num_threads(common["threads"])
+    plan = common["plan"]
     name, prop, split = cell
-    model, params, preset = classifier_config(name)
-    from aslexp.recognition.device import resolve_device
-
+    model, params, preset, batch_size = resolve_classifier(name, prop)
     on_cpu = resolve_device(common["device"]).type == "cpu"  # deterministic kernels cost time on a GPU
-    trainer = {**trainer_config(preset), **common["trainer_values"], "device": common["device"],
-               "precision": common["precision"], "num_threads": common["threads"], "deterministic": on_cpu}  # fmt: skip
-    split_options = {**read_yaml(CONF / "split" / f"{split}.yaml"), **common["split_values"]}
-    data_params = WlaslLexParams(lexicon=common["lexicon"], property=prop, subset=common["subset"],
-                                 channels=("x", "y", "visibility"), split=split, length=150, padding="loop",
-                                 seed=int(split_options["seed"]), rare_classes=split_options["rare_classes"])  # fmt: skip
+    trainer = {**trainer_for(plan, preset, batch_size), "device": common["device"], "precision": common["precision"],
+               "num_threads": common["threads"], "deterministic": on_cpu, **plan["trainer_overrides"]}  # fmt: skip
+    split_options = {**read_yaml(CONF / "split" / f"{split}.yaml"), **plan["split_values"]}
+    data, pose = plan["data"], plan["pose"]
+    data_params = WlaslLexParams(
+        lexicon=data["lexicon"], property=prop, source=pose["source"], source_path=pose.get("path"),
+        source_options=pose.get("options") or {}, subset=pose["subset"], channels=pose.get("channels"), split=split,
+        length=int(data["num_frames"]), padding=data["padding"], seed=int(split_options["seed"]),
+        rare_classes=split_options["rare_classes"],
+        movement_none_as_missing=bool(data.get("movement_none_as_missing", False)),
+    )
     dataset, dataset_dir = build_or_load(ROOT / "outputs" / "cache", data_params, root=common["data_root"])
     run_dir = Path(common["out"]) / _cell_name(*cell)
-    seeds = list(range(common["seeds"]))
+    seeds = list(range(plan["n_seeds"]))
     with start_run(run_dir, "recognize", seed=0, overwrite=True, extra={"bench": "recognition_table --direct"}) as run:
         result = run_recognition(dataset, {"name": model, "params": params}, trainer, seeds, run_dir, split=split_options)
-        result["context"] = {"property": prop, "split": split, "pose": "mediapipe_pose", "lexicon": common["lexicon"],
+        result["context"] = {"property": prop, "split": split, "pose": pose["name"], "lexicon": data["lexicon"],
                              "classifier": model, "seeds": seeds, "num_clips": int(len(dataset.y)),
                              "num_classes": int(dataset.num_classes), "skipped": dataset.skipped,
-                             "dataset_dir": str(dataset_dir), "config": name, "trainer_preset": preset}  # fmt: skip
+                             "dataset_dir": str(dataset_dir), "config": name}  # fmt: skip
         run.info["device"] = result["device"]
         run.save_metrics(result)
         run.set_main_metric(result["objective"]["name"], float(result["objective"]["value"]))
