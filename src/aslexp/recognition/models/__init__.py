@@ -50,7 +50,7 @@ DEFAULT_PARAMS: dict[str, dict[str, Any]] = {
     "rf": {"pooling": "summary", "n_estimators": 500, "max_depth": None, "min_samples_leaf": 1,
            "max_features": "sqrt", "n_jobs": 2},
     "hgb": {"pooling": "summary", "learning_rate": 0.05, "max_iter": 200, "max_leaf_nodes": 15,
-            "min_samples_leaf": 10, "l2_regularization": 0.0},
+            "min_samples_leaf": 10, "l2_regularization": 0.0, "n_threads": 1},
     # hidden_sizes, or num_layers x hidden_size when num_layers is set (search spaces use those)
     "mlp": {"hidden_sizes": [256, 128], "num_layers": None, "hidden_size": 256, "dropout": 0.3},
     "lstm": dict(_RNN_DEFAULTS),
@@ -161,7 +161,7 @@ def build_classifier(
         return GradientBoostingFeatureClassifier(
             spec, pooling=p["pooling"], learning_rate=p["learning_rate"], max_iter=p["max_iter"],
             max_leaf_nodes=p["max_leaf_nodes"], min_samples_leaf=p["min_samples_leaf"],
-            l2_regularization=p["l2_regularization"],
+            l2_regularization=p["l2_regularization"], n_threads=p["n_threads"],
         )
 
     module: torch.nn.Module
