@@ -39,8 +39,19 @@ THESIS_NAMES = {"flexion": "Flexion", "major_location": "MajLoc", "minor_locatio
                 "selected_fingers": "Fingers", "sign_type": "SignType"}  # fmt: skip
 
 
+MODEL_ORDER = ("majority", "stratified", "logreg", "svm", "rf", "hgb", "mlp", "lstm", "gru", "stgcn", "slgcn", "cnn3d")
+SPLIT_ORDER = ("phoneme", "gloss", "cv5")
+PROPERTY_ORDER = ("sign_type", "major_location", "minor_location", "selected_fingers", "flexion", "movement")
+
+
 def _ordered_unique(values: Sequence[str]) -> list[str]:
-    return list(dict.fromkeys(values))
+    """Distinct values, the known ones (splits, models, properties) in their usual order first."""
+    unique = list(dict.fromkeys(values))
+    for order in (SPLIT_ORDER, MODEL_ORDER, PROPERTY_ORDER, THESIS_PROPERTY_ORDER):
+        if any(value in order for value in unique):
+            known = [v for v in order if v in unique]
+            return known + [v for v in unique if v not in known]
+    return unique
 
 
 def _number(value: Any) -> float:

@@ -125,7 +125,8 @@ class TorchClassifier(Classifier):
         self.precision = "32"  # set by the trainer: inference runs as training did
 
     def num_parameters(self) -> int:
-        return sum(p.numel() for p in self.module.parameters() if p.requires_grad)
+        """Every learnt parameter (also those a schedule freezes for a while, e.g. SL-GCN's graph)."""
+        return sum(p.numel() for p in self.module.parameters())
 
     @property
     def device(self) -> torch.device:
