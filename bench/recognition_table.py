@@ -143,24 +143,32 @@ def run_direct(args: argparse.Namespace, out: Path) -> int:
           f"{plan['n_seeds']} seed(s); trainer {plan['trainer_preset'] or 'per classifier'} + {plan['trainer_values']}",
           flush=True)  # fmt: skip
     started = time.perf_counter()
-    finished, skipped_late = 0, 0
+    from aslexp.data.wlasl_lex import build_or_load
+
+    for prop, split in dict.fromkeys((prop, split) for _, prop, split in cells):  # built once, before the workers
+        build_or_load(ROOT / "outputs" / "cache", dataset_params(plan, prop, split)[0], root=common["data_root"])
+    finished, skipped_late, failed = 0, 0, 0
     deadline = time.time() + args.time_limit if args.time_limit else None
     with ProcessPoolExecutor(max_workers=max(1, args.jobs), mp_context=get_context("spawn")) as pool:
         futures = {pool.submit(run_cell, cell, common, deadline): cell for cell in cells}
         for future in as_completed(futures):
             cell = futures[future]
-            status, seconds = future.result()
+            try:
+                status, seconds = future.result()
+            except Exception as error:  # one failing cell does not stop the table
+                status, seconds = f"failed ({type(error).__name__}: {error})", 0.0
+                failed += 1
             finished += status == "completed"
             skipped_late += status == "not started"
             elapsed = time.perf_counter() - started
             rate = finished / elapsed if elapsed else 0.0
-            remaining = len(cells) - finished - skipped_late
+            remaining = len(cells) - finished - skipped_late - failed
             eta = remaining / rate if rate else float("nan")
-            print(f"[{finished + skipped_late}/{len(cells)}] {'/'.join(cell)}: {status} in {seconds:.0f}s; "
+            print(f"[{finished + skipped_late + failed}/{len(cells)}] {'/'.join(cell)}: {status} in {seconds:.0f}s; "
                   f"{rate * 60:.1f} cells/min, ETA {eta / 60:.1f} min", flush=True)  # fmt: skip
-    print(f"{finished} cell(s) completed, {skipped_late} not started (time limit), "
+    print(f"{finished} cell(s) completed, {failed} failed, {skipped_late} not started (time limit), "
           f"{(time.perf_counter() - started) / 60:.1f} min wall-clock", flush=True)
-    return 0
+    return 1 if failed else 0
 
 
 def _cell_name(model: str, prop: str, split: str) -> str:
@@ -174,13 +182,29 @@ def _finished(run_dir: Path) -> bool:
         return False
 
 
+def dataset_params(plan: dict, prop: str, split: str):
+    """The WLASL-Lex build parameters of one (property, split) under the experiment's plan."""
+    from aslexp.data.wlasl_lex import WlaslLexParams
+
+    split_options = {**read_yaml(CONF / "split" / f"{split}.yaml"), **plan["split_values"]}
+    data, pose = plan["data"], plan["pose"]
+    params = WlaslLexParams(
+        lexicon=data["lexicon"], property=prop, source=pose["source"], source_path=pose.get("path"),
+        source_options=pose.get("options") or {}, subset=pose["subset"], channels=pose.get("channels"), split=split,
+        length=int(data["num_frames"]), padding=data["padding"], seed=int(split_options["seed"]),
+        rare_classes=split_options["rare_classes"],
+        movement_none_as_missing=bool(data.get("movement_none_as_missing", False)),
+    )
+    return params, split_options
+
+
 def run_cell(cell: tuple[str, str, str], common: dict, deadline: float | None) -> tuple[str, float]:
     """One table cell in a worker process: the dataset, the experiment's splits, the run folder."""
     import logging
 
     import torch
 
-    from aslexp.data.wlasl_lex import WlaslLexParams, build_or_load
+    from aslexp.data.wlasl_lex import build_or_load
     from aslexp.recognition.device import resolve_device
     from aslexp.recognition.experiment import run_recognition
     from aslexp.runs.record import start_run
@@ -196,15 +220,8 @@ def run_cell(cell: tuple[str, str, str], common: dict, deadline: float | None) -
     on_cpu = resolve_device(common["device"]).type == "cpu"  # deterministic kernels cost time on a GPU
     trainer = {**trainer_for(plan, preset, batch_size), "device": common["device"], "precision": common["precision"],
                "num_threads": common["threads"], "deterministic": on_cpu, **plan["trainer_overrides"]}  # fmt: skip
-    split_options = {**read_yaml(CONF / "split" / f"{split}.yaml"), **plan["split_values"]}
     data, pose = plan["data"], plan["pose"]
-    data_params = WlaslLexParams(
-        lexicon=data["lexicon"], property=prop, source=pose["source"], source_path=pose.get("path"),
-        source_options=pose.get("options") or {}, subset=pose["subset"], channels=pose.get("channels"), split=split,
-        length=int(data["num_frames"]), padding=data["padding"], seed=int(split_options["seed"]),
-        rare_classes=split_options["rare_classes"],
-        movement_none_as_missing=bool(data.get("movement_none_as_missing", False)),
-    )
+    data_params, split_options = dataset_params(plan, prop, split)
     dataset, dataset_dir = build_or_load(ROOT / "outputs" / "cache", data_params, root=common["data_root"])
     run_dir = Path(common["out"]) / _cell_name(*cell)
     seeds = list(range(plan["n_seeds"]))
