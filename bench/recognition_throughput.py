@@ -1,11 +1,16 @@
-"""Training throughput of the recognition models on the real 291-clip set shape.
+"""Training throughput of the recognition models on the real clip set, on the CPU and on a device.
 
-Loads every clip of ../shared/data/keypoints/wlasl-mediapipe-pose (33 MediaPipe pose landmarks,
-x/y/z), loops or truncates it to T frames (default 150), labels it with its WLASL gloss, and
-trains each model for a few epochs with the default hyperparameters. Prints clips/s (median
-over the epochs) and seconds per epoch. Figures only: nothing is asserted.
+Builds the sign-type set of the shared MediaPipe Pose clips through the data layer (ASL-LEX 2.0,
+upper body 23 nodes or --subset, x/y/visibility, T = 150), then trains every model with its own
+configuration (conf/classifier/<model>.yaml and the trainer it brings: SL-GCN trains with the
+authors' batch 96 and 100-frame crops) and prints training clips/s: on the CPU (a subset of
+--cpu-clips clips, --cpu-epochs epochs) and, with --device cuda, on the GPU (all clips, --epochs
+epochs), the first epoch left out as warm-up on both, and their ratio, in the same process. Figures
+only: nothing is asserted. Needs neither Hydra nor PyYAML nor matplotlib.
 
-    python bench/recognition_throughput.py [--models stgcn,gru,mlp] [--epochs 3] [--threads 2]
+    python bench/recognition_throughput.py                                  # CPU only
+    python bench/recognition_throughput.py --device cuda --json $OUT/throughput.json
+    python bench/recognition_throughput.py --device cuda --precision bf16 --models slgcn,stgcn
 """
 
 from __future__ import annotations
@@ -20,81 +25,88 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from recognition_conf import classifier_config, trainer_config
 
-from aslexp.data.dataset import KeypointLayout
-from aslexp.recognition.models import DEFAULT_PARAMS, build_classifier
+from aslexp.data.wlasl_lex import WlaslLexParams, build_wlasl_lex
+from aslexp.recognition.device import device_info, resolve_device
+from aslexp.recognition.models import build_classifier
 from aslexp.recognition.train import ArraySplit, fit_final
 
-# MediaPipe Pose connections; centre = left shoulder (the face is not linked to the body).
-POSE_EDGES = (
-    (0, 1), (1, 2), (2, 3), (3, 7), (0, 4), (4, 5), (5, 6), (6, 8), (9, 10), (11, 12), (11, 13),
-    (13, 15), (15, 17), (15, 19), (15, 21), (17, 19), (12, 14), (14, 16), (16, 18), (16, 20),
-    (16, 22), (18, 20), (11, 23), (12, 24), (23, 24), (23, 25), (24, 26), (25, 27), (26, 28),
-    (27, 29), (28, 30), (29, 31), (30, 32), (27, 31), (28, 32),
-)
-LAYOUT = KeypointLayout("mediapipe-pose", tuple(f"pose_{i}" for i in range(33)), POSE_EDGES, center=11)
+DEFAULT_MODELS = "mlp,lstm,gru,stgcn,slgcn,cnn3d"
 
 
-def load_clips(data_root: Path, num_frames: int) -> ArraySplit:
-    glosses = {}
-    for entry in json.loads((data_root / "wlasl" / "WLASL_v0.3.json").read_text()):
-        for instance in entry["instances"]:
-            glosses[instance["video_id"]] = entry["gloss"]
-    X, masks, labels = [], [], []
-    for path in sorted((data_root / "keypoints" / "wlasl-mediapipe-pose").glob("*.npy")):
-        frames = np.load(path)
-        frames = np.resize(frames, (num_frames, frames.shape[1])) if len(frames) < num_frames else frames[:num_frames]
-        raw = frames.reshape(num_frames, 33, 4)
-        observed = np.any(raw != 0, axis=2)
-        xyz = np.clip(np.stack([2 * raw[..., 0] - 1, 2 * raw[..., 1] - 1, raw[..., 2]]), -1, 1)
-        X.append((xyz * observed).astype(np.float32)[..., None])
-        masks.append(observed)
-        labels.append(glosses[path.stem])
-    names = sorted(set(labels))
-    y = np.array([names.index(label) for label in labels], dtype=np.int64)
-    return ArraySplit(np.stack(X), np.stack(masks), y)
+def measure(name: str, data, clips: np.ndarray, device: str, precision: str, epochs: int, threads: int,
+            skip_first: bool) -> dict:  # fmt: skip
+    model_name, params, preset = classifier_config(name)
+    trainer = {**trainer_config(preset), "device": device, "precision": precision, "num_threads": threads,
+               "max_epochs": epochs, "deterministic": False}  # fmt: skip
+    train = ArraySplit(data.X[clips], data.mask[clips], data.y[clips])
+    probe = ArraySplit(data.X[:8], data.mask[:8], data.y[:8])
+    torch.manual_seed(0)
+    model = build_classifier(model_name, params, data.X.shape[1], data.X.shape[2], data.X.shape[3], data.num_classes,
+                             data.layout)  # fmt: skip
+    if model.kind != "torch":
+        return {}
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+    start = time.perf_counter()
+    result = fit_final(model, train, probe, trainer, epochs=epochs)
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+    history = result.fit.history[1:] if skip_first and len(result.fit.history) > 1 else result.fit.history
+    return {"clips_per_s": statistics.median(row["clips_per_s"] for row in history),
+            "seconds_per_epoch": statistics.median(row["epoch_time"] for row in history), "clips": len(clips),
+            "epochs": epochs, "batch_size": trainer["batch_size"], "crop_window": trainer["crop_window"],
+            "parameters": model.num_parameters(), "wall_s": time.perf_counter() - start}  # fmt: skip
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--models", default="stgcn,gru,mlp", help="comma-separated classifier names")
-    parser.add_argument("--epochs", type=int, default=3)
+    parser.add_argument("--models", default=DEFAULT_MODELS, help="conf/classifier names, comma-separated")
+    parser.add_argument("--device", default="cpu", help="cpu (CPU only) or cuda / cuda:<i> (CPU and device)")
+    parser.add_argument("--precision", default="32", help="32 | bf16 | fp16 on the device (CPU runs float32)")
+    parser.add_argument("--epochs", type=int, default=4, help="device epochs (the first is warm-up)")
+    parser.add_argument("--cpu-epochs", type=int, default=2, help="CPU epochs (the first is warm-up when > 1)")
+    parser.add_argument("--cpu-clips", type=int, default=64, help="clips of the CPU measurement (slgcn is slow)")
+    parser.add_argument("--threads", type=int, default=min(16, os.cpu_count() or 1), help="torch CPU threads")
+    parser.add_argument("--subset", default="upper_body", help="keypoint subset: upper_body (23) | slgcn27 (13 on Pose)")
     parser.add_argument("--frames", type=int, default=150)
-    parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--batch-size", type=int, default=32)
-    parser.add_argument("--wide-stgcn", action="store_true", help="also time ST-GCN with [64, 64, 128, 128, 256]")
-    parser.add_argument("--frame-stride", type=int, default=None, help="override frame_stride of stgcn/gru/lstm/cnn3d")
-    parser.add_argument("--data-root", type=Path, default=Path(os.environ.get("ASLEXP_DATA_ROOT", Path(__file__).resolve().parents[2] / "shared" / "data")))
+    parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    parser.add_argument("--data-root", type=Path,
+                        default=Path(os.environ.get("ASLEXP_DATA_ROOT", Path(__file__).resolve().parents[2] / "shared" / "data")))  # fmt: skip
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
 
-    start = time.perf_counter()
-    clips = load_clips(args.data_root, args.frames)
-    num_classes = int(clips.y.max()) + 1
-    print(f"data: {len(clips)} clips, X {tuple(clips.X.shape)}, {num_classes} glosses, loaded in {time.perf_counter() - start:.1f}s")
-    print(f"torch {torch.__version__}, {args.threads} thread(s), batch {args.batch_size}, {args.epochs} epochs per model")
-    print(f"load average before: {' '.join(f'{v:.1f}' for v in os.getloadavg())} ({os.cpu_count()} CPUs; shared machines skew figures)", flush=True)
-
-    runs = [(name, {}) for name in args.models.split(",") if name]
-    if args.wide_stgcn:
-        runs.append(("stgcn", {"channels": [64, 64, 128, 128, 256]}))
-    if args.frame_stride is not None:
-        runs = [(name, {**params, "frame_stride": args.frame_stride} if "frame_stride" in DEFAULT_PARAMS[name] else params) for name, params in runs]
-    trainer = {"batch_size": args.batch_size, "num_threads": args.threads}
-    print(f"{'model':<32} {'params':>9} {'clips/s':>9} {'s/epoch':>8}")
-    for name, params in runs:
-        torch.manual_seed(0)
-        model = build_classifier(name, params, 3, args.frames, 33, num_classes, LAYOUT)
-        if model.kind != "torch":
-            print(f"{name:<32} (not a torch model: skipped)")
+    params = WlaslLexParams(lexicon="asllex2", property="sign_type", subset=args.subset,
+                            channels=("x", "y", "visibility"), length=args.frames)  # fmt: skip
+    data = build_wlasl_lex(None, params, root=args.data_root)
+    gpu = args.device != "cpu"
+    device = resolve_device(args.device)
+    info = device_info(device, args.precision) if gpu else device_info(device)
+    print(f"data: {len(data.y)} clips, X {tuple(data.X.shape)}, layout {data.layout.name}; torch {torch.__version__}, "
+          f"{args.threads} CPU thread(s), load average {' '.join(f'{v:.1f}' for v in os.getloadavg())} on "
+          f"{os.cpu_count()} CPUs; device {info['name']}{' ' + args.precision if gpu else ''}", flush=True)  # fmt: skip
+    rng = np.random.default_rng(0)
+    cpu_clips = np.sort(rng.choice(len(data.y), size=min(args.cpu_clips, len(data.y)), replace=False))
+    every_clip = np.arange(len(data.y))
+    rows = []
+    print(f"{'model':<8} {'params':>10} {'batch':>5} {'crop':>4} {'CPU clips/s':>11} {'device clips/s':>14} {'ratio':>7}")
+    for name in [m for m in args.models.split(",") if m]:
+        cpu = measure(name, data, cpu_clips, "cpu", "32", args.cpu_epochs, args.threads, skip_first=True)
+        if not cpu:
+            print(f"{name:<8} (not a torch model: skipped)")
             continue
-        result = fit_final(model, clips, ArraySplit(clips.X[:1], clips.mask[:1], clips.y[:1]), trainer, epochs=args.epochs)
-        rate = statistics.median(row["clips_per_s"] for row in result.fit.history)
-        seconds = statistics.median(row["epoch_time"] for row in result.fit.history)
-        label = " ".join([name] + [f"{key}={value}" for key, value in params.items()])
-        print(f"{label:<32} {model.num_parameters():>9,d} {rate:>9.1f} {seconds:>8.2f}", flush=True)
-    channels = DEFAULT_PARAMS["stgcn"]["channels"]
-    print(f"(default stgcn channels: {channels})")
+        on_device = measure(name, data, every_clip, args.device, args.precision, args.epochs, args.threads,
+                            skip_first=True) if gpu else {}  # fmt: skip
+        ratio = on_device["clips_per_s"] / cpu["clips_per_s"] if on_device else float("nan")
+        print(f"{name:<8} {cpu['parameters']:>10,d} {cpu['batch_size']:>5} {cpu['crop_window']:>4} "
+              f"{cpu['clips_per_s']:>11.1f} {on_device.get('clips_per_s', float('nan')):>14.1f} {ratio:>7.1f}", flush=True)  # fmt: skip
+        rows.append({"model": name, "cpu": cpu, "device": on_device, "ratio": ratio})
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps({"device": info, "threads": args.threads, "subset": args.subset,
+                                         "frames": args.frames, "rows": rows}, indent=1))  # fmt: skip
+        print(f"figures written to {args.json}")
 
 
 if __name__ == "__main__":

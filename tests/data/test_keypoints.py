@@ -7,7 +7,7 @@ import pytest
 from aslexp.data.dataset import DataError
 from aslexp.data.keypoints import open_keypoint_source
 from aslexp.keypoints import (MEDIAPIPE_POSE, SIGN27, DirectoryKeypointSource, KeypointSource, SubsetSource,
-                              induced_edges, subset_layout, write_layout)
+                              induced_edges, subset_layout, subset_names, write_layout)
 from aslexp.keypoints.published import PublishedArraySource, write_published_arrays
 
 KEYPOINT_DIR = "keypoints/wlasl-mediapipe-pose"
@@ -44,10 +44,10 @@ def test_mediapipe_bad_shapes(tmp_path, data_root):
 
 
 def test_subsets_and_edges():
-    layout, keep = subset_layout(MEDIAPIPE_POSE, "thesis")
-    assert keep == (0, 2, 5, *range(11, 23)) and layout.num_nodes == 15
-    assert (0, 1) in layout.edges and (0, 2) in layout.edges  # nose-eyes through dropped corners
-    assert all(0 <= i < 15 and 0 <= j < 15 for i, j in layout.edges)
+    layout, keep = subset_layout(MEDIAPIPE_POSE, "slgcn27")  # a subset with SL-GCN's own graph
+    assert keep == (0, 11, 12, 13, 14, 15, 16, 21, 19, 17, 22, 20, 18) and layout.num_nodes == 13
+    assert "slgcn27" in subset_names(MEDIAPIPE_POSE) and "slgcn27" in subset_names(SIGN27)
+    assert all(0 <= i < 13 and 0 <= j < 13 for i, j in layout.edges) and len(layout.edges) == 12
     upper, keep = subset_layout(MEDIAPIPE_POSE, "upper_body")
     assert upper.num_nodes == 23 and max(max(e) for e in upper.edges) < 23
     assert len(SIGN27.names) == 27 and len(SIGN27.edges) == 26
@@ -59,7 +59,7 @@ def test_subsets_and_edges():
 def test_directory_source_roundtrip(tmp_path, mediapipe):
     video_id = sorted(mediapipe.available())[0]
     clip = mediapipe.load(video_id)
-    subset = SubsetSource(mediapipe, "thesis")
+    subset = SubsetSource(mediapipe, "slgcn27")
     write_layout(tmp_path, subset.layout)
     np.save(tmp_path / f"{video_id}.npy", subset.load(video_id))
     source = DirectoryKeypointSource(tmp_path)

@@ -23,7 +23,7 @@ def test_glosses_of_the_291_clips_in_each_lexicon(data_root, wlasl, lexicons):
 @pytest.fixture(scope="module")
 def built(tmp_path_factory, data_root):
     out = tmp_path_factory.mktemp("wlasl_lex")
-    params = WlaslLexParams(lexicon="asllex2", property="major_location", subset="thesis",
+    params = WlaslLexParams(lexicon="asllex2", property="major_location", subset="slgcn27",
                             split="gloss", length=64, seed=0)
     return out, params, build_wlasl_lex(out, params, root=data_root)
 
@@ -37,7 +37,7 @@ def test_builder_artefacts(built):
     assert ds.skipped["no_keypoints"] == 21083 - 291
     n = len(ds.video_ids)
     assert n + sum(v for k, v in ds.skipped.items() if k != "no_keypoints") == 291
-    assert ds.X.shape == (n, 4, 64, 15, 1) and ds.mask.shape == (n, 64, 15)
+    assert ds.X.shape == (n, 4, 64, 13, 1) and ds.mask.shape == (n, 64, 13)
     assert np.abs(ds.X[:, :3]).max() <= 1.0
     assert manifest["counts"]["all_zero_frames"] > 0 and not ds.mask.all()
     assert ds.y.max() == ds.num_classes - 1 == len(json.loads((out / "label2id.json").read_text())) - 1
@@ -48,8 +48,8 @@ def test_builder_artefacts(built):
     for name in ("train", "val", "train+val", "test"):
         X = np.load(out / f"{name}_data_joint_mediapipe_pose_thesis.npy")
         y = np.load(out / f"{name}_label.npy")
-        assert X.shape[1:] == (4, 64, 15, 1) and len(X) == len(y) == len(split[name])
-        assert np.load(out / f"{name}_mask.npy").shape == (len(X), 64, 15)
+        assert X.shape[1:] == (4, 64, 13, 1) and len(X) == len(y) == len(split[name])
+        assert np.load(out / f"{name}_mask.npy").shape == (len(X), 64, 13)
     assert (out / "file_list.txt").read_text().split() == ds.video_ids
     assert set(json.loads((out / "gloss2file.json").read_text())) == set(ds.glosses)
 

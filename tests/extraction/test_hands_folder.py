@@ -97,4 +97,4 @@ def test_recognize_on_a_folder_of_pose_files(wlasl6, data_root, tmp_path):
     metrics = json.loads((run_dir / "metrics.json").read_text())
     assert metrics["context"]["pose"] == "pose_format" and metrics["context"]["num_clips"] == 6
     manifest = json.loads(next((tmp_path / "cache").glob("wlasl_lex-*/manifest.json")).read_text())
-    assert manifest["layout"] == "mediapipe_holistic_thesis27" and manifest["shape"]["V"] == 27
+    assert manifest["layout"] == "mediapipe_holistic_slgcn27" and manifest["shape"]["V"] == 27

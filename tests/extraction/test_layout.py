@@ -34,7 +34,7 @@ def test_full_layout_names_edges_and_centre():
     assert _connected(75, layout["edges"])
 
 
-@pytest.mark.parametrize("name, size", [("all", 75), ("upper_body", 61), ("thesis27", 27)])
+@pytest.mark.parametrize("name, size", [("all", 75), ("upper_body", 61)])
 def test_subsets_are_connected_skeletons(name, size):
     indices = H.holistic_subset(name)
     layout = H.holistic_layout(name)
@@ -43,19 +43,8 @@ def test_subsets_are_connected_skeletons(name, size):
     assert _connected(size, layout["edges"])
 
 
-def test_thesis27_is_the_named_points():
-    names = H.holistic_layout("thesis27")["names"]
-    assert names[:9] == ["nose", "left_eye", "right_eye", "left_shoulder", "right_shoulder",
-                         "left_elbow", "right_elbow", "left_wrist", "right_wrist"]
-    for side in ("left", "right"):
-        hand = [n for n in names if n.startswith(f"{side}_hand_")]
-        assert len(hand) == 9 and f"{side}_hand_thumb_tip" in hand
-        assert {f"{side}_hand_{f}_{k}" for f in ("index", "middle", "ring", "pinky")
-                for k in ("mcp", "tip")} <= set(hand)
-
-
 def test_unknown_subset_is_a_clear_error():
-    with pytest.raises(ValueError, match="thesis27"):
+    with pytest.raises(ValueError, match="upper_body"):
         H.holistic_subset("thesis")
 
 
@@ -65,4 +54,4 @@ def test_layout_json_is_read_by_the_data_layer(tmp_path):
     assert layout.name == "mediapipe_holistic" and layout.num_nodes == 75
     assert layout.channels == ("x", "y", "z", "visibility")
     raw = json.loads(path.read_text())
-    assert raw["subsets"]["thesis27"]["indices"] == H.holistic_subset("thesis27")
+    assert raw["subsets"]["upper_body"]["indices"] == H.holistic_subset("upper_body")

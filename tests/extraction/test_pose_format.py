@@ -72,7 +72,7 @@ def test_pose_format_source_gives_back_the_arrays(extracted, pose_dir):
     assert clip.shape == image.shape == (57, 75, 4)
     np.testing.assert_array_equal(np.isnan(clip), np.isnan(image))
     np.testing.assert_allclose(clip, image, atol=1e-5)
-    thesis = SubsetSource(source, "thesis27")
+    thesis = SubsetSource(source, "slgcn27")  # SL-GCN's 27 points, all present in Holistic
     assert thesis.layout.num_nodes == 27 and thesis.load(CLIP).shape == (57, 27, 4)
 
 

@@ -81,9 +81,23 @@ TINY_PARAMS = {
     "stratified": {},
     "logreg": {"max_iter": 300},
     "svm": {"pooling": "mean_std"},
+    "rf": {"n_estimators": 20, "n_jobs": 1},
+    "hgb": {"max_iter": 10},
     "mlp": {"hidden_sizes": [32]},
     "lstm": {"hidden_size": 16, "num_layers": 1},
     "gru": {"hidden_size": 16, "num_layers": 2},
     "stgcn": {"channels": [8, 16], "temporal_kernel": 3, "adaptive": True},
+    "slgcn": {"channels": [16, 32], "groups": 8, "block_size": 5, "drop_from_block": 1},
     "cnn3d": {"channels": [4, 8], "heatmap_size": 12, "frame_stride": 2},
 }
+
+
+def load_lex_dataset(prop: str = "sign_type", lexicon: str = "asllex2", num_frames: int = 24) -> RecognitionDataset:
+    """A real WLASL-Lex build through the data layer (MediaPipe Pose upper body, x/y/visibility)."""
+    from aslexp.data.wlasl_lex import WlaslLexParams, build_wlasl_lex
+
+    if not KEYPOINTS.is_dir() or not WLASL.is_file():
+        pytest.skip(f"shared data not found under {DATA_ROOT}")
+    params = WlaslLexParams(lexicon=lexicon, property=prop, subset="upper_body", channels=("x", "y", "visibility"),
+                            split="phoneme", length=num_frames)
+    return build_wlasl_lex(None, params, root=DATA_ROOT)

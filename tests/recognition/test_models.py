@@ -20,7 +20,8 @@ def _build(dataset, name, params):
 
 
 def test_registry_lists_every_model():
-    assert set(CLASSIFIER_NAMES) == {"majority", "stratified", "logreg", "svm", "mlp", "lstm", "gru", "stgcn", "cnn3d"}
+    assert set(CLASSIFIER_NAMES) == {"majority", "stratified", "logreg", "svm", "rf", "hgb", "mlp", "lstm", "gru", "stgcn",
+                                     "slgcn", "cnn3d"}
     assert set(TINY_PARAMS) == set(CLASSIFIER_NAMES)
 
 
@@ -101,3 +102,35 @@ def test_heatmap_renders_a_blob_where_the_joint_is():
     assert (row, column) == (8, 0)
     assert float(heat[0, 0, 0].max()) == pytest.approx(1.0)
     assert float(heat[0, 1].abs().sum()) == 0.0
+
+
+def test_summary_features_by_hand():
+    X = np.zeros((1, 2, 5, 2, 1), dtype=np.float32)
+    X[0, 0, :, 0, 0] = [0.1, 0.3, 0.0, 0.6, 0.2]  # channel 0 of joint 0; frame 2 unobserved
+    X[0, 1, :, 0, 0] = [1.0, 1.0, 0.0, 1.0, 1.0]
+    mask = np.zeros((1, 5, 2), dtype=bool)
+    mask[0, [0, 1, 3, 4], 0] = True  # joint 1 never observed
+    features = clip_features(X, mask, "summary").reshape(-1)
+    # layout: 8 statistics x (C=2 x V=2), then the observed share per joint
+    stats = features[:-2].reshape(8, 2, 2)
+    observed = np.array([0.1, 0.3, 0.6, 0.2])
+    np.testing.assert_allclose(stats[:, 0, 0], [observed.mean(), observed.std(), 0.1, 0.6, 0.5,
+                                                # velocities only between consecutive observed frames: 0-1, 3-4
+                                                np.mean([0.2, 0.4]), np.std([0.2, -0.4]), 0.4], atol=1e-6)  # fmt: skip
+    np.testing.assert_allclose(stats[:, 1, 0], [1, 0, 1, 1, 0, 0, 0, 0], atol=1e-6)
+    assert not stats[:, :, 1].any()  # a joint never observed: zeros, not NaN or inf
+    np.testing.assert_allclose(features[-2:], [0.8, 0.0])
+
+
+def test_thesis_variants_of_the_linear_models(gloss_dataset):
+    data = gloss_dataset
+    train = ArraySplit.from_dataset(data, data.splits["train"])
+    ovr = _build(data, "logreg", {"multi_class": "ovr", "C": 3.16e-3, "max_iter": 100, "pooling": "none", "standardize": False})
+    ovr.fit(train.X, train.mask, train.y)
+    assert type(ovr.estimator[-1]).__name__ == "OneVsRestClassifier"
+    with pytest.raises(ValueError, match="liblinear has no multinomial backend"):
+        _build(data, "logreg", {"solver": "liblinear"})
+    poly = _build(data, "svm", {"kernel": "poly", "degree": 2, "decision_function_shape": "ovo", "max_iter": 250, "C": 3.16})
+    poly.fit(train.X, train.mask, train.y)
+    svc = poly.estimator[-1]
+    assert (svc.kernel, svc.degree, svc.decision_function_shape, svc.max_iter) == ("poly", 2, "ovo", 250)

@@ -49,6 +49,7 @@ def test_best_state_is_restored(gloss_dataset):
     assert result.best_val_mcc == max(val_mccs) and result.best_epoch == 1 + int(np.argmax(val_mccs))
     assert mcc(val.y, model.predict(val.X, val.mask)) == pytest.approx(result.best_val_mcc)
     assert set(result.history[0]) == {"epoch", "train_loss", "train_accuracy", "val_accuracy", "val_mcc", "lr", "epoch_time", "clips_per_s"}
+    assert result.best_val_score == result.best_val_mcc and result.selection_metric == "mcc"
 
 
 def test_same_seed_same_run(gloss_dataset):

@@ -168,3 +168,61 @@ def _count(labels_by_unit: dict) -> dict[str, int]:
     for label in labels_by_unit.values():
         counts[label] += 1
     return dict(counts)
+
+
+def one_per_group(groups: Sequence[str], seed: int) -> np.ndarray:
+    """Ascending indices of one sample per group (gloss), chosen at random with ``seed``: the
+    thesis' chapter-3 set had one video per lemma, so no sign is in two splits."""
+    rng = np.random.default_rng(seed)
+    members: dict[str, list[int]] = defaultdict(list)
+    for index, group in enumerate(groups):
+        members[str(group)].append(index)
+    return np.array(sorted(int(rng.choice(members[g])) for g in sorted(members)), dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class SplitOptions:
+    """How to split a built dataset again (the ``split`` config group): ``repeats`` independent
+    seeded splits (seeds ``seed`` .. ``seed + repeats - 1``), optionally on one clip per gloss."""
+
+    name: str = "phoneme"
+    seed: int = 0
+    repeats: int = 1
+    one_clip_per_gloss: bool = False
+    rare_classes: str = "drop"
+    val_fraction: float = 0.15
+    test_fraction: float = 0.15
+    num_folds: int = 5
+
+    @classmethod
+    def from_dict(cls, values: dict | None) -> SplitOptions:
+        values = dict(values or {})
+        known = {f for f in cls.__dataclass_fields__}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            raise DataError(f"split: unknown keys {unknown}; accepted: {sorted(known)}")
+        options = cls(**values)
+        if options.name not in SPLIT_KINDS:
+            raise DataError(f"split.name={options.name!r}; expected one of {SPLIT_KINDS}")
+        if int(options.repeats) < 1:
+            raise DataError(f"split.repeats must be >= 1, got {options.repeats}")
+        return options
+
+    @property
+    def rebuilds(self) -> bool:
+        """False when the dataset's own (built) split is the one split to use."""
+        return int(self.repeats) > 1 or bool(self.one_clip_per_gloss)
+
+
+def resplit(labels: Sequence[str], groups: Sequence[str], options: SplitOptions, seed: int) -> SplitResult:
+    """One split of samples with string ``labels`` and ``groups`` (glosses) by ``options`` with
+    ``seed``; ``keep`` indexes the input samples (after the one-clip-per-gloss choice, if any)."""
+    chosen = one_per_group(groups, seed) if options.one_clip_per_gloss else np.arange(len(labels))
+    result = make_splits(
+        [labels[i] for i in chosen], options.name, groups=[groups[i] for i in chosen], seed=seed,
+        rare_classes=options.rare_classes, val_fraction=options.val_fraction,
+        test_fraction=options.test_fraction, num_folds=options.num_folds,
+    )
+    result.keep = chosen[result.keep]
+    result.dropped = len(labels) - len(result.keep)
+    return result

@@ -30,7 +30,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from aslexp.data.dataset import DataError, KeypointLayout, RecognitionDataset
 from aslexp.data.keypoints import open_keypoint_source
@@ -143,7 +142,7 @@ def build_wlasl_lex(
 
     clips, loaded = [], []
     rejected: list[str] = []
-    for instance, entry in tqdm(candidates, desc="keypoints", unit="clip", mininterval=2,
+    for instance, entry in _progress(candidates, desc="keypoints", unit="clip", mininterval=2,
                                 leave=False, disable=len(candidates) < 500):  # fmt: skip
         try:
             clip = source.load(instance.video_id)
@@ -214,6 +213,15 @@ def build_wlasl_lex(
         }
         write_wlasl_lex(out_dir, dataset, params, info)
     return dataset
+
+
+def _progress(items, **options):
+    """tqdm where installed (a bare GPU node may lack it: then no bar)."""
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        return items
+    return tqdm(items, **options)
 
 
 def _channel_index(layout: KeypointLayout, wanted) -> list[int]:

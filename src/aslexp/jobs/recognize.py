@@ -68,6 +68,7 @@ def recognize(cfg: DictConfig, run) -> float:
             seeds=seeds,
             out_dir=run.dir,
             on_epoch_end=on_epoch_end,
+            split=to_dict(cfg.split),
         )
         summary = {"val_mcc": result["val_mcc"], **{f"test_{k}": v for k, v in result.get("test", {}).items()}}
     finally:
@@ -85,14 +86,16 @@ def recognize(cfg: DictConfig, run) -> float:
         "dataset_dir": str(dataset_dir),
     }
     run.save_metrics(result)
-    run.set_main_metric("val_mcc", float(result["val_mcc"]), "maximize")
+    run.info["device"] = result["device"]  # where it trained (GPU name), beside the versions
+    objective = result["objective"]
+    run.set_main_metric(objective["name"], float(objective["value"]), "maximize")
     test = result.get("test", {})
     log.info(
-        "%s on %s (%s split): val MCC %.3f | test MCC %s, balanced acc %s",
-        cfg.classifier.name, cfg.property.name, cfg.split.name, result["val_mcc"],
+        "%s on %s (%s split): %s %.3f | test MCC %s, balanced acc %s",
+        cfg.classifier.name, cfg.property.name, cfg.split.name, objective["name"], objective["value"],
         test.get("mcc"), test.get("balanced_accuracy"),
     )
-    return float(result["val_mcc"])
+    return float(objective["value"])
 
 
 @job_main("recognize")

@@ -87,41 +87,16 @@ def _upper_body_indices() -> list[int]:
     return body + hands
 
 
-def _thesis27_names() -> list[str]:
-    """The thesis' 27 points: nose, eyes, shoulders, elbows, wrists, and per hand the thumb tip
-    and the first (MCP) and last (tip) knuckle of each finger (the SL-GCN/SAM-SLR choice)."""
-    names = ["nose", "left_eye", "right_eye", "left_shoulder", "right_shoulder",
-             "left_elbow", "right_elbow", "left_wrist", "right_wrist"]  # fmt: skip
-    for side in ("left", "right"):
-        names.append(f"{side}_hand_thumb_tip")
-        for finger in _FINGERS:
-            names += [f"{side}_hand_{finger}_mcp", f"{side}_hand_{finger}_tip"]
-    return names
-
-
-def _thesis27_edges() -> list[tuple[str, str]]:
-    edges = [("nose", "left_eye"), ("nose", "right_eye"), ("nose", "left_shoulder"),
-             ("nose", "right_shoulder"), ("left_shoulder", "right_shoulder")]  # fmt: skip
-    for side in ("left", "right"):
-        edges += [(f"{side}_shoulder", f"{side}_elbow"), (f"{side}_elbow", f"{side}_wrist"),
-                  (f"{side}_wrist", f"{side}_hand_thumb_tip")]  # fmt: skip
-        for finger in _FINGERS:
-            mcp, tip = f"{side}_hand_{finger}_mcp", f"{side}_hand_{finger}_tip"
-            edges += [(f"{side}_wrist", mcp), (mcp, tip)]
-    return edges
-
-
-SUBSETS: tuple[str, ...] = ("all", "upper_body", "thesis27")
+# SL-GCN's 27 points are `pose.subset=slgcn27` (aslexp.keypoints.slgcn27), on this layout as on others.
+SUBSETS: tuple[str, ...] = ("all", "upper_body")
 
 
 def holistic_subset(name: str) -> list[int]:
-    """Indices into the 75 holistic nodes of subset ``name`` ('all', 'upper_body', 'thesis27')."""
+    """Indices into the 75 holistic nodes of subset ``name`` ('all', 'upper_body')."""
     if name == "all":
         return list(range(NUM_NODES))
     if name == "upper_body":
         return _upper_body_indices()
-    if name == "thesis27":
-        return [_idx(n) for n in _thesis27_names()]
     raise ValueError(f"unknown holistic keypoint subset {name!r}; expected one of {SUBSETS}")
 
 
@@ -133,10 +108,7 @@ def holistic_layout(subset: str = "all") -> dict:
     """
     indices = holistic_subset(subset)
     position = {full: k for k, full in enumerate(indices)}
-    if subset == "thesis27":
-        edges = [(position[_idx(a)], position[_idx(b)]) for a, b in _thesis27_edges()]
-    else:
-        edges = [(position[i], position[j]) for i, j in EDGES if i in position and j in position]
+    edges = [(position[i], position[j]) for i, j in EDGES if i in position and j in position]
     name = "mediapipe_holistic" if subset == "all" else f"mediapipe_holistic_{subset}"
     return {
         "name": name,

@@ -6,12 +6,11 @@
   unreachable from the centre node (the nose) in ST-GCN's spatial partition.
   Subsets: ``all`` (33); ``upper_body`` = 0..22 (face, shoulders, arms, hands; the hips 23-24 are
   left out because WLASL framing cuts at the waist: their mean visibility on the 291 real clips
-  is 0.33 against >= 0.63 for every arm and hand landmark); ``thesis`` = 0, 2, 5, 11..22 (nose,
-  eye centres, shoulders, elbows, wrists, and the pinky/index knuckles and thumbs that Pose
-  provides: the keypoints of the thesis' 27-point set that exist in Pose).
+  is 0.33 against >= 0.63 for every arm and hand landmark); ``slgcn27`` (13: the points of
+  SL-GCN's 27 that Pose has, :mod:`aslexp.keypoints.slgcn27`).
 - ``mediapipe_holistic``: the 75 nodes of ``aslexp extract`` (33 body, the signer's left hand,
   the right hand; :mod:`aslexp.keypoints.holistic`), channels (x, y, z, visibility); subsets
-  ``upper_body`` (61) and ``thesis27``.
+  ``upper_body`` (61) and ``slgcn27`` (all 27 of SL-GCN's points).
 - ``mediapipe_hands``: MediaPipe Hands, two hands x 21 landmarks, the signer's LEFT hand first
   (nodes 0-20), then the right (21-41), channels (x, y, z): the usual ``(T, 126)`` arrays of
   hand-only pipelines. Edges: MediaPipe's ``HAND_CONNECTIONS`` per hand plus wrist-wrist, so that
@@ -50,7 +49,7 @@ MEDIAPIPE_POSE = register_layout(
         center=0,
         channels=("x", "y", "z", "visibility"),
     ),
-    subsets={"upper_body": tuple(range(23)), "thesis": (0, 2, 5, *range(11, 23))},
+    subsets={"upper_body": tuple(range(23))},
 )  # fmt: skip
 
 MEDIAPIPE_HOLISTIC = register_layout(
@@ -69,27 +68,5 @@ MEDIAPIPE_HANDS = register_layout(
     subsets={"left": tuple(range(H.NUM_HAND)), "right": tuple(range(H.NUM_HAND, 2 * H.NUM_HAND))},
 )
 
-_HAND_POINTS = ("root", "thumb_tip", "index_mcp", "index_tip", "middle_mcp", "middle_tip",
-                "ring_mcp", "ring_tip", "little_mcp", "little_tip")  # fmt: skip
-SIGN27_COCO_WHOLEBODY = (0, 5, 6, 7, 8, 9, 10, 91, 95, 96, 99, 100, 103, 104, 107, 108, 111,
-                         112, 116, 117, 120, 121, 124, 125, 128, 129, 132)  # fmt: skip
-_SIGN27_EDGES_ORIGINAL = (
-    (5, 6), (5, 7), (6, 8), (8, 10), (7, 9), (9, 11),
-    (12, 13), (12, 14), (12, 16), (12, 18), (12, 20), (14, 15), (16, 17), (18, 19), (20, 21),
-    (22, 23), (22, 24), (22, 26), (22, 28), (22, 30), (24, 25), (26, 27), (28, 29), (30, 31),
-    (10, 12), (11, 22),
-)  # fmt: skip
-SIGN27 = register_layout(
-    KeypointLayout(
-        name="sign27",
-        names=(
-            "nose", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist",
-            "right_wrist",
-            *(f"left_hand_{p}" for p in _HAND_POINTS),
-            *(f"right_hand_{p}" for p in _HAND_POINTS),
-        ),
-        edges=tuple((i - 5, j - 5) for i, j in _SIGN27_EDGES_ORIGINAL),
-        center=0,
-        channels=("x", "y", "score"),
-    )
-)
+# SL-GCN's 27 points (the thesis' published HRNet arrays) and the maps onto them: one block.
+from aslexp.keypoints.slgcn27 import SIGN27  # noqa: E402  (registers sign27 and pose.subset=slgcn27)

@@ -38,6 +38,9 @@ ENTRY_POINT_GROUP = "aslexp.keypoints"
 
 _LAYOUTS: dict[str, KeypointLayout] = {}
 _SUBSETS: dict[str, dict[str, tuple[int, ...]]] = {}
+# Subsets with a graph of their own (not the layout's edges among the kept nodes): name ->
+# (layouts it maps from, builder(layout) -> (restricted layout, kept indices)).
+_SUBSET_BUILDERS: dict[str, tuple[frozenset[str], Callable[[KeypointLayout], tuple[KeypointLayout, tuple[int, ...]]]]] = {}
 _SOURCES: dict[str, SourceSpec] = {}
 _entry_points_loaded = False
 
@@ -135,14 +138,24 @@ def register_subsets(layout_name: str, subsets: dict[str, tuple[int, ...]], num_
     _SUBSETS.setdefault(layout_name, {}).update(clean)
 
 
+def register_subset_builder(name: str, layouts, builder) -> None:
+    """Offer subset ``name`` on each of ``layouts`` (names), built by ``builder(layout) ->
+    (restricted layout, kept indices)``: for a target skeleton with its own graph, such as SL-GCN's
+    27 points (:mod:`aslexp.keypoints.slgcn27`), which other layouts map onto."""
+    _SUBSET_BUILDERS[name] = (frozenset(layouts), builder)
+
+
 def subset_names(layout: KeypointLayout) -> tuple[str, ...]:
     """Names of the subsets offered for ``layout`` ('all' first)."""
-    return ("all", *[s for s in _SUBSETS.get(layout.name, {}) if s != "all"])
+    built = [s for s, (layouts, _) in _SUBSET_BUILDERS.items() if layout.name in layouts]
+    return ("all", *[s for s in _SUBSETS.get(layout.name, {}) if s != "all"], *built)
 
 
 def subset_indices(layout: KeypointLayout, subset: str | None) -> tuple[int, ...]:
     if subset in (None, "all"):
         return tuple(range(layout.num_nodes))
+    if subset in _SUBSET_BUILDERS and layout.name in _SUBSET_BUILDERS[subset][0]:
+        return _SUBSET_BUILDERS[subset][1](layout)[1]
     options = _SUBSETS.get(layout.name, {})
     if subset not in options:
         raise DataError(f"layout {layout.name!r} has no keypoint subset {subset!r}; "
@@ -152,6 +165,8 @@ def subset_indices(layout: KeypointLayout, subset: str | None) -> tuple[int, ...
 
 def subset_layout(layout: KeypointLayout, subset: str | None) -> tuple[KeypointLayout, tuple[int, ...]]:
     """The layout restricted to a named subset, and the kept node indices into ``layout``."""
+    if subset in _SUBSET_BUILDERS and layout.name in _SUBSET_BUILDERS[subset][0]:
+        return _SUBSET_BUILDERS[subset][1](layout)
     keep = subset_indices(layout, subset)
     if subset in (None, "all"):
         return layout, keep

@@ -1,9 +1,14 @@
 """Recognition of phonological properties of signs from keypoint sequences.
 
-    models      build_classifier(name, params, ...) and the classifiers (baselines, logreg,
-                svm, mlp, lstm, gru, stgcn, cnn3d)
-    train       TrainerConfig, fit (early stopping on val MCC), fit_final, checkpoints
-    metrics     classification_metrics, Fleiss' kappa, mutual misclassification
-    experiment  run_recognition: seeds x (validate, retrain, test) -> metrics dict + run files
-    report      collect_table: the thesis' models x properties table
+    models      build_classifier(name, params, ...) and the classifiers (chance baselines, logreg,
+                svm, the rf/hgb feature baseline, mlp, lstm, gru, stgcn, slgcn, cnn3d)
+    train       TrainerConfig, fit (validation, early stopping or a fixed budget), fit_final,
+                checkpoints; device and precision (device.py), augmentation (augment.py)
+    metrics     classification_metrics, intervals over splits, paired comparisons, Fleiss' kappa,
+                the thesis' mutual misclassification
+    experiment  run_recognition: K splits x seeds x (validate, retrain, test) -> metrics + run files
+    report      the platform's table with intervals, comparisons, and the thesis' table layouts
+
+Importable without Hydra, OmegaConf, Optuna, PyBullet, gymnasium, torchrl, matplotlib or tqdm
+(plots are skipped with a warning where matplotlib is missing): a bare GPU node runs it.
 """

@@ -1,15 +1,21 @@
-"""One recognition experiment: a classifier on a dataset, several seeds, one test each.
+"""One recognition experiment: a classifier on a dataset, K splits x S model seeds, one test each.
 
-For every seed:
-  1. validation: train on 'train' with early stopping on 'val' MCC (cv5: on each of the 5 folds
-     of 'train+val'; the seed's val MCC is the mean over folds, its epoch count the median of
-     the folds' best epochs);
-  2. final: retrain a fresh model on 'train+val' for that epoch count and test once on 'test'.
-Then: mean and std over seeds of every scalar test metric, the chance baselines on the same
-split, and the run-folder artefacts (per_class.csv, predictions.csv, plots, checkpoint).
+For every split (``split.repeats`` = K independent seeded splits; K = 1 uses the dataset's own
+split) and every model seed:
+  1. validation: train on 'train', validate on 'val' (cv5: on each of the 5 folds of 'train+val';
+     the run's validation score is the mean over folds, its epoch budget the median over folds of
+     the best, or smoothed-best, epoch);
+  2. final: retrain a fresh model on 'train+val' for that budget and test once on 'test' (or, with
+     ``trainer.final_retrain=false``, test the validated model).
+The chance baselines (majority, stratified) run on the same splits; the one with the higher
+validation accuracy is *the* baseline (chosen by validation, never by test). Statistics: the
+per-split test metric (mean over model seeds) is the unit; over K splits the report gives mean,
+std and a 95% t interval of the mean, and the paired difference to the baseline on the same splits
+(t interval and Wilcoxon signed-rank test). With one split the unit is the model seed.
 
-The objective a sweep maximises is ``result["val_mcc"]`` (mean over seeds); ``on_epoch_end``
-receives the first seed's (first fold's) epochs, for pruning.
+The objective a sweep maximises is ``result["objective"]["value"]`` = the mean validation score
+(``trainer.selection_metric``; ``val_mcc`` is always there too); ``on_epoch_end`` receives the
+first split's first seed's (first fold's) epochs, for pruning.
 """
 
 from __future__ import annotations
@@ -25,18 +31,27 @@ from typing import Any
 import numpy as np
 
 from aslexp.data.dataset import RecognitionDataset
-from aslexp.recognition.metrics import aggregate_over_seeds, classification_metrics
+from aslexp.data.splits import SplitOptions, resplit
+from aslexp.recognition.device import check_precision, device_info, resolve_device
+from aslexp.recognition.metrics import (
+    aggregate_over_seeds,
+    classification_metrics,
+    mean_interval,
+    paired_comparison,
+    scalar_metrics,
+)
 from aslexp.recognition.models import BASELINE_NAMES, TorchClassifier, build_classifier, resolve_params
 from aslexp.recognition.train import (
     ArraySplit,
     EpochCallback,
+    FitResult,
     TrainerConfig,
     fit,
     fit_final,
     save_checkpoint,
     seed_everything,
+    smoothed_best_epoch,
 )
-from aslexp.viz.plots import plot_confusion_matrix, plot_learning_curves
 
 log = logging.getLogger(__name__)
 
@@ -44,6 +59,8 @@ PER_CLASS_FILE = "per_class.csv"
 PREDICTIONS_FILE = "predictions.csv"
 CONFUSION_FILE = "confusion_matrix.png"
 CURVES_FILE = "learning_curves.png"
+# The metrics that get an interval over splits and a paired comparison with the baseline.
+KEY_METRICS = ("accuracy", "balanced_accuracy", "mcc", "f1_micro", "f1_macro", "precision_macro", "recall_macro")
 
 
 def validation_folds(dataset: RecognitionDataset) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -75,26 +92,63 @@ def validation_folds(dataset: RecognitionDataset) -> list[tuple[np.ndarray, np.n
     return folds
 
 
+def split_views(dataset: RecognitionDataset, options: SplitOptions) -> list[tuple[int, RecognitionDataset]]:
+    """(split seed, dataset view) per split: the dataset itself when its own split is the one to
+    use, else ``options.repeats`` views re-split with seeds ``options.seed + k`` (on one clip per
+    gloss when asked). Every view has the same label names (rare classes depend on counts only)."""
+    if not options.rebuilds:
+        return [(int(options.seed), dataset)]
+    labels = [dataset.label_names[int(y)] for y in dataset.y]
+    views = []
+    for k in range(int(options.repeats)):
+        seed = int(options.seed) + k
+        result = resplit(labels, dataset.glosses, options, seed)
+        keep = result.keep
+        view = RecognitionDataset(
+            property=dataset.property, label_names=list(result.label_names), X=dataset.X[keep],
+            mask=dataset.mask[keep], y=result.y, video_ids=[dataset.video_ids[i] for i in keep],
+            glosses=[dataset.glosses[i] for i in keep], signer_ids=[dataset.signer_ids[i] for i in keep],
+            layout=dataset.layout, channels=list(dataset.channels), splits=result.splits,
+            skipped={**dataset.skipped, "resplit_dropped": int(result.dropped)},
+        )
+        if views and view.label_names != views[0][1].label_names:
+            raise ValueError(f"split seed {seed} kept labels {view.label_names}, seed {views[0][0]} kept "
+                             f"{views[0][1].label_names}: repeated splits must share their classes")  # fmt: skip
+        views.append((seed, view))
+    return views
+
+
 def _build(dataset: RecognitionDataset, name: str, params: Mapping[str, Any]):
     _, channels, frames, nodes, _ = dataset.X.shape
     return build_classifier(name, dict(params), channels, frames, nodes, dataset.num_classes, dataset.layout)
 
 
-def _test_baselines(
-    dataset: RecognitionDataset, train_val: ArraySplit, test: ArraySplit, config: TrainerConfig, seeds: Sequence[int]
-) -> dict[str, Any]:
-    """Majority and stratified baselines fitted on 'train+val', tested on 'test'; 'best' is the
-    one with the higher mean test accuracy (the stronger chance reference)."""
-    results: dict[str, Any] = {}
+def _retrain_budget(results: Sequence[FitResult], config: TrainerConfig) -> tuple[int, list[int]]:
+    """The final retrain's epoch count: median over folds of each fold's best epoch (``best``) or
+    of the best epoch of its smoothed validation curve (``smoothed``)."""
+    if config.retrain_epochs == "smoothed" and config.early_stopping:
+        key = "val_mcc" if config.selection_metric == "mcc" else f"val_{config.selection_metric}"
+        per_fold = [smoothed_best_epoch(r.history, key, config.smoothing_window) for r in results]
+    else:
+        per_fold = [r.best_epoch for r in results]
+    return max(1, int(round(float(np.median(per_fold))))), per_fold
+
+
+def _baseline_runs(view: RecognitionDataset, folds, train_val: ArraySplit, test: ArraySplit, config: TrainerConfig,
+                   seeds: Sequence[int]) -> dict[str, dict[str, list]]:  # fmt: skip
+    """Per baseline: validation accuracy (fit on the first fold's train, scored on its val) and the
+    test metrics (fit on train+val) for every seed of this split."""
+    train_idx, val_idx = folds[0]
+    train, val = ArraySplit.from_dataset(view, train_idx), ArraySplit.from_dataset(view, val_idx)
+    runs: dict[str, dict[str, list]] = {}
     for name in BASELINE_NAMES:
-        per_seed = []
+        runs[name] = {"val_accuracy": [], "test": []}
         for seed in seeds:
-            final = fit_final(_build(dataset, name, {}), train_val, test, config, epochs=1, seed=seed)
-            per_seed.append(classification_metrics(test.y, final.y_pred, dataset.label_names))
-        mean, std = aggregate_over_seeds(per_seed)
-        results[name] = {"test": mean, "test_std": std}
-    best = max(BASELINE_NAMES, key=lambda name: results[name]["test"]["accuracy"])
-    return {"name": best, **results[best], "all": results}
+            validated = fit(_build(view, name, {}), train, val, config, seed=seed)
+            runs[name]["val_accuracy"].append(validated.history[0]["val_accuracy"])
+            final = fit_final(_build(view, name, {}), train_val, test, config, epochs=1, seed=seed)
+            runs[name]["test"].append(classification_metrics(test.y, final.y_pred, view.label_names))
+    return runs
 
 
 def run_recognition(
@@ -104,22 +158,31 @@ def run_recognition(
     seeds: Sequence[int],
     out_dir: str | Path,
     on_epoch_end: EpochCallback | None = None,
+    split: Mapping[str, Any] | SplitOptions | None = None,
 ) -> dict[str, Any]:
     """Validate, retrain and test ``classifier`` = {"name": ..., "params": {...}} on ``dataset``.
 
-    Writes per_class.csv, predictions.csv, confusion_matrix.png, learning_curves.png and
-    model.pt / model.joblib (the first seed's final model) into ``out_dir``, and returns a
-    JSON-ready dict (the job writes it as metrics.json) with keys:
+    ``split`` (the ``split`` config group, see :class:`SplitOptions`) asks for repeated splits;
+    without it the dataset's own split is the one split. Writes per_class.csv, predictions.csv,
+    confusion_matrix.png, learning_curves.png and model.pt / model.joblib (the first run's final
+    model) into ``out_dir``, and returns a JSON-ready dict (the job writes it as metrics.json):
 
-    val_mcc, val_mcc_std   the objective: mean (std) over seeds of the best validation MCC
-    val                    per seed: mcc, accuracy, best_epoch, fold_best_epochs, fold_mcc, ...
-    test, test_std         mean / std over seeds of every scalar test metric (accuracy,
-                           accuracy_ci_low/high, balanced_accuracy, precision/recall/f1 micro
-                           and macro, mcc, n, cardinality_accuracy_r)
-    test_per_seed          full :func:`classification_metrics` per seed (+ 'seed')
-    baseline               the better of majority/stratified: name, test, test_std
-    baselines              both baselines
+    objective              {"name": "val_<selection metric>", "value": mean over runs}
+    val_mcc, val_mcc_std   mean (std) over runs of the validation MCC; val: one record per run
+    test, test_std         mean / std over units (splits; the model seeds for one split) of every
+                           scalar test metric; test_interval: mean, std, 95% t interval per KEY_METRIC
+    test_per_split         per split: the scalar test metrics averaged over the model seeds
+    test_per_seed          full :func:`classification_metrics` of every run (+ 'split', 'seed')
+    baseline               the baseline chosen by validation accuracy: name, selected_by,
+                           val_accuracy (both), test, test_std, test_interval, test_per_split
+    baselines              both baselines (test, test_std, test_per_split, val_accuracy)
+    paired_vs_baseline     per KEY_METRIC: model minus baseline on the same splits (units)
+    below_baseline         per KEY_METRIC: the model's mean is below the baseline's
+    splits                 per split: index, seed, sizes; statistics_unit: 'split' | 'seed'
     history, final_history per-epoch records of the validation and final runs, by 'seed S'
+                           (one split) or 'split K seed S'
+    learning_curve         scikit-learn models: score against training-set size (first run)
+    device                 where torch models trained (type, name, precision)
     property, classifier, params, trainer, seeds, validation ('holdout'|'cv5'), num_folds,
     split_sizes, label_names, num_parameters, test_confusion_matrix_total, files, time_s
     """
@@ -128,6 +191,7 @@ def run_recognition(
     name = str(classifier["name"])
     params = resolve_params(name, classifier.get("params"))
     config = TrainerConfig.from_dict(trainer)
+    options = split if isinstance(split, SplitOptions) else SplitOptions.from_dict(split)
     seeds = [int(seed) for seed in seeds]
     if not seeds:
         raise ValueError("run_recognition needs at least one seed")
@@ -135,137 +199,188 @@ def run_recognition(
     out_dir.mkdir(parents=True, exist_ok=True)
     if dataset.num_classes < 2:
         raise ValueError(f"dataset '{dataset.property}' has {dataset.num_classes} class(es); need >= 2")
+    device = resolve_device(config.device)
+    device_record = device_info(device, check_precision(config.precision, device))
+    metric = config.selection_metric
 
-    folds = validation_folds(dataset)
-    is_cv = "folds" in dataset.splits
-    train_val = ArraySplit.from_dataset(dataset, dataset.splits["train+val"])
-    test_idx = np.asarray(dataset.splits["test"], dtype=np.int64)
-    test = ArraySplit.from_dataset(dataset, test_idx)
-    if len(test) == 0:
-        raise ValueError(f"dataset '{dataset.property}': the 'test' split is empty")
-    log.info(
-        "recognition '%s' on %s: %d classes, X %s, train+val %d, test %d, %s, seeds %s",
-        name, dataset.property, dataset.num_classes, tuple(dataset.X.shape), len(train_val), len(test),
-        f"{len(folds)}-fold cv" if is_cv else f"hold-out (train {len(folds[0][0])}, val {len(folds[0][1])})", seeds,
-    )
-
+    views = split_views(dataset, options)
+    label_names = list(views[0][1].label_names)
     start = time.perf_counter()
     val_records: list[dict[str, Any]] = []
     histories: dict[str, list[dict[str, float]]] = {}
     final_histories: dict[str, list[dict[str, float]]] = {}
-    test_per_seed: list[dict[str, Any]] = []
+    test_runs: list[dict[str, Any]] = []
+    per_split: list[dict[str, float]] = []
+    split_records: list[dict[str, Any]] = []
+    baseline_runs: dict[str, dict[str, list]] = {n: {"val_accuracy": [], "test": [], "test_per_split": []} for n in BASELINE_NAMES}
     prediction_rows: list[dict[str, Any]] = []
-    checkpoint_name = None
-    num_parameters = None
-    for seed_index, seed in enumerate(seeds):
-        fold_results = []
-        last_model = None
-        for fold_index, (train_idx, val_idx) in enumerate(folds):
-            seed_everything(seed, config.deterministic)  # the same initial weights on every fold
-            model = _build(dataset, name, params)
-            callback = on_epoch_end if seed_index == 0 and fold_index == 0 else None
-            result = fit(
-                model, ArraySplit.from_dataset(dataset, train_idx), ArraySplit.from_dataset(dataset, val_idx),
-                config, seed=seed, on_epoch_end=callback,
-            )
-            fold_results.append(result)
-            last_model = model
-            if fold_index == 0:
-                histories[f"seed {seed}"] = result.history
-        best_epochs = [r.best_epoch for r in fold_results]
-        epochs = max(1, int(round(float(np.median(best_epochs)))))
-        val_records.append(
-            {
-                "seed": seed,
-                "mcc": float(np.mean([r.best_val_mcc for r in fold_results])),
-                "accuracy": float(np.mean([r.history[r.best_epoch - 1]["val_accuracy"] for r in fold_results])),
-                "best_epoch": epochs,
-                "fold_best_epochs": best_epochs,
-                "fold_mcc": [r.best_val_mcc for r in fold_results],
-                "epochs_run": [r.epochs_run for r in fold_results],
-                "stopped_early": [r.stopped_early for r in fold_results],
-            }
-        )
-
-        if config.final_retrain or last_model is None:
-            seed_everything(seed, config.deterministic)  # same initial weights as the validation run
-            final_model = _build(dataset, name, params)
-            final = fit_final(final_model, train_val, test, config, epochs=epochs, seed=seed)
-            y_pred = final.y_pred
-            final_histories[f"seed {seed}"] = final.fit.history
-        else:
-            if is_cv:
-                raise ValueError("trainer.final_retrain=false needs a hold-out split (cv5 has no single model to test)")
-            final_model = last_model
-            y_pred = final_model.predict(test.X, test.mask)
-        metrics = classification_metrics(test.y, y_pred, dataset.label_names)
-        metrics["seed"] = seed
-        test_per_seed.append(metrics)
+    checkpoint_name, num_parameters, learning_curve = None, None, []
+    is_cv = False
+    total_runs = len(views) * len(seeds)
+    for split_index, (split_seed, view) in enumerate(views):
+        folds = validation_folds(view)
+        is_cv = "folds" in view.splits
+        train_val = ArraySplit.from_dataset(view, view.splits["train+val"])
+        test_idx = np.asarray(view.splits["test"], dtype=np.int64)
+        test = ArraySplit.from_dataset(view, test_idx)
+        if len(test) == 0:
+            raise ValueError(f"dataset '{view.property}': the 'test' split of split seed {split_seed} is empty")
+        sizes = {"train": int(len(folds[0][0])), "val": int(len(folds[0][1])), "train+val": len(train_val), "test": len(test)}
+        split_records.append({"index": split_index, "seed": split_seed, "sizes": sizes, "clips": len(view.y)})
         log.info(
-            "seed %d: val MCC %.3f (best epoch %d) -> test acc %.3f [%.3f, %.3f], balanced %.3f, MCC %.3f",
-            seed, val_records[-1]["mcc"], epochs, metrics["accuracy"], metrics["accuracy_ci_low"],
-            metrics["accuracy_ci_high"], metrics["balanced_accuracy"], metrics["mcc"],
+            "recognition '%s' on %s, split %d/%d (seed %d): %d classes, X %s, train+val %d, test %d, %s, seeds %s",
+            name, view.property, split_index + 1, len(views), split_seed, view.num_classes, tuple(view.X.shape),
+            len(train_val), len(test), f"{len(folds)}-fold cv" if is_cv else f"hold-out (train {sizes['train']}, val {sizes['val']})",
+            seeds,
         )
-        for row_index, predicted in zip(test_idx, y_pred):
-            true = int(dataset.y[row_index])
-            prediction_rows.append(
+        split_tests = []
+        for seed_index, seed in enumerate(seeds):
+            run_key = f"seed {seed}" if len(views) == 1 else f"split {split_index} seed {seed}"
+            fold_results = []
+            last_model = None
+            for fold_index, (train_idx, val_idx) in enumerate(folds):
+                seed_everything(seed, config.deterministic)  # the same initial weights on every fold
+                model = _build(view, name, params)
+                first = split_index == 0 and seed_index == 0 and fold_index == 0
+                result = fit(
+                    model, ArraySplit.from_dataset(view, train_idx), ArraySplit.from_dataset(view, val_idx),
+                    config, seed=seed, on_epoch_end=on_epoch_end if first else None, learning_curve=first,
+                )
+                fold_results.append(result)
+                last_model = model
+                if first:
+                    learning_curve = result.curve
+                if fold_index == 0:
+                    histories[run_key] = result.history
+            epochs, fold_epochs = _retrain_budget(fold_results, config)
+            val_records.append(
                 {
-                    "video_id": dataset.video_ids[row_index], "true": dataset.label_names[true],
-                    "predicted": dataset.label_names[int(predicted)], "seed": seed, "correct": int(true == int(predicted)),
+                    "split": split_index, "seed": seed, "metric": metric,
+                    "score": float(np.mean([r.best_val_score for r in fold_results])),
+                    "mcc": float(np.mean([r.best_val_mcc for r in fold_results])),
+                    "accuracy": float(np.mean([r.history[r.best_epoch - 1]["val_accuracy"] for r in fold_results])),
+                    "best_epoch": epochs,
+                    "fold_best_epochs": [r.best_epoch for r in fold_results],
+                    "fold_budget_epochs": fold_epochs,
+                    "fold_score": [r.best_val_score for r in fold_results],
+                    "fold_mcc": [r.best_val_mcc for r in fold_results],
+                    "epochs_run": [r.epochs_run for r in fold_results],
+                    "stopped_early": [r.stopped_early for r in fold_results],
                 }
             )
-        if seed_index == 0:
-            checkpoint_name = "model" + final_model.checkpoint_suffix
-            save_checkpoint(
-                final_model, out_dir / checkpoint_name,
-                extra={"seed": seed, "epochs": epochs, "label_names": list(dataset.label_names), "property": dataset.property},
+
+            if config.final_retrain or last_model is None:
+                seed_everything(seed, config.deterministic)  # same initial weights as the validation run
+                final_model = _build(view, name, params)
+                final = fit_final(final_model, train_val, test, config, epochs=epochs, seed=seed)
+                y_pred = final.y_pred
+                final_histories[run_key] = final.fit.history
+            else:
+                if is_cv:
+                    raise ValueError("trainer.final_retrain=false needs a hold-out split (cv5 has no single model to test)")
+                final_model = last_model
+                y_pred = final_model.predict(test.X, test.mask)
+            metrics = classification_metrics(test.y, y_pred, view.label_names)
+            metrics.update(split=split_index, seed=seed)
+            test_runs.append(metrics)
+            split_tests.append(metrics)
+            log.info(
+                "run %d/%d (split %d, seed %d): val %s %.3f (epochs %d) -> test acc %.3f, balanced %.3f, MCC %.3f  [%.0fs]",
+                len(test_runs), total_runs, split_index, seed, metric, val_records[-1]["score"], epochs,
+                metrics["accuracy"], metrics["balanced_accuracy"], metrics["mcc"], time.perf_counter() - start,
             )
-            if isinstance(final_model, TorchClassifier):
-                num_parameters = final_model.num_parameters()
+            for row_index, predicted in zip(test_idx, y_pred):
+                true = int(view.y[row_index])
+                prediction_rows.append(
+                    {
+                        "video_id": view.video_ids[row_index], "true": view.label_names[true],
+                        "predicted": view.label_names[int(predicted)], "split": split_index, "seed": seed,
+                        "correct": int(true == int(predicted)),
+                    }
+                )
+            if checkpoint_name is None:
+                checkpoint_name = "model" + final_model.checkpoint_suffix
+                save_checkpoint(
+                    final_model, out_dir / checkpoint_name,
+                    extra={"seed": seed, "split": split_index, "split_seed": split_seed, "epochs": epochs,
+                           "label_names": list(view.label_names), "property": view.property},  # fmt: skip
+                )
+                if isinstance(final_model, TorchClassifier):
+                    num_parameters = final_model.num_parameters()
+        per_split.append(aggregate_over_seeds(split_tests)[0])
+        for baseline, runs in _baseline_runs(view, folds, train_val, test, config, seeds).items():
+            baseline_runs[baseline]["val_accuracy"] += runs["val_accuracy"]
+            baseline_runs[baseline]["test"] += runs["test"]
+            baseline_runs[baseline]["test_per_split"].append(aggregate_over_seeds(runs["test"])[0])
 
-    test_mean, test_std = aggregate_over_seeds(test_per_seed)
-    test_mean.pop("seed", None)
-    test_std.pop("seed", None)
-    baseline = _test_baselines(dataset, train_val, test, config, seeds)
+    unit = "split" if len(views) > 1 else "seed"
+    units = per_split if unit == "split" else [scalar_metrics(m) for m in test_runs]
+    test_mean, test_std = aggregate_over_seeds(units)
+    test_interval = {key: mean_interval([u[key] for u in units]) for key in KEY_METRICS}
+
+    baselines: dict[str, Any] = {}
+    for baseline, runs in baseline_runs.items():
+        base_units = runs["test_per_split"] if unit == "split" else [scalar_metrics(m) for m in runs["test"]]
+        mean, std = aggregate_over_seeds(base_units)
+        baselines[baseline] = {
+            "val_accuracy": float(np.mean(runs["val_accuracy"])), "test": mean, "test_std": std,
+            "test_interval": {key: mean_interval([u[key] for u in base_units]) for key in KEY_METRICS},
+            "test_per_split": base_units,
+        }
+    chosen = max(BASELINE_NAMES, key=lambda b: baselines[b]["val_accuracy"])  # ties: majority
+    paired = {key: paired_comparison([u[key] for u in units], [u[key] for u in baselines[chosen]["test_per_split"]])
+              for key in KEY_METRICS}  # fmt: skip
+    below = {key: bool(test_mean[key] < baselines[chosen]["test"][key]) for key in KEY_METRICS}
+
+    val_scores = [record["score"] for record in val_records]
     val_mcc = [record["mcc"] for record in val_records]
-    total_matrix = np.sum([m["confusion_matrix"] for m in test_per_seed], axis=0)
+    total_matrix = np.sum([m["confusion_matrix"] for m in test_runs], axis=0)
 
-    _write_per_class(out_dir / PER_CLASS_FILE, test_per_seed)
+    _write_per_class(out_dir / PER_CLASS_FILE, test_runs)
     _write_predictions(out_dir / PREDICTIONS_FILE, prediction_rows)
-    plot_confusion_matrix(
-        total_matrix, dataset.label_names, out_dir / CONFUSION_FILE,
-        title=f"{name} on {dataset.property}: test, {len(seeds)} seed(s), row-normalised",
-    )
-    plot_learning_curves(histories, out_dir / CURVES_FILE, title=f"{name} on {dataset.property} (validation runs)")
+    _plots(out_dir, name, dataset.property, label_names, total_matrix, len(test_runs), histories, learning_curve, metric)
 
     elapsed = time.perf_counter() - start
     log.info(
-        "%s on %s: val MCC %.3f +- %.3f, test acc %.3f +- %.3f (baseline %s %.3f), %.1fs",
-        name, dataset.property, float(np.mean(val_mcc)), _std(val_mcc), test_mean["accuracy"], test_std["accuracy"],
-        baseline["name"], baseline["test"]["accuracy"], elapsed,
+        "%s on %s: val %s %.3f +- %.3f, test MCC %.3f +- %.3f over %d %s(s) (baseline %s %.3f), %.1fs",
+        name, dataset.property, metric, float(np.mean(val_scores)), _std(val_scores), test_mean["mcc"],
+        test_std["mcc"], len(units), unit, chosen, baselines[chosen]["test"]["mcc"], elapsed,
     )
+    first_sizes = split_records[0]["sizes"]
     return {
         "property": dataset.property,
         "classifier": name,
         "params": params,
         "trainer": config.to_dict(),
+        "split_options": dict(options.__dict__),
         "seeds": seeds,
         "validation": "cv5" if is_cv else "holdout",
-        "num_folds": len(folds),
-        "split_sizes": {"train": int(len(folds[0][0])), "val": int(len(folds[0][1])), "train+val": len(train_val), "test": len(test)},
-        "label_names": list(dataset.label_names),
+        "num_folds": len(validation_folds(views[0][1])),
+        "split_sizes": first_sizes,
+        "splits": split_records,
+        "statistics_unit": unit,
+        "label_names": label_names,
+        "layout": {"name": dataset.layout.name, "nodes": list(dataset.layout.names), "channels": list(dataset.channels)},
         "num_parameters": num_parameters,
+        "device": device_record,
+        "objective": {"name": f"val_{metric}", "value": float(np.mean(val_scores))},
         "val_mcc": float(np.mean(val_mcc)),
         "val_mcc_std": _std(val_mcc),
         "val": val_records,
         "test": test_mean,
         "test_std": test_std,
-        "test_per_seed": test_per_seed,
+        "test_interval": test_interval,
+        "test_per_split": per_split,
+        "test_per_seed": test_runs,
         "test_confusion_matrix_total": total_matrix.astype(int).tolist(),
-        "baseline": {"name": baseline["name"], "test": baseline["test"], "test_std": baseline["test_std"]},
-        "baselines": baseline["all"],
+        "baseline": {**baselines[chosen], "name": chosen, "selected_by": "validation accuracy",
+                     "val_accuracy": {b: baselines[b]["val_accuracy"] for b in BASELINE_NAMES}},  # fmt: skip
+        "baselines": baselines,
+        "paired_vs_baseline": paired,
+        "below_baseline": below,
         "history": histories,
         "final_history": final_histories,
+        "learning_curve": learning_curve,
         "files": {
             "per_class": PER_CLASS_FILE, "predictions": PREDICTIONS_FILE, "confusion_matrix": CONFUSION_FILE,
             "learning_curves": CURVES_FILE, "checkpoint": checkpoint_name,
@@ -274,30 +389,48 @@ def run_recognition(
     }
 
 
+def _plots(out_dir: Path, name: str, prop: str, label_names: list[str], matrix: np.ndarray, runs: int,
+           histories: dict, learning_curve: list, metric: str) -> None:  # fmt: skip
+    """The run's two plots; skipped with a warning where matplotlib is not installed (a bare GPU
+    node): every number they show is in metrics.json."""
+    try:
+        from aslexp.viz.plots import plot_confusion_matrix, plot_learning_curves
+    except ImportError as error:
+        log.warning("no plots (%s); the numbers are in metrics.json", error)
+        return
+    plot_confusion_matrix(matrix, label_names, out_dir / CONFUSION_FILE,
+                          title=f"{name} on {prop}: test, {runs} run(s) summed")  # fmt: skip
+    plot_learning_curves(histories, out_dir / CURVES_FILE, title=f"{name} on {prop} (validation runs)",
+                         data_curve=learning_curve, metric=metric)  # fmt: skip
+
+
 def _std(values: Sequence[float]) -> float:
     return float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
 
 
-def _write_per_class(path: Path, test_per_seed: Sequence[Mapping[str, Any]]) -> None:
-    """Per-class test metrics per seed, then their mean over seeds (seed = 'mean')."""
-    columns = ["seed", "label", "support", "predicted", "correct", "accuracy", "precision", "recall", "f1"]
-    rows = [{"seed": m["seed"], **row} for m in test_per_seed for row in m["per_class"]]
-    labels = [row["label"] for row in test_per_seed[0]["per_class"]]
+PER_CLASS_COLUMNS = ["split", "seed", "label", "support", "predicted", "correct", "thesis_a", "precision", "recall", "f1"]
+
+
+def _write_per_class(path: Path, test_runs: Sequence[Mapping[str, Any]]) -> None:
+    """Per-class test metrics per run (split, seed), then their mean over runs (seed = 'mean').
+    ``thesis_a`` is the thesis' per-class A = TP_c / N_test (Table 4.4); ``recall`` = TP_c / n_c."""
+    rows = [{"split": m["split"], "seed": m["seed"], **row} for m in test_runs for row in m["per_class"]]
+    labels = [row["label"] for row in test_runs[0]["per_class"]]
     for index, label in enumerate(labels):
-        per_seed = [m["per_class"][index] for m in test_per_seed]
-        mean_row: dict[str, Any] = {"seed": "mean", "label": label}
-        for key in columns[2:]:
-            values = [row[key] for row in per_seed if not (isinstance(row[key], float) and math.isnan(row[key]))]
+        per_run = [m["per_class"][index] for m in test_runs]
+        mean_row: dict[str, Any] = {"split": "all", "seed": "mean", "label": label}
+        for key in PER_CLASS_COLUMNS[3:]:
+            values = [row[key] for row in per_run if not (isinstance(row[key], float) and math.isnan(row[key]))]
             mean_row[key] = float(np.mean(values)) if values else math.nan
         rows.append(mean_row)
     with path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=columns, extrasaction="ignore")
+        writer = csv.DictWriter(handle, fieldnames=PER_CLASS_COLUMNS)
         writer.writeheader()
         writer.writerows(rows)
 
 
 def _write_predictions(path: Path, rows: Sequence[Mapping[str, Any]]) -> None:
     with path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=["video_id", "true", "predicted", "seed", "correct"])
+        writer = csv.DictWriter(handle, fieldnames=["video_id", "true", "predicted", "split", "seed", "correct"])
         writer.writeheader()
         writer.writerows(rows)

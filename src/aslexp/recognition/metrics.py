@@ -43,6 +43,25 @@ def mcc(y_true: Sequence[int], y_pred: Sequence[int]) -> float:
         return float(matthews_corrcoef(y_true, y_pred))
 
 
+def selection_score(y_true: Sequence[int], y_pred: Sequence[int], metric: str) -> float:
+    """One validation score: mcc | accuracy | balanced_accuracy | f1_micro | f1_macro (macro over
+    the classes present in y_true or y_pred; NaN on an empty set)."""
+    y_true, y_pred = np.asarray(y_true), np.asarray(y_pred)
+    if len(y_true) == 0:
+        return math.nan
+    if metric == "mcc":
+        return mcc(y_true, y_pred)
+    if metric == "accuracy":
+        return float((y_true == y_pred).mean())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        if metric == "balanced_accuracy":
+            return float(balanced_accuracy_score(y_true, y_pred))
+        if metric in ("f1_micro", "f1_macro"):
+            return float(precision_recall_fscore_support(y_true, y_pred, average=metric[3:], zero_division=0)[2])
+    raise ValueError(f"unknown selection metric {metric!r}; expected mcc, accuracy, balanced_accuracy, f1_micro or f1_macro")
+
+
 def classification_metrics(y_true: Sequence[int], y_pred: Sequence[int], label_names: Sequence[str]) -> dict[str, Any]:
     """All single-model metrics of one prediction of a labelled set.
 
@@ -82,7 +101,11 @@ def classification_metrics(y_true: Sequence[int], y_pred: Sequence[int], label_n
     per_class = per_class_metrics(matrix, label_names)
     result["per_class"] = per_class
     result["cardinality_accuracy"] = cardinality_accuracy_correlation(
-        [row["support"] for row in per_class], [row["accuracy"] for row in per_class]
+        [row["support"] for row in per_class], [row["recall"] for row in per_class]
+    )
+    # The thesis' Pearson r (section 4.4) is against its per-class "A" = TP_c / N_test.
+    result["cardinality_thesis_a"] = cardinality_accuracy_correlation(
+        [row["support"] for row in per_class], [row["thesis_a"] for row in per_class]
     )
     return result
 
@@ -91,12 +114,15 @@ def per_class_metrics(matrix: np.ndarray, label_names: Sequence[str]) -> list[di
     """One dict per class from a confusion matrix (rows true, columns predicted).
 
     ``support`` = number of true items of the class (its cardinality in the evaluated set);
-    ``accuracy`` = share of them classified correctly (= recall; the thesis' per-class accuracy);
-    ``precision`` = share of the items predicted as the class that are of the class;
-    ``f1`` = 2TP / (support + predicted); ``predicted`` = how often the class was predicted.
+    ``recall`` = share of them classified correctly; ``thesis_a`` = TP_c / N, the share of the
+    whole evaluated set that is of class c and classified correctly: the thesis' per-class "A" of
+    Table 4.4 (THESIS.md 2.5), which sums over classes to the accuracy and is proportional to
+    the cardinality; ``precision`` = share of the items predicted as the class that are of the
+    class; ``f1`` = 2TP / (support + predicted); ``predicted`` = how often the class was predicted.
     NaN where the denominator is 0.
     """
     matrix = np.asarray(matrix)
+    total = int(matrix.sum())
     rows = []
     for index, name in enumerate(label_names):
         true_positive = int(matrix[index, index])
@@ -109,7 +135,8 @@ def per_class_metrics(matrix: np.ndarray, label_names: Sequence[str]) -> list[di
         rows.append(
             {
                 "label": str(name), "support": support, "predicted": predicted, "correct": true_positive,
-                "accuracy": recall, "precision": precision, "recall": recall, "f1": f1,
+                "thesis_a": true_positive / total if total else math.nan,
+                "precision": precision, "recall": recall, "f1": f1,
             }
         )
     return rows
@@ -145,12 +172,18 @@ def scalar_metrics(metrics: Mapping[str, Any]) -> dict[str, float]:
     }
 
 
+# Per-run Wald bounds are intervals of one run's accuracy; averaging them over runs is not an
+# interval of anything, so aggregation leaves them out (use :func:`mean_interval`).
+PER_RUN_ONLY = frozenset({"accuracy_ci_low", "accuracy_ci_high", "seed", "split"})
+
+
 def aggregate_over_seeds(per_seed: Sequence[Mapping[str, Any]]) -> tuple[dict[str, float], dict[str, float]]:
-    """Mean and standard deviation (sample, ddof=1; 0 for one seed) of every scalar metric."""
+    """Mean and standard deviation (sample, ddof=1; 0 for one run) of every scalar metric over
+    runs (seeds or splits). Per-run interval bounds are not aggregated (see ``PER_RUN_ONLY``)."""
     scalars = [scalar_metrics(metrics) for metrics in per_seed]
     if not scalars:
         return {}, {}
-    keys = [key for key in scalars[0] if all(key in s for s in scalars)]
+    keys = [key for key in scalars[0] if key not in PER_RUN_ONLY and all(key in s for s in scalars)]
     mean, std = {}, {}
     for key in keys:
         values = np.array([s[key] for s in scalars], dtype=np.float64)
@@ -163,6 +196,51 @@ def aggregate_over_seeds(per_seed: Sequence[Mapping[str, Any]]) -> tuple[dict[st
         mean["cardinality_accuracy_r"] = float(np.mean(values))
         std["cardinality_accuracy_r"] = float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
     return mean, std
+
+
+def mean_interval(values: Sequence[float], confidence: float = 0.95) -> dict[str, float]:
+    """Mean, sample std and the two-sided t interval of the mean over independent runs (splits).
+
+    ``half_width`` = t_{n-1, (1+confidence)/2} * std / sqrt(n); NaN bounds for n < 2 (one split
+    says nothing about the spread). NaN values are left out and counted in ``n_missing``.
+    """
+    array = np.asarray([v for v in values if v is not None], dtype=np.float64)
+    finite = array[np.isfinite(array)]
+    n = len(finite)
+    result = {"mean": math.nan, "std": math.nan, "n": n, "low": math.nan, "high": math.nan,
+              "half_width": math.nan, "n_missing": int(len(array) - n)}  # fmt: skip
+    if n == 0:
+        return result
+    result["mean"] = float(finite.mean())
+    if n >= 2:
+        std = float(finite.std(ddof=1))
+        half = float(stats.t.ppf(0.5 + confidence / 2, n - 1) * std / math.sqrt(n))
+        result.update(std=std, half_width=half, low=result["mean"] - half, high=result["mean"] + half)
+    return result
+
+
+def paired_comparison(model: Sequence[float], reference: Sequence[float], confidence: float = 0.95) -> dict[str, Any]:
+    """Model minus reference on the same splits: the mean difference with its t interval, the
+    Wilcoxon signed-rank test (two-sided; exact for small n, zero differences split), and the
+    counts of splits won, tied and lost. ``resolved`` is +1 / -1 when the interval lies above /
+    below 0, else 0."""
+    a, b = np.asarray(model, dtype=np.float64), np.asarray(reference, dtype=np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"paired comparison needs one value per split for both, got {a.shape} and {b.shape}")
+    keep = np.isfinite(a) & np.isfinite(b)
+    diff = a[keep] - b[keep]
+    interval = mean_interval(diff, confidence)
+    result: dict[str, Any] = {"diff": interval, "wins": int((diff > 0).sum()), "ties": int((diff == 0).sum()),
+                              "losses": int((diff < 0).sum()), "wilcoxon_p": math.nan, "resolved": 0}  # fmt: skip
+    if len(diff) >= 2 and np.any(diff != 0):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result["wilcoxon_p"] = float(stats.wilcoxon(diff, zero_method="zsplit").pvalue)
+    elif len(diff) >= 2:
+        result["wilcoxon_p"] = 1.0
+    if math.isfinite(interval["low"]):
+        result["resolved"] = 1 if interval["low"] > 0 else -1 if interval["high"] < 0 else 0
+    return result
 
 
 # --- Across models ---------------------------------------------------------------------------
@@ -228,8 +306,9 @@ def misclassification_agreement(
     return result
 
 
-def mutual_misclassification(results: Mapping[str, tuple[Sequence[str], Sequence[bool]]]) -> dict[str, Any]:
-    """How often a clip misclassified for one property is also misclassified for another.
+def pairwise_error_overlap(results: Mapping[str, tuple[Sequence[str], Sequence[bool]]]) -> dict[str, Any]:
+    """How often a clip misclassified for one property is also misclassified for another (one
+    model; not the thesis' "mutual misclassification", see :func:`mutual_misclassification`).
 
     ``results``: property -> (video_ids, correct flags) of one model's test predictions. For each
     ordered pair (a, b) over the clips present in both: ``rate`` = |wrong in a and wrong in b| /
@@ -256,3 +335,33 @@ def mutual_misclassification(results: Mapping[str, tuple[Sequence[str], Sequence
             rate[a][b] = len(wrong_both) / len(wrong_a) if wrong_a else math.nan
             counts[a][b] = {"common": len(common), "wrong_a": len(wrong_a), "wrong_both": len(wrong_both)}
     return {"properties": names, "rate": rate, "counts": counts}
+
+
+def mutual_misclassification(
+    test_sets: Mapping[str, Mapping[str, Mapping[str, bool]]], sizes: Sequence[int] = (2, 3)
+) -> dict[str, Any]:
+    """The thesis' mutual misclassification (section 4.4, THESIS.md 2.1): the share of the clips
+    that are in the test sets of m tasks and are misclassified by all models for all those tasks.
+
+    ``test_sets``: task (property) -> model -> video_id -> correct, every model of a task on that
+    task's test set. A clip is "in the test sets of m tasks" when exactly m tasks test it (our
+    reading of "in the test sets of 2 (3) tasks"); it counts as mutually misclassified when, for
+    each of those tasks, every model got it wrong. For each m in ``sizes``: ``clips`` (in exactly m
+    test sets), ``all_wrong`` and ``share`` (NaN without such clips).
+    """
+    tested: dict[str, list[str]] = {}
+    all_wrong: dict[str, dict[str, bool]] = {}
+    for task, models in test_sets.items():
+        if not models:
+            continue
+        common = set.intersection(*(set(preds) for preds in models.values()))
+        all_wrong[task] = {vid: all(not models[m][vid] for m in models) for vid in common}
+        for vid in common:
+            tested.setdefault(vid, []).append(task)
+    result: dict[str, Any] = {"tasks": sorted(all_wrong), "models": {t: sorted(test_sets[t]) for t in sorted(all_wrong)}}
+    for size in sizes:
+        clips = [vid for vid, tasks in tested.items() if len(tasks) == size]
+        wrong = [vid for vid in clips if all(all_wrong[t][vid] for t in tested[vid])]
+        result[str(size)] = {"clips": len(clips), "all_wrong": len(wrong),
+                             "share": len(wrong) / len(clips) if clips else math.nan}  # fmt: skip
+    return result

@@ -1,6 +1,14 @@
-"""Tables of recognition runs laid out as in the thesis: models x properties, per split.
+"""Tables of recognition runs: the platform's table with intervals and paired comparisons, and the
+thesis' layouts (Table 3.4, Tables 4.2/4.3, Table C.2).
 
-Plots for single runs live in :mod:`aslexp.viz.plots`; they are re-exported here.
+Every function takes *cells*: ``{"model", "property", "split", "metrics"}`` with ``metrics`` a run's
+metrics.json (as :func:`aslexp.recognition.experiment.run_recognition` returns it). Numbers are
+fractions (the thesis prints percentages; the thesis layouts here print percentages too).
+
+Intervals. With K > 1 splits the unit is the split: mean over splits, 95% t interval of the mean.
+With one split the thesis' own interval is shown where it has one (Tables 4.2/4.3: the Wald
+interval of that split's accuracy) and mean ± std over model seeds where it reports that
+(Table 3.4). An interval is never an average of per-run intervals.
 """
 
 from __future__ import annotations
@@ -8,87 +16,304 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections import defaultdict
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from aslexp.viz.plots import plot_confusion_matrix, plot_learning_curves
+from aslexp.recognition.metrics import mean_interval, paired_comparison
 
-__all__ = ["collect_table", "plot_confusion_matrix", "plot_learning_curves"]
+__all__ = [
+    "BELOW_BASELINE",
+    "collect_table",
+    "comparisons",
+    "comparisons_markdown",
+    "thesis_c2_table",
+    "thesis_ch3_table",
+    "thesis_ch4_table",
+]
+
+BELOW_BASELINE = "▼"  # the model's mean is below its chance baseline's mean on the same splits
+FEATURE_BASELINES = ("rf", "hgb", "logreg", "svm")  # candidates for the strongest simple baseline
+THESIS_PROPERTY_ORDER = ("flexion", "major_location", "minor_location", "movement", "selected_fingers", "sign_type")
+THESIS_NAMES = {"flexion": "Flexion", "major_location": "MajLoc", "minor_location": "MinLoc", "movement": "Movement",
+                "selected_fingers": "Fingers", "sign_type": "SignType"}  # fmt: skip
+
+
+MODEL_ORDER = ("majority", "stratified", "logreg", "svm", "rf", "hgb", "mlp", "lstm", "gru", "stgcn", "slgcn", "cnn3d")
+SPLIT_ORDER = ("phoneme", "gloss", "cv5")
+PROPERTY_ORDER = ("sign_type", "major_location", "minor_location", "selected_fingers", "flexion", "movement")
 
 
 def _ordered_unique(values: Sequence[str]) -> list[str]:
-    return list(dict.fromkeys(values))
+    """Distinct values, the known ones (splits, models, properties) in their usual order first."""
+    unique = list(dict.fromkeys(values))
+    for order in (SPLIT_ORDER, MODEL_ORDER, PROPERTY_ORDER, THESIS_PROPERTY_ORDER):
+        if any(value in order for value in unique):
+            known = [v for v in order if v in unique]
+            return known + [v for v in unique if v not in known]
+    return unique
 
 
 def _number(value: Any) -> float:
-    return math.nan if value is None else float(value)
+    try:
+        return math.nan if value is None else float(value)
+    except (TypeError, ValueError):
+        return math.nan
 
 
-def _fmt(value: float) -> str:
-    return "-" if math.isnan(value) else f"{value:.3f}"
-
-
-def collect_table(rows: Sequence[Mapping[str, Any]]) -> tuple[str, str]:
-    """Lay runs out as the thesis' recognition table: (markdown, csv).
-
-    Each row: ``{"model": str, "property": str, "split": str, "metrics": {...}}`` where metrics
-    holds ``accuracy``, ``accuracy_ci_low``, ``accuracy_ci_high`` and ``balanced_accuracy``
-    (e.g. ``run_recognition(...)["test"]``, or ``["baseline"]["test"]`` with model 'baseline').
-
-    One table row per (split, model), in first-appearance order; per property two columns:
-    accuracy with its 95% CI half-width ("0.512 ± 0.061") and balanced accuracy. Missing
-    combinations show '-'. The CSV has the same layout with separate numeric columns
-    ``<property>_accuracy``, ``_accuracy_ci_low``, ``_accuracy_ci_high``, ``_balanced_accuracy``.
-    """
-    cells: dict[tuple[str, str, str], Mapping[str, Any]] = {}
-    for row in rows:
-        missing = [key for key in ("model", "property", "split", "metrics") if key not in row]
-        if missing:
-            raise ValueError(f"table row lacks {missing}: {dict(row)}")
-        key = (str(row["split"]), str(row["model"]), str(row["property"]))
-        if key in cells:
-            raise ValueError(f"two rows for split={key[0]}, model={key[1]}, property={key[2]}")
-        cells[key] = row["metrics"]
-
-    splits = _ordered_unique([key[0] for key in cells])
-    models = _ordered_unique([key[1] for key in cells])
-    properties = _ordered_unique([key[2] for key in cells])
-
-    header = ["split", "model"]
-    for prop in properties:
-        header += [f"{prop} acc (95% CI)", f"{prop} bal. acc"]
-    markdown = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-
-    csv_header = ["split", "model"]
-    for prop in properties:
-        csv_header += [f"{prop}_accuracy", f"{prop}_accuracy_ci_low", f"{prop}_accuracy_ci_high", f"{prop}_balanced_accuracy"]
-    buffer = io.StringIO()
-    writer = csv.writer(buffer, lineterminator="\n")
-    writer.writerow(csv_header)
-
-    for split in splits:
-        for model in models:
-            if not any((split, model, prop) in cells for prop in properties):
-                continue
-            md_cells, csv_cells = [split, model], [split, model]
-            for prop in properties:
-                metrics = cells.get((split, model, prop), {})
-                accuracy = _number(metrics.get("accuracy"))
-                low, high = _number(metrics.get("accuracy_ci_low")), _number(metrics.get("accuracy_ci_high"))
-                balanced = _number(metrics.get("balanced_accuracy"))
-                if math.isnan(accuracy):
-                    md_cells.append("-")
-                elif math.isnan(low) or math.isnan(high):
-                    md_cells.append(_fmt(accuracy))
-                else:
-                    md_cells.append(f"{accuracy:.3f} ± {(high - low) / 2:.3f}")
-                md_cells.append(_fmt(balanced))
-                csv_cells += [repr_float(accuracy), repr_float(low), repr_float(high), repr_float(balanced)]
-            markdown.append("| " + " | ".join(md_cells) + " |")
-            writer.writerow(csv_cells)
-    return "\n".join(markdown) + "\n", buffer.getvalue()
+def _fmt(value: float, digits: int = 3) -> str:
+    return "-" if math.isnan(value) else f"{value:.{digits}f}"
 
 
 def repr_float(value: float) -> str:
     """A CSV cell: empty for NaN, else the shortest exact float text."""
     return "" if math.isnan(value) else repr(float(value))
+
+
+def _index(cells: Sequence[Mapping[str, Any]]) -> dict[tuple[str, str, str], Mapping[str, Any]]:
+    index: dict[tuple[str, str, str], Mapping[str, Any]] = {}
+    for cell in cells:
+        missing = [key for key in ("model", "property", "split", "metrics") if key not in cell]
+        if missing:
+            raise ValueError(f"table cell lacks {missing}: {dict(cell)}")
+        key = (str(cell["split"]), str(cell["model"]), str(cell["property"]))
+        if key in index:
+            raise ValueError(f"two runs for split={key[0]}, model={key[1]}, property={key[2]}")
+        index[key] = cell["metrics"]
+    return index
+
+
+def unit_values(metrics: Mapping[str, Any], key: str, baseline: bool = False) -> list[float]:
+    """The per-unit test values of ``key``: per split (K > 1) or per model seed (one split)."""
+    source = metrics["baseline"] if baseline else metrics
+    if metrics.get("statistics_unit", "seed") == "split":
+        return [_number(unit.get(key)) for unit in source.get("test_per_split", [])]
+    if baseline:
+        return [_number(unit.get(key)) for unit in source.get("test_per_split", [])] or [_number(source["test"].get(key))]
+    return [_number(run.get(key)) for run in metrics.get("test_per_seed", [])]
+
+
+def _interval(metrics: Mapping[str, Any], key: str, baseline: bool = False) -> dict[str, float]:
+    return mean_interval(unit_values(metrics, key, baseline))
+
+
+def collect_table(cells: Sequence[Mapping[str, Any]], metric: str = "mcc") -> tuple[str, str]:
+    """The platform's table: one row per (split, model), then the chance baseline (the one chosen by
+    validation in each run) per split; per property ``metric`` as "mean ± t half-width (n)" over
+    the units and the balanced accuracy; ▼ marks a mean below the baseline's. Returns (markdown, csv).
+    """
+    index = _index(cells)
+    splits = _ordered_unique([k[0] for k in index])
+    models = _ordered_unique([k[1] for k in index])
+    properties = _ordered_unique([k[2] for k in index])
+    header = ["split", "model"]
+    for prop in properties:
+        header += [f"{prop} {metric} (95% CI)", f"{prop} bal. acc"]
+    markdown = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    csv_header = ["split", "model"]
+    for prop in properties:
+        csv_header += [f"{prop}_{metric}", f"{prop}_{metric}_ci_low", f"{prop}_{metric}_ci_high", f"{prop}_n",
+                       f"{prop}_balanced_accuracy", f"{prop}_below_baseline"]  # fmt: skip
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(csv_header)
+
+    def cell_texts(metrics: Mapping[str, Any] | None, baseline: bool) -> tuple[list[str], list[str]]:
+        if metrics is None:
+            return ["-", "-"], ["", "", "", "", "", ""]
+        interval = _interval(metrics, metric, baseline)
+        balanced = _interval(metrics, "balanced_accuracy", baseline)["mean"]
+        below = (not baseline) and bool(metrics.get("below_baseline", {}).get(metric, False))
+        text = _fmt(interval["mean"])
+        if not math.isnan(interval["half_width"]):
+            text += f" ± {interval['half_width']:.3f}"
+        text += f" ({interval['n']})" + (f" {BELOW_BASELINE}" if below else "")
+        return ([text, _fmt(balanced)],
+                [repr_float(interval["mean"]), repr_float(interval["low"]), repr_float(interval["high"]),
+                 str(interval["n"]), repr_float(balanced), str(int(below))])  # fmt: skip
+
+    for split in splits:
+        rows = [(model, False) for model in models if any((split, model, p) in index for p in properties)]
+        rows.append(("baseline", True))
+        for model, is_baseline in rows:
+            md_cells, csv_cells = [split, model], [split, model]
+            for prop in properties:
+                if is_baseline:
+                    metrics = next((index[(split, m, prop)] for m in models if (split, m, prop) in index), None)
+                    name = metrics["baseline"]["name"] if metrics else "-"
+                else:
+                    metrics = index.get((split, model, prop))
+                texts, values = cell_texts(metrics, is_baseline)
+                if is_baseline and metrics is not None:
+                    texts[0] += f" [{name}]"
+                md_cells += texts
+                csv_cells += values
+            markdown.append("| " + " | ".join(md_cells) + " |")
+            writer.writerow(csv_cells)
+    note = (f"\n{metric} on the test sets: mean ± the half-width of the 95% t interval of the mean over the units "
+            f"(splits; model seeds when there is one split), (n) units; bal. acc = mean balanced accuracy; "
+            f"{BELOW_BASELINE} = mean below the chance baseline (chosen by validation accuracy, [name]).\n")  # fmt: skip
+    return "\n".join(markdown) + "\n" + note, buffer.getvalue()
+
+
+def _strongest_simple(index, split: str, prop: str) -> str | None:
+    """The feature/linear model with the best mean validation objective on (split, property)."""
+    candidates = [m for m in FEATURE_BASELINES if (split, m, prop) in index]
+    if not candidates:
+        return None
+    return max(candidates, key=lambda m: _number(index[(split, m, prop)].get("objective", {}).get("value",
+                                                  index[(split, m, prop)].get("val_mcc"))))  # fmt: skip
+
+
+def _split_seeds(metrics: Mapping[str, Any]) -> list[int]:
+    return [int(s["seed"]) for s in metrics.get("splits", [])]
+
+
+def comparisons(cells: Sequence[Mapping[str, Any]], metric: str = "mcc") -> list[dict[str, Any]]:
+    """Per (split, property, model): the paired difference in ``metric`` to the run's chance baseline
+    and to the strongest simple baseline (the best of rf/hgb/logreg/svm by validation), on the same
+    splits: mean difference, 95% t interval, wins/ties/losses, Wilcoxon p."""
+    index = _index(cells)
+    rows = []
+    for split, model, prop in index:
+        metrics = index[(split, model, prop)]
+        values = unit_values(metrics, metric)
+        chance = paired_comparison(values, unit_values(metrics, metric, baseline=True)) if len(values) == len(
+            unit_values(metrics, metric, baseline=True)) else None  # fmt: skip
+        reference = _strongest_simple(index, split, prop)
+        simple = None
+        if reference is not None and reference != model:
+            other = index[(split, reference, prop)]
+            other_values = unit_values(other, metric)
+            if _split_seeds(other) == _split_seeds(metrics) and len(other_values) == len(values):
+                simple = paired_comparison(values, other_values)
+        rows.append({"split": split, "property": prop, "model": model, "n": len(values),
+                     "mean": mean_interval(values)["mean"], "chance_baseline": metrics["baseline"]["name"],
+                     "vs_chance": chance, "strongest_simple": reference, "vs_simple": simple})  # fmt: skip
+    rows.sort(key=lambda r: (r["split"], r["property"], -_number(r["mean"])))
+    return rows
+
+
+def _diff_text(comparison: Mapping[str, Any] | None) -> str:
+    if comparison is None:
+        return "-"
+    diff = comparison["diff"]
+    text = f"{diff['mean']:+.3f}"
+    if not math.isnan(diff["low"]):
+        text += f" [{diff['low']:+.3f}, {diff['high']:+.3f}]"
+    mark = {1: " ▲", -1: " ▼", 0: ""}[comparison["resolved"]]
+    return f"{text}{mark} ({comparison['wins']}/{comparison['ties']}/{comparison['losses']}, p={_fmt(comparison['wilcoxon_p'], 2)})"
+
+
+def comparisons_markdown(rows: Sequence[Mapping[str, Any]], metric: str = "mcc") -> str:
+    lines = [f"| split | property | model | n | mean {metric} | vs chance baseline | vs strongest simple baseline |",
+             "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r in rows:
+        simple = f"{r['strongest_simple']}: {_diff_text(r['vs_simple'])}" if r["vs_simple"] else (r["strongest_simple"] or "-")
+        lines.append(f"| {r['split']} | {r['property']} | {r['model']} | {r['n']} | {_fmt(r['mean'])} | "
+                     f"{r['chance_baseline']}: {_diff_text(r['vs_chance'])} | {simple} |")  # fmt: skip
+    lines.append(f"\nModel minus reference in test {metric} on the same splits: mean [95% t interval] "
+                 "(wins/ties/losses over splits, Wilcoxon signed-rank p); ▲/▼: the interval lies above/below 0. "
+                 "The strongest simple baseline is the best of rf, hgb, logreg, svm by validation score.\n")  # fmt: skip
+    return "\n".join(lines)
+
+
+def _pct(value: float, digits: int = 1) -> str:
+    return "-" if math.isnan(value) else f"{100 * value:.{digits}f}"
+
+
+def _model_by_property_tables(index, props: list[str], columns: Sequence[str], label, cell) -> list[str]:
+    """Per split: a 'Baseline' row (the chance baseline of the runs) then one row per model; per
+    property the ``columns`` (headed ``label(prop) column``) filled by ``cell(metrics, is_baseline)``."""
+    lines = []
+    for split in _ordered_unique([k[0] for k in index]):
+        header = ["model"] + [f"{label(p)} {c}" for p in props for c in columns]
+        lines += [f"**{split} split**", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        models = _ordered_unique([k[1] for k in index if k[0] == split])
+        for model in ["Baseline", *models]:
+            is_base = model == "Baseline"
+            row = [model]
+            for prop in props:
+                metrics = index.get((split, model, prop)) if not is_base else next(
+                    (index[(split, m, prop)] for m in models if (split, m, prop) in index), None)  # fmt: skip
+                row += ["-"] * len(columns) if metrics is None else cell(metrics, is_base)
+            lines.append("| " + " | ".join(row) + " |")
+        lines.append("")
+    return lines
+
+
+def thesis_ch3_table(cells: Sequence[Mapping[str, Any]]) -> str:
+    """Table 3.4's layout: per model, micro-F1 and macro-F1 (%) as mean ± std over the units, for
+    major location and sign type (the properties present), with the Baseline row first."""
+    index = _index(cells)
+    props = [p for p in ("major_location", "sign_type") if any(k[2] == p for k in index)]
+
+    def cell(metrics: Mapping[str, Any], is_base: bool) -> list[str]:
+        texts = []
+        for key in ("f1_micro", "f1_macro"):
+            interval = _interval(metrics, key, baseline=is_base)
+            texts.append(f"{_pct(interval['mean'])} ± {_pct(0.0 if interval['n'] == 1 else interval['std'])}")
+        return texts
+
+    lines = _model_by_property_tables(index, props, ("micro-F1", "macro-F1"), str, cell)
+    lines.append("Mean ± std (%) over the units (model seeds on one split, as the thesis; splits when "
+                 "split.repeats > 1). Baseline = the chance baseline chosen by validation accuracy.\n")  # fmt: skip
+    return "\n".join(lines)
+
+
+def thesis_ch4_table(cells: Sequence[Mapping[str, Any]]) -> str:
+    """Tables 4.2/4.3's layout per split: accuracy A ± 95% half-width and the per-class averaged
+    accuracy Ā (= balanced accuracy), in %, the six properties in the thesis' order."""
+    index = _index(cells)
+    props = [p for p in THESIS_PROPERTY_ORDER if any(k[2] == p for k in index)]
+
+    def cell(metrics: Mapping[str, Any], is_base: bool) -> list[str]:
+        accuracy = _interval(metrics, "accuracy", is_base)
+        half = accuracy["half_width"]
+        if accuracy["n"] == 1 and not is_base:  # one run: the thesis' Wald interval of its accuracy
+            run = metrics["test_per_seed"][0]
+            half = (run["accuracy_ci_high"] - run["accuracy_ci_low"]) / 2
+        text = _pct(accuracy["mean"]) + ("" if is_base or math.isnan(half) else f" ± {_pct(half)}")
+        return [text, _pct(_interval(metrics, "balanced_accuracy", is_base)["mean"])]
+
+    lines = _model_by_property_tables(index, props, ("A", "Ā"), THESIS_NAMES.get, cell)
+    lines.append("A = test accuracy (%) ± 95% half-width: the normal-approximation (Wald) interval of the one "
+                 "test set for one split and seed (as the thesis), the t interval of the mean over splits "
+                 "when split.repeats > 1; Ā = per-class averaged accuracy (balanced accuracy, over the "
+                 "classes present in the test set).\n")  # fmt: skip
+    return "\n".join(lines)
+
+
+def thesis_c2_table(cells: Sequence[Mapping[str, Any]]) -> str:
+    """Table C.2's layout: per task and metric (P_μ, P_M, R_M, MCC, in %) one column per model
+    (Baseline first), per split."""
+    index = _index(cells)
+    props = [p for p in THESIS_PROPERTY_ORDER if any(k[2] == p for k in index)]
+    metrics_shown = (("P_μ", "precision_micro"), ("P_M", "precision_macro"), ("R_M", "recall_macro"), ("MCC", "mcc"))
+    lines = []
+    for split in _ordered_unique([k[0] for k in index]):
+        models = _ordered_unique([k[1] for k in index if k[0] == split])
+        header = ["task", "metric", "Baseline", *models]
+        lines += [f"**{split} split**", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        for prop in props:
+            first = next((index[(split, m, prop)] for m in models if (split, m, prop) in index), None)
+            for label, key in metrics_shown:
+                row = [THESIS_NAMES[prop] if label == "P_μ" else "", label]
+                row.append(_pct(_interval(first, key, True)["mean"]) if first else "-")
+                for model in models:
+                    metrics = index.get((split, model, prop))
+                    row.append(_pct(_interval(metrics, key)["mean"]) if metrics else "-")
+                lines.append("| " + " | ".join(row) + " |")
+        lines.append("")
+    lines.append("Means (%) over the units. Macro averages run over the classes present in the test set or "
+                 "the predictions (the thesis' baseline P_M divides by all label values, THESIS.md 7).\n")  # fmt: skip
+    return "\n".join(lines)
+
+
+def group_cells(runs: Sequence[Mapping[str, Any]]) -> dict[tuple[str, str], list[dict[str, Any]]]:
+    """Cells grouped by (lexicon, pose): tables never mix keypoint sources or lexicons."""
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+    for run in runs:
+        groups[(str(run.get("lexicon")), str(run.get("pose")))].append(
+            {"model": run["classifier"], "property": run["property"], "split": run["split"], "metrics": run["metrics"]})
+    return dict(groups)

@@ -1,13 +1,22 @@
-"""`aslexp report RUN_OR_SWEEP_DIR... [--out DIR]`: recognition runs -> the thesis' tables.
+"""`aslexp report RUN_OR_SWEEP_DIR... [--out DIR]`: recognition runs -> tables, comparisons, agreement.
 
-Reads only run directories (run.json + metrics.json + predictions.csv) and writes:
+Reads only run directories (run.json + metrics.json + predictions.csv) and writes, per keypoint
+layout and lexicon (a suffix names the group when a folder holds more than one):
 
-    table.md / table.csv              models x properties: test accuracy (95% CI), balanced acc.
-    best_vs_baseline.md / .csv        per property and split: the model chosen by validation MCC
-                                      against the better of the majority/stratified baselines
-    best_vs_baseline.png              the same as a bar chart (test MCC, balanced accuracy)
-    agreement.json                    Fleiss' kappa on clips that all models misclassify, and the
-                                      mutual misclassification rate across properties (thesis 4.4)
+    table.md / table.csv              models x properties: test MCC, mean ± 95% t interval over the
+                                      splits (model seeds for one split), balanced accuracy; ▼ marks a
+                                      mean below the chance baseline; the baseline rows
+    comparisons.md / .json            every model minus the chance baseline and minus the strongest
+                                      simple baseline (rf/hgb/logreg/svm, best by validation), paired
+                                      on the same splits: mean difference [95% CI], W/T/L, Wilcoxon p
+    best_vs_baseline.md / .csv / .png per property and split: the model chosen by validation against
+                                      the chance baseline
+    table_thesis_ch3.md               Table 3.4's layout (micro/macro F1, mean ± std)
+    table_thesis_ch4.md               Tables 4.2/4.3's layout (A ± 95% half-width, Ā) and C.2's (P_μ, P_M, R_M, MCC)
+    agreement.json                    the thesis' section 4.4: Fleiss' kappa over the clips that all
+                                      models misclassify, per task, with mean ± std over the six tasks;
+                                      the mutual misclassification (clips in 2 (3) test sets wrong for
+                                      every model on all of them); the per-model error overlap
 """
 
 from __future__ import annotations
@@ -47,53 +56,24 @@ def find_recognition_runs(paths: list[Path]) -> tuple[list[dict[str, Any]], dict
                 skipped[f"status {info.get('status')}"] += 1
                 continue
             metrics = read_json(run_dir / METRICS_FILE)
-            runs.append({"dir": run_dir, "info": info, "metrics": metrics, **metrics["context"]})
+            if "test_interval" not in metrics:
+                skipped["metrics.json of an older format (no test_interval)"] += 1
+                continue
+            layout = metrics.get("layout", {}).get("name", metrics["context"].get("pose"))
+            runs.append({"dir": run_dir, "info": info, "metrics": metrics, **metrics["context"], "layout": layout})
     return runs, dict(skipped)
 
 
-def _read_predictions(run_dir: Path) -> dict[int, dict[str, tuple[str, str]]]:
-    """seed -> video_id -> (true, predicted)."""
-    by_seed: dict[int, dict[str, tuple[str, str]]] = defaultdict(dict)
+def read_predictions(run_dir: Path) -> dict[tuple[int, int], dict[str, tuple[str, str]]]:
+    """(split, seed) -> video_id -> (true, predicted)."""
+    runs: dict[tuple[int, int], dict[str, tuple[str, str]]] = defaultdict(dict)
     path = run_dir / "predictions.csv"
     if not path.exists():
         return {}
     with open(path, encoding="utf-8") as fh:
         for row in csv.DictReader(fh):
-            by_seed[int(row["seed"])][row["video_id"]] = (row["true"], row["predicted"])
-    return by_seed
-
-
-def _key(run: dict[str, Any]) -> tuple[str, str, str, str]:
-    return (run["lexicon"], run["pose"], run["split"], run["property"])
-
-
-def best_vs_baseline(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per (lexicon, pose, split, property): the model with the best *validation* MCC."""
-    groups: dict[tuple, list[dict[str, Any]]] = defaultdict(list)
-    for run in runs:
-        groups[_key(run)].append(run)
-    rows = []
-    for (lexicon, pose, split, prop), members in sorted(groups.items()):
-        best = max(members, key=lambda r: _finite(r["metrics"]["val_mcc"], -math.inf))
-        test, test_std = best["metrics"]["test"], best["metrics"].get("test_std", {})
-        base = best["metrics"]["baseline"]
-        rows.append({
-            "lexicon": lexicon, "pose": pose, "split": split, "property": prop,
-            "model": best["classifier"], "models_compared": len(members),
-            "num_classes": best["num_classes"], "n_test": int(test.get("n", 0)),
-            "seeds": len(best["seeds"]), "val_mcc": best["metrics"]["val_mcc"],
-            "test_mcc": test["mcc"], "test_mcc_std": test_std.get("mcc", math.nan),
-            "test_balanced_accuracy": test["balanced_accuracy"],
-            "test_balanced_accuracy_std": test_std.get("balanced_accuracy", math.nan),
-            "test_accuracy": test["accuracy"],
-            "test_accuracy_ci_low": test["accuracy_ci_low"],
-            "test_accuracy_ci_high": test["accuracy_ci_high"],
-            "baseline": base["name"], "baseline_mcc": base["test"]["mcc"],
-            "baseline_balanced_accuracy": base["test"]["balanced_accuracy"],
-            "baseline_accuracy": base["test"]["accuracy"],
-            "run": str(best["dir"]),
-        })
-    return rows
+            runs[(int(row.get("split", 0) or 0), int(row["seed"]))][row["video_id"]] = (row["true"], row["predicted"])
+    return runs
 
 
 def _finite(value: Any, default: float) -> float:
@@ -109,17 +89,47 @@ def _fmt(value: Any, digits: int = 3) -> str:
     return "-" if math.isnan(value) else f"{value:.{digits}f}"
 
 
+def best_vs_baseline(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per (split, property): the model with the best mean *validation* objective, its test MCC
+    and balanced accuracy (mean and 95% t interval over the units) beside the chance baseline's."""
+    groups: dict[tuple, list[dict[str, Any]]] = defaultdict(list)
+    for run in runs:
+        groups[(run["split"], run["property"])].append(run)
+    rows = []
+    for (split, prop), members in sorted(groups.items()):
+        best = max(members, key=lambda r: _finite(r["metrics"]["objective"]["value"], -math.inf))
+        m = best["metrics"]
+        base = m["baseline"]
+        rows.append({
+            "split": split, "property": prop, "model": best["classifier"], "models_compared": len(members),
+            "selected_by": m["objective"]["name"], "num_classes": best["num_classes"],
+            "n_test": int(m["split_sizes"]["test"]), "units": m["test_interval"]["mcc"]["n"],
+            "unit": m["statistics_unit"], "val_objective": m["objective"]["value"],
+            "test_mcc": m["test_interval"]["mcc"]["mean"], "test_mcc_low": m["test_interval"]["mcc"]["low"],
+            "test_mcc_high": m["test_interval"]["mcc"]["high"],
+            "test_balanced_accuracy": m["test_interval"]["balanced_accuracy"]["mean"],
+            "test_balanced_accuracy_low": m["test_interval"]["balanced_accuracy"]["low"],
+            "test_balanced_accuracy_high": m["test_interval"]["balanced_accuracy"]["high"],
+            "baseline": base["name"], "baseline_mcc": base["test"]["mcc"],
+            "baseline_balanced_accuracy": base["test"]["balanced_accuracy"],
+            "paired_mcc_diff": m["paired_vs_baseline"]["mcc"]["diff"]["mean"],
+            "paired_mcc_resolved": m["paired_vs_baseline"]["mcc"]["resolved"],
+            "run": str(best["dir"]),
+        })  # fmt: skip
+    return rows
+
+
 def best_vs_baseline_markdown(rows: list[dict[str, Any]]) -> str:
-    header = ("| split | property | classes | n test | best model (by val MCC) | test MCC | "
-              "test bal. acc | test acc (95% CI) | baseline | baseline MCC | baseline bal. acc |")
+    header = ("| split | property | classes | n test | units | best model (by validation) | test MCC [95% CI] | "
+              "test bal. acc [95% CI] | baseline | baseline MCC | baseline bal. acc |")  # fmt: skip
     lines = [header, "|" + "---|" * (header.count("|") - 1)]
     for r in rows:
         lines.append(
-            f"| {r['split']} | {r['property']} | {r['num_classes']} | {r['n_test']} | {r['model']} | "
-            f"{_fmt(r['test_mcc'])} ± {_fmt(r['test_mcc_std'])} | "
-            f"{_fmt(r['test_balanced_accuracy'])} ± {_fmt(r['test_balanced_accuracy_std'])} | "
-            f"{_fmt(r['test_accuracy'])} [{_fmt(r['test_accuracy_ci_low'])}, {_fmt(r['test_accuracy_ci_high'])}] | "
-            f"{r['baseline']} | {_fmt(r['baseline_mcc'])} | {_fmt(r['baseline_balanced_accuracy'])} |"
+            f"| {r['split']} | {r['property']} | {r['num_classes']} | {r['n_test']} | {r['units']} {r['unit']}(s) | "
+            f"{r['model']} | {_fmt(r['test_mcc'])} [{_fmt(r['test_mcc_low'])}, {_fmt(r['test_mcc_high'])}] | "
+            f"{_fmt(r['test_balanced_accuracy'])} [{_fmt(r['test_balanced_accuracy_low'])}, "
+            f"{_fmt(r['test_balanced_accuracy_high'])}] | {r['baseline']} | {_fmt(r['baseline_mcc'])} | "
+            f"{_fmt(r['baseline_balanced_accuracy'])} |"
         )
     return "\n".join(lines) + "\n"
 
@@ -135,41 +145,74 @@ def _rows_csv(rows: list[dict[str, Any]]) -> str:
 
 
 def agreement(runs: list[dict[str, Any]]) -> dict[str, Any]:
-    """Fleiss' kappa across models per (split, property); mutual misclassification per model."""
-    from aslexp.recognition.metrics import misclassification_agreement, mutual_misclassification
+    """The thesis' section 4.4 on the report's models, per split kind (phoneme, gloss):
 
-    predictions = {id(run): _read_predictions(run["dir"]) for run in runs}
-    kappa: dict[str, Any] = {}
-    groups: dict[tuple, list[dict[str, Any]]] = defaultdict(list)
+    - ``fleiss_kappa``: per task (property) and split repeat, Fleiss' kappa over the test clips that
+      every model misclassifies (raters = models, categories = the wrong classes they chose; first
+      model seed), its mean over repeats per task, and mean ± std over the tasks (the thesis:
+      0.09 ± 0.06 phoneme, 0.11 ± 0.09 gloss);
+    - ``mutual_misclassification``: per repeat, the share of clips in exactly 2 (3) test sets that
+      all models misclassify on all those tasks, and the mean over repeats (thesis: 1% (0.7%)
+      phoneme, 3% (0%) gloss);
+    - ``pairwise_error_overlap``: per model, of the clips wrong for property a, the share also wrong
+      for property b (first split and seed).
+    """
+    from aslexp.recognition.metrics import mean_interval, misclassification_agreement, mutual_misclassification
+    from aslexp.recognition.metrics import pairwise_error_overlap
+
+    predictions = {id(run): read_predictions(run["dir"]) for run in runs}
+    by_kind: dict[str, dict[str, list[dict[str, Any]]]] = defaultdict(lambda: defaultdict(list))
     for run in runs:
-        groups[_key(run)].append(run)
-    for (lexicon, pose, split, prop), members in sorted(groups.items()):
-        first_seed = {r["classifier"]: predictions[id(r)].get(min(predictions[id(r)], default=0), {})
-                      for r in members}
-        first_seed = {name: preds for name, preds in first_seed.items() if preds}
-        common = sorted(set.intersection(*(set(p) for p in first_seed.values()))) if first_seed else []
-        if len(first_seed) < 2 or not common:
-            continue
-        labels = sorted({p[vid][0] for p in first_seed.values() for vid in common}
-                        | {p[vid][1] for p in first_seed.values() for vid in common})
-        index = {label: i for i, label in enumerate(labels)}
-        y_true = [index[next(iter(first_seed.values()))[vid][0]] for vid in common]
-        preds = {name: [index[p[vid][1]] for vid in common] for name, p in first_seed.items()}
-        kappa[f"{split}/{prop}"] = misclassification_agreement(y_true, preds, len(labels))
+        by_kind[run["split"]][run["property"]].append(run)
+    kappa: dict[str, Any] = {}
     mutual: dict[str, Any] = {}
+    for kind, tasks in sorted(by_kind.items()):
+        task_kappas: dict[str, Any] = {}
+        repeats_mutual: dict[int, dict[str, dict[str, dict[str, bool]]]] = defaultdict(dict)
+        for prop, members in sorted(tasks.items()):
+            per_repeat = []
+            splits = sorted({key[0] for r in members for key in predictions[id(r)]})
+            for split_index in splits:
+                first = {}
+                for r in members:
+                    keys = sorted(k for k in predictions[id(r)] if k[0] == split_index)
+                    if keys:
+                        first[r["classifier"]] = predictions[id(r)][keys[0]]
+                if len(first) < 2:
+                    continue
+                common = sorted(set.intersection(*(set(p) for p in first.values())))
+                labels = sorted({p[v][0] for p in first.values() for v in common} | {p[v][1] for p in first.values() for v in common})
+                position = {label: i for i, label in enumerate(labels)}
+                any_model = next(iter(first.values()))
+                y_true = [position[any_model[v][0]] for v in common]
+                preds = {name: [position[p[v][1]] for v in common] for name, p in first.items()}
+                result = misclassification_agreement(y_true, preds, len(labels))
+                result["split"] = split_index
+                per_repeat.append(result)
+                repeats_mutual[split_index][prop] = {name: {v: p[v][0] == p[v][1] for v in common} for name, p in first.items()}
+            values = [r["kappa"] for r in per_repeat]
+            task_kappas[prop] = {"per_split": per_repeat, "mean": mean_interval(values)["mean"]}
+        summary = mean_interval([t["mean"] for t in task_kappas.values()])
+        kappa[kind] = {"tasks": task_kappas, "over_tasks": summary}
+        per_repeat_mutual = {k: mutual_misclassification(v) for k, v in sorted(repeats_mutual.items())}
+        mutual[kind] = {
+            "per_split": per_repeat_mutual,
+            **{size: {"share_mean": mean_interval([r[size]["share"] for r in per_repeat_mutual.values()])["mean"],
+                      "clips_mean": mean_interval([r[size]["clips"] for r in per_repeat_mutual.values()])["mean"]}
+               for size in ("2", "3")},
+        }  # fmt: skip
+    overlap: dict[str, Any] = {}
     by_model: dict[tuple, dict[str, tuple[list[str], list[bool]]]] = defaultdict(dict)
     for run in runs:
         preds = predictions[id(run)]
-        if not preds:
-            continue
-        seed_preds = preds[min(preds)]
-        vids = sorted(seed_preds)
-        by_model[(run["split"], run["classifier"])][run["property"]] = (
-            vids, [seed_preds[v][0] == seed_preds[v][1] for v in vids])
+        if preds:
+            first = preds[min(preds)]
+            vids = sorted(first)
+            by_model[(run["split"], run["classifier"])][run["property"]] = (vids, [first[v][0] == first[v][1] for v in vids])
     for (split, model), results in sorted(by_model.items()):
         if len(results) >= 2:
-            mutual[f"{split}/{model}"] = mutual_misclassification(results)
-    return {"fleiss_kappa_all_wrong": kappa, "mutual_misclassification": mutual}
+            overlap[f"{split}/{model}"] = pairwise_error_overlap(results)
+    return {"fleiss_kappa_all_wrong": kappa, "mutual_misclassification": mutual, "pairwise_error_overlap": overlap}
 
 
 def plot_best_vs_baseline(rows: list[dict[str, Any]], path: Path) -> None:
@@ -180,29 +223,36 @@ def plot_best_vs_baseline(rows: list[dict[str, Any]], path: Path) -> None:
     import numpy as np
 
     splits = sorted({r["split"] for r in rows})
-    fig, axes = plt.subplots(len(splits), 2, figsize=(12, 3.2 * len(splits)), squeeze=False)
+    fig, axes = plt.subplots(len(splits), 2, figsize=(12, 3.4 * len(splits)), squeeze=False, layout="constrained")
     for i, split in enumerate(splits):
         sub = [r for r in rows if r["split"] == split]
         x = np.arange(len(sub))
         for j, (metric, label) in enumerate((("mcc", "test MCC"), ("balanced_accuracy", "test balanced accuracy"))):
             ax = axes[i, j]
-            best = [_finite(r[f"test_{metric}"], 0.0) for r in sub]
-            err = [_finite(r[f"test_{metric}_std"], 0.0) for r in sub]
+            best = np.array([_finite(r[f"test_{metric}"], 0.0) for r in sub])
+            low = np.array([_finite(r[f"test_{metric}_low"], b) for r, b in zip(sub, best)])
+            high = np.array([_finite(r[f"test_{metric}_high"], b) for r, b in zip(sub, best)])
             base = [_finite(r[f"baseline_{metric}"], 0.0) for r in sub]
-            ax.bar(x - 0.2, best, 0.4, yerr=err, capsize=3, label="best model (by val MCC)")
-            ax.bar(x + 0.2, base, 0.4, label="baseline", color="0.6")
+            ax.bar(x - 0.2, best, 0.4, yerr=[best - low, high - best], capsize=3, label="best model (by validation), 95% CI")
+            ax.bar(x + 0.2, base, 0.4, label="chance baseline", color="0.6")
             ax.set_xticks(x, [f"{r['property']}\n({r['model']})" for r in sub], fontsize=7)
             ax.set_title(f"{split} split: {label}")
             ax.axhline(0, color="k", lw=0.5)
             if i == 0 and j == 0:
                 ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
 
 
 def write_report(paths: list[Path], out_dir: Path) -> dict[str, Any]:
-    from aslexp.recognition.report import collect_table
+    from aslexp.recognition.report import (
+        collect_table,
+        comparisons,
+        comparisons_markdown,
+        thesis_c2_table,
+        thesis_ch3_table,
+        thesis_ch4_table,
+    )
 
     runs, skipped = find_recognition_runs(paths)
     if skipped:
@@ -210,25 +260,33 @@ def write_report(paths: list[Path], out_dir: Path) -> dict[str, Any]:
     if not runs:
         raise SystemExit(f"aslexp report: no completed recognition runs under {', '.join(map(str, paths))}")
     out_dir.mkdir(parents=True, exist_ok=True)
-    table_rows = [
-        {"model": r["classifier"], "property": r["property"], "split": r["split"], "metrics": r["metrics"]["test"]}
-        for r in runs
-    ]
-    baselines = {}
-    for r in runs:
-        baselines.setdefault((r["split"], r["property"]), r["metrics"]["baseline"]["test"])
-    table_rows += [{"model": "baseline", "property": p, "split": s, "metrics": m} for (s, p), m in baselines.items()]
-    markdown, table_csv = collect_table(table_rows)
-    (out_dir / "table.md").write_text(markdown, encoding="utf-8")
-    (out_dir / "table.csv").write_text(table_csv, encoding="utf-8")
-    best = best_vs_baseline(runs)
-    best_md = best_vs_baseline_markdown(best)
-    (out_dir / "best_vs_baseline.md").write_text(best_md, encoding="utf-8")
-    (out_dir / "best_vs_baseline.csv").write_text(_rows_csv(best), encoding="utf-8")
-    plot_best_vs_baseline(best, out_dir / "best_vs_baseline.png")
-    write_json(out_dir / "agreement.json", agreement(runs))
-    return {"runs": len(runs), "skipped": skipped, "table": markdown, "best_vs_baseline": best_md,
-            "out_dir": str(out_dir)}
+    groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+    for run in runs:
+        groups[(str(run.get("lexicon")), str(run["layout"]))].append(run)
+    tables, best_md = [], []
+    for (lexicon, layout), members in sorted(groups.items()):
+        suffix = "" if len(groups) == 1 else f"_{lexicon}_{layout}"
+        cells = [{"model": r["classifier"], "property": r["property"], "split": r["split"], "metrics": r["metrics"]}
+                 for r in members]  # fmt: skip
+        heading = f"{lexicon}, {layout}: {len(members)} runs\n\n"
+        markdown, table_csv = collect_table(cells)
+        (out_dir / f"table{suffix}.md").write_text(heading + markdown, encoding="utf-8")
+        (out_dir / f"table{suffix}.csv").write_text(table_csv, encoding="utf-8")
+        compared = comparisons(cells)
+        (out_dir / f"comparisons{suffix}.md").write_text(heading + comparisons_markdown(compared), encoding="utf-8")
+        write_json(out_dir / f"comparisons{suffix}.json", compared)
+        (out_dir / f"table_thesis_ch3{suffix}.md").write_text(heading + thesis_ch3_table(cells), encoding="utf-8")
+        (out_dir / f"table_thesis_ch4{suffix}.md").write_text(
+            heading + thesis_ch4_table(cells) + "\n" + thesis_c2_table(cells), encoding="utf-8")
+        best = best_vs_baseline(members)
+        (out_dir / f"best_vs_baseline{suffix}.md").write_text(heading + best_vs_baseline_markdown(best), encoding="utf-8")
+        (out_dir / f"best_vs_baseline{suffix}.csv").write_text(_rows_csv(best), encoding="utf-8")
+        plot_best_vs_baseline(best, out_dir / f"best_vs_baseline{suffix}.png")
+        write_json(out_dir / f"agreement{suffix}.json", agreement(members))
+        tables.append(heading + markdown)
+        best_md.append(heading + best_vs_baseline_markdown(best))
+    return {"runs": len(runs), "skipped": skipped, "table": "\n".join(tables), "best_vs_baseline": "\n".join(best_md),
+            "out_dir": str(out_dir)}  # fmt: skip
 
 
 def report_main(argv: list[str]) -> int:

@@ -8,7 +8,9 @@ Defaults fit a 2-core CPU and a few hundred clips: ST-GCN with 5 blocks of [32, 
 channels (0.32 M parameters with the 33-node pose, vs 1.2 M for [64, 64, 128, 128, 256] and 3.1 M
 for the classic 10-block ST-GCN: far too many for ~200 training clips, and ~4x / ~10x the
 compute per epoch), and ``frame_stride`` 2 for the sequence models (25 fps -> 12.5 fps halves
-the cost; the stride-2 blocks of ST-GCN subsample time anyway).
+the cost; the stride-2 blocks of ST-GCN subsample time anyway). ``slgcn`` is SL-GCN with the
+authors' sizes (10 blocks up to 256 channels: a GPU model); ``rf`` and ``hgb`` are the feature
+baseline on pooled summary statistics.
 """
 
 from __future__ import annotations
@@ -22,7 +24,9 @@ from aslexp.data.dataset import KeypointLayout
 from aslexp.recognition.models.base import Classifier, ClassifierSpec, TorchClassifier, to_tensors
 from aslexp.recognition.models.classical import (
     DummyBaseline,
+    GradientBoostingFeatureClassifier,
     LogisticRegressionClassifier,
+    RandomForestFeatureClassifier,
     SklearnClassifier,
     SVMClassifier,
     clip_features,
@@ -30,16 +34,25 @@ from aslexp.recognition.models.classical import (
 from aslexp.recognition.models.cnn3d import HeatmapCNN3D, HeatmapRenderer
 from aslexp.recognition.models.graph import PARTITIONS, spatial_partition_adjacency
 from aslexp.recognition.models.sequence import MLP, RecurrentClassifier
+from aslexp.recognition.models.slgcn import SLGCN, spatial_graph
 from aslexp.recognition.models.stgcn import STGCN
 
-_RNN_DEFAULTS = {"hidden_size": 128, "num_layers": 2, "bidirectional": True, "dropout": 0.3, "frame_stride": 2}
+_RNN_DEFAULTS = {"hidden_size": 128, "num_layers": 2, "bidirectional": True, "dropout": 0.3, "frame_stride": 2,
+                 "head_layers": 0, "head_size": None, "head_dropout": None}  # fmt: skip
 
 DEFAULT_PARAMS: dict[str, dict[str, Any]] = {
     "majority": {},
     "stratified": {},
-    "logreg": {"C": 1.0, "max_iter": 2000, "pooling": "mean_std", "standardize": True},
-    "svm": {"C": 1.0, "kernel": "rbf", "gamma": "scale", "pooling": "mean_std", "standardize": True},
-    "mlp": {"hidden_sizes": [256, 128], "dropout": 0.3},
+    "logreg": {"C": 1.0, "max_iter": 2000, "pooling": "mean_std", "standardize": True, "solver": "lbfgs",
+               "multi_class": "multinomial"},
+    "svm": {"C": 1.0, "kernel": "rbf", "gamma": "scale", "pooling": "mean_std", "standardize": True, "degree": 3,
+            "decision_function_shape": "ovr", "max_iter": -1},
+    "rf": {"pooling": "summary", "n_estimators": 500, "max_depth": None, "min_samples_leaf": 1,
+           "max_features": "sqrt", "n_jobs": 2},
+    "hgb": {"pooling": "summary", "learning_rate": 0.05, "max_iter": 200, "max_leaf_nodes": 15,
+            "min_samples_leaf": 10, "l2_regularization": 0.0, "n_threads": 1},
+    # hidden_sizes, or num_layers x hidden_size when num_layers is set (search spaces use those)
+    "mlp": {"hidden_sizes": [256, 128], "num_layers": None, "hidden_size": 256, "dropout": 0.3},
     "lstm": dict(_RNN_DEFAULTS),
     "gru": dict(_RNN_DEFAULTS),
     "stgcn": {
@@ -51,6 +64,21 @@ DEFAULT_PARAMS: dict[str, dict[str, Any]] = {
         "adaptive": False,
         "mask_channel": True,
         "frame_stride": 2,
+    },
+    # The authors' SL-GCN (THESIS.md 10.2; jackyjsy/CVPR21Chal-SLR SL-GCN/model/decouple_gcn_attn.py).
+    "slgcn": {
+        "channels": [64, 64, 64, 64, 128, 128, 128, 256, 256, 256],
+        "groups": 16,
+        "block_size": 41,
+        "keep_prob": 0.9,
+        "keep_prob_epochs": 100,
+        "drop_from_block": 7,
+        "freeze_graph_epochs": 1,
+        "attention": True,
+        "temporal_kernel": 9,
+        "normalize": True,
+        "mask_channel": False,
+        "frame_stride": 1,
     },
     "cnn3d": {
         "channels": [16, 32, 64],
@@ -65,6 +93,7 @@ DEFAULT_PARAMS: dict[str, dict[str, Any]] = {
 
 CLASSIFIER_NAMES = tuple(DEFAULT_PARAMS)
 BASELINE_NAMES = ("majority", "stratified")
+FEATURE_MODELS = ("logreg", "svm", "rf", "hgb")  # fitted once on pooled features: no epochs
 
 
 def resolve_params(name: str, params: dict[str, Any] | None) -> dict[str, Any]:
@@ -114,21 +143,49 @@ def build_classifier(
     if name in BASELINE_NAMES:
         return DummyBaseline(spec, strategy="most_frequent" if name == "majority" else "stratified")
     if name == "logreg":
-        return LogisticRegressionClassifier(spec, C=p["C"], max_iter=p["max_iter"], pooling=p["pooling"], standardize=p["standardize"])
+        return LogisticRegressionClassifier(
+            spec, C=p["C"], max_iter=p["max_iter"], pooling=p["pooling"], standardize=p["standardize"],
+            solver=p["solver"], multi_class=p["multi_class"],
+        )
     if name == "svm":
         return SVMClassifier(
-            spec, C=p["C"], kernel=p["kernel"], gamma=p["gamma"], pooling=p["pooling"],
-            standardize=p["standardize"],
+            spec, C=p["C"], kernel=p["kernel"], gamma=p["gamma"], pooling=p["pooling"], standardize=p["standardize"],
+            degree=p["degree"], decision_function_shape=p["decision_function_shape"], max_iter=p["max_iter"],
+        )
+    if name == "rf":
+        return RandomForestFeatureClassifier(
+            spec, pooling=p["pooling"], n_estimators=p["n_estimators"], max_depth=p["max_depth"],
+            min_samples_leaf=p["min_samples_leaf"], max_features=p["max_features"], n_jobs=p["n_jobs"],
+        )
+    if name == "hgb":
+        return GradientBoostingFeatureClassifier(
+            spec, pooling=p["pooling"], learning_rate=p["learning_rate"], max_iter=p["max_iter"],
+            max_leaf_nodes=p["max_leaf_nodes"], min_samples_leaf=p["min_samples_leaf"],
+            l2_regularization=p["l2_regularization"], n_threads=p["n_threads"],
         )
 
     module: torch.nn.Module
     if name == "mlp":
-        module = MLP(num_channels * num_frames * num_nodes, num_classes, hidden_sizes=list(p["hidden_sizes"]), dropout=p["dropout"])
+        hidden = list(p["hidden_sizes"]) if p["num_layers"] is None else [int(p["hidden_size"])] * int(p["num_layers"])
+        module = MLP(num_channels * num_frames * num_nodes, num_classes, hidden_sizes=hidden, dropout=p["dropout"])
     elif name in ("lstm", "gru"):
         module = RecurrentClassifier(
             name, num_channels * num_nodes + num_nodes, num_classes,
             hidden_size=int(p["hidden_size"]), num_layers=int(p["num_layers"]),
             bidirectional=bool(p["bidirectional"]), dropout=float(p["dropout"]), frame_stride=_stride(name, p),
+            head_layers=int(p["head_layers"]), head_size=None if p["head_size"] is None else int(p["head_size"]),
+            head_dropout=None if p["head_dropout"] is None else float(p["head_dropout"]),
+        )
+    elif name == "slgcn":
+        if layout is None:
+            raise ValueError("classifier 'slgcn' needs the keypoint layout (its edges and center)")
+        module = SLGCN(
+            num_channels, num_classes, spatial_graph(layout), center=int(layout.center),
+            channels=[int(c) for c in p["channels"]], groups=int(p["groups"]), block_size=int(p["block_size"]),
+            keep_prob=float(p["keep_prob"]), keep_prob_epochs=int(p["keep_prob_epochs"]),
+            drop_from_block=int(p["drop_from_block"]), freeze_graph_epochs=int(p["freeze_graph_epochs"]),
+            attention=bool(p["attention"]), temporal_kernel=int(p["temporal_kernel"]), normalize=bool(p["normalize"]),
+            mask_channel=bool(p["mask_channel"]), frame_stride=_stride(name, p),
         )
     elif name == "stgcn":
         if layout is None:
@@ -164,6 +221,7 @@ __all__ = [
     "BASELINE_NAMES",
     "CLASSIFIER_NAMES",
     "DEFAULT_PARAMS",
+    "FEATURE_MODELS",
     "PARTITIONS",
     "Classifier",
     "ClassifierSpec",

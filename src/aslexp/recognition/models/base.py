@@ -122,21 +122,33 @@ class TorchClassifier(Classifier):
         super().__init__(spec)
         self.module = module
         self.eval_batch_size = eval_batch_size
+        self.precision = "32"  # set by the trainer: inference runs as training did
 
     def num_parameters(self) -> int:
-        return sum(p.numel() for p in self.module.parameters() if p.requires_grad)
+        """Every learnt parameter (also those a schedule freezes for a while, e.g. SL-GCN's graph)."""
+        return sum(p.numel() for p in self.module.parameters())
+
+    @property
+    def device(self) -> torch.device:
+        parameter = next(self.module.parameters(), None)
+        return parameter.device if parameter is not None else torch.device("cpu")
 
     @torch.no_grad()
     def logits(self, X: np.ndarray, mask: np.ndarray) -> torch.Tensor:
-        """Logits in eval mode, computed in batches of ``eval_batch_size``."""
+        """Logits (float32, on the CPU) in eval mode, computed in batches of ``eval_batch_size``
+        on the module's device."""
+        from aslexp.recognition.device import autocast
+
         check_inputs(X, mask, self.spec)
         was_training = self.module.training
         self.module.eval()
+        device = self.device
         try:
             outputs = []
             for start in range(0, len(X), self.eval_batch_size):
                 x, m = to_tensors(X[start : start + self.eval_batch_size], mask[start : start + self.eval_batch_size])
-                outputs.append(self.module(x, m))
+                with autocast(device, self.precision):
+                    outputs.append(self.module(x.to(device), m.to(device)).float().cpu())
         finally:
             self.module.train(was_training)
         if not outputs:

@@ -9,6 +9,8 @@ from torch import nn
 class MLP(nn.Module):
     """Flattened clip (C*T*V, missing joints at 0) -> hidden layers (ReLU, dropout) -> logits."""
 
+    fixed_length = True  # its input size fixes T: a temporal crop is padded back (see augment.py)
+
     def __init__(self, num_inputs: int, num_classes: int, *, hidden_sizes: list[int], dropout: float) -> None:
         super().__init__()
         layers: list[nn.Module] = []
@@ -41,6 +43,9 @@ class RecurrentClassifier(nn.Module):
         bidirectional: bool,
         dropout: float,
         frame_stride: int,
+        head_layers: int = 0,
+        head_size: int | None = None,
+        head_dropout: float | None = None,
     ) -> None:
         super().__init__()
         self.frame_stride = frame_stride
@@ -49,7 +54,16 @@ class RecurrentClassifier(nn.Module):
             num_inputs, hidden_size, num_layers=num_layers, batch_first=True,
             bidirectional=bidirectional, dropout=dropout if num_layers > 1 else 0.0,
         )
-        self.head = nn.Sequential(nn.Dropout(dropout), nn.Linear(hidden_size * (2 if bidirectional else 1), num_classes))
+        # The head: ``head_layers`` hidden linear layers (ReLU, dropout) before the output layer
+        # (the thesis' "RNN + MLP in cascade"); 0 = dropout and one linear layer.
+        width = hidden_size * (2 if bidirectional else 1)
+        head_size = head_size or hidden_size
+        head_dropout = dropout if head_dropout is None else head_dropout
+        layers: list[nn.Module] = [nn.Dropout(dropout if head_layers == 0 else head_dropout)]
+        for _ in range(head_layers):
+            layers += [nn.Linear(width, head_size), nn.ReLU(inplace=True), nn.Dropout(head_dropout)]
+            width = head_size
+        self.head = nn.Sequential(*layers, nn.Linear(width, num_classes))
 
     def forward(self, x: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         x, mask = x[:, :, :: self.frame_stride], mask[:, :: self.frame_stride]
