@@ -6,7 +6,8 @@ configuration (conf/classifier/<model>.yaml and the trainer it brings: SL-GCN tr
 authors' batch 96 and 100-frame crops) and prints training clips/s: on the CPU (a subset of
 --cpu-clips clips, --cpu-epochs epochs) and, with --device cuda, on the GPU (all clips, --epochs
 epochs), the first epoch left out as warm-up on both, and their ratio, in the same process. Figures
-only: nothing is asserted. Needs neither Hydra nor PyYAML nor matplotlib.
+only: nothing is asserted. Each model's settings come from Hydra's compose API over conf/ (as
+`aslexp recognize classifier=<model>` composes them); a GPU node needs hydra-core and omegaconf.
 
     python bench/recognition_throughput.py                                  # CPU only
     python bench/recognition_throughput.py --device cuda --json $OUT/throughput.json
@@ -25,7 +26,6 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from recognition_conf import classifier_config, trainer_config
 
 from aslexp.data.wlasl_lex import WlaslLexParams, build_wlasl_lex
 from aslexp.recognition.device import device_info, resolve_device
@@ -35,10 +35,21 @@ from aslexp.recognition.train import ArraySplit, fit_final
 DEFAULT_MODELS = "mlp,lstm,gru,stgcn,slgcn,cnn3d"
 
 
+def model_config(name: str) -> tuple[str, dict, dict]:
+    """(model, params, trainer) of `aslexp recognize classifier=<name>`, composed by Hydra from conf/."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    conf = Path(__file__).resolve().parents[1] / "conf"
+    with initialize_config_dir(config_dir=str(conf), version_base="1.3"):
+        cfg = OmegaConf.to_container(compose("recognize", [f"classifier={name}"]), resolve=True)
+    return cfg["classifier"]["name"], cfg["classifier"]["params"], cfg["trainer"]
+
+
 def measure(name: str, data, clips: np.ndarray, device: str, precision: str, epochs: int, threads: int,
             skip_first: bool) -> dict:  # fmt: skip
-    model_name, params, preset = classifier_config(name)
-    trainer = {**trainer_config(preset), "device": device, "precision": precision, "num_threads": threads,
+    model_name, params, trainer = model_config(name)
+    trainer = {**trainer, "device": device, "precision": precision, "num_threads": threads,
                "max_epochs": epochs, "deterministic": False}  # fmt: skip
     train = ArraySplit(data.X[clips], data.mask[clips], data.y[clips])
     probe = ArraySplit(data.X[:8], data.mask[:8], data.y[:8])

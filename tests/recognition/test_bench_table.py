@@ -31,3 +31,13 @@ def test_direct_table_runs_cells_and_reports(tmp_path):
                             capture_output=True, text=True, timeout=300)  # fmt: skip
     assert report.returncode == 0, report.stderr[-2000:]
     assert "mlp" in (out / "table.md").read_text()
+
+
+def test_throughput_bench_runs_on_tiny_settings(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "bench/recognition_throughput.py", "--models", "mlp,logreg", "--cpu-clips", "16",
+         "--cpu-epochs", "2", "--threads", "1", "--frames", "32", "--json", str(tmp_path / "t.json")],
+        cwd=ROOT, capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    rows = json.loads((tmp_path / "t.json").read_text())["rows"]
+    assert [r["model"] for r in rows] == ["mlp"] and rows[0]["cpu"]["clips_per_s"] > 0  # logreg: not torch
