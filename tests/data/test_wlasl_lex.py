@@ -46,7 +46,7 @@ def test_builder_artefacts(built):
     train = {gloss_of[v] for v in split["train"]}
     assert not train & {gloss_of[v] for v in split["val"] + split["test"]}
     for name in ("train", "val", "train+val", "test"):
-        X = np.load(out / f"{name}_data_joint_mediapipe_pose_thesis.npy")
+        X = np.load(out / f"{name}_data_joint_mediapipe_pose_slgcn27.npy")
         y = np.load(out / f"{name}_label.npy")
         assert X.shape[1:] == (4, 64, 13, 1) and len(X) == len(y) == len(split[name])
         assert np.load(out / f"{name}_mask.npy").shape == (len(X), 64, 13)
@@ -63,7 +63,7 @@ def test_reload_and_published_roundtrip(built):
     assert all(np.array_equal(again.splits[k], ds.splits[k]) for k in ("train", "val", "test"))
     # The thesis-format test array reads back through the published-array importer.
     test_ids = json.loads((out / "split.json").read_text())["test"]
-    source = PublishedArraySource(out / "test_data_joint_mediapipe_pose_thesis.npy", test_ids,
+    source = PublishedArraySource(out / "test_data_joint_mediapipe_pose_slgcn27.npy", test_ids,
                                   layout=ds.layout)  # fmt: skip
     row = ds.video_ids.index(test_ids[0])
     clip = source.load(test_ids[0])
