@@ -12,7 +12,15 @@ from aslexp.data.splits import SplitOptions
 from aslexp.recognition.experiment import split_views
 from aslexp.recognition.experiment import run_recognition
 from aslexp.recognition.metrics import mean_interval
-from aslexp.recognition.report import BELOW_BASELINE, collect_table, comparisons, thesis_ch3_table, thesis_ch4_table
+from aslexp.tools.report import plot_comparisons, plot_validation_curves
+from aslexp.recognition.report import (
+    BELOW_BASELINE,
+    collect_table,
+    comparisons,
+    paired_on_shared_splits,
+    thesis_ch3_table,
+    thesis_ch4_table,
+)
 
 SPLIT = {"name": "phoneme", "repeats": 3, "seed": 0}
 MODELS = {"logreg": {}, "rf": {"n_estimators": 30, "n_jobs": 1}, "mlp": {"hidden_sizes": [16]}}
@@ -60,7 +68,7 @@ def test_feature_baseline_learns_sign_type(runs):
     assert runs["rf"]["paired_vs_baseline"]["mcc"]["wins"] == 3
 
 
-def test_tables_show_intervals_flags_and_paired_comparisons(runs):
+def test_tables_show_intervals_flags_and_paired_comparisons(runs, tmp_path):
     cells = [{"model": name, "property": "sign_type", "split": "phoneme", "metrics": m} for name, m in runs.items()]
     markdown, table_csv = collect_table(cells)
     lines = markdown.splitlines()
@@ -80,6 +88,14 @@ def test_tables_show_intervals_flags_and_paired_comparisons(runs):
                            [u["mcc"] for u in runs[reference]["test_per_split"]])  # fmt: skip
     assert rows["mlp"]["vs_simple"]["diff"]["mean"] == pytest.approx(expected.mean())
     assert rows[reference]["vs_simple"] is None  # the reference is not compared with itself
+    # Every learned model against each feature baseline, the strongest among them included.
+    assert set(rows["mlp"]["vs_feature"]) == {"logreg", "rf"}
+    assert rows["mlp"]["vs_feature"][reference] == rows["mlp"]["vs_simple"]
+    assert plot_comparisons(list(rows.values()), tmp_path / "comparisons.png")
+    members = [{"split": "phoneme", "property": "sign_type", "classifier": name, "metrics": m} for name, m in runs.items()]
+    assert plot_validation_curves(members, tmp_path / "validation_curves.png")  # mlp: 2 epochs per run
+    for name in ("comparisons.png", "validation_curves.png"):
+        assert (tmp_path / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
 
     ch4 = thesis_ch4_table(cells)
     assert "| model | SignType A | SignType Ā |" in ch4
@@ -99,3 +115,15 @@ def test_one_clip_per_gloss_cross_validation(lex_dataset):
         for train, val in view.splits["folds"]:
             assert not test & set(train.tolist()) and not test & set(val.tolist())
     assert views[0][1].video_ids != views[1][1].video_ids  # each split draws its own clip per gloss
+
+
+def test_a_run_over_fewer_splits_is_paired_on_the_splits_it_shares(runs):
+    # A run over the first 2 of the 3 splits (as SL-GCN's K = 3 against K = 10): paired on those 2.
+    mlp, rf = runs["mlp"], runs["rf"]
+    shorter = dict(mlp, splits=mlp["splits"][:2], test_per_split=mlp["test_per_split"][:2])
+    paired = paired_on_shared_splits(shorter, rf)
+    expected = [m["mcc"] - r["mcc"] for m, r in zip(mlp["test_per_split"][:2], rf["test_per_split"][:2])]
+    assert paired["diff"]["n"] == 2 and paired["diff"]["mean"] == pytest.approx(np.mean(expected))
+    # Splits of another data set (other sizes) are not the same splits: nothing to pair.
+    other = dict(shorter, splits=[dict(s, sizes={"train": 1, "val": 1, "test": 1}) for s in shorter["splits"]])
+    assert paired_on_shared_splits(other, rf) is None

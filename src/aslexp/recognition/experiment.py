@@ -404,6 +404,17 @@ def _plots(out_dir: Path, name: str, prop: str, label_names: list[str], matrix: 
                          data_curve=learning_curve, metric=metric)  # fmt: skip
 
 
+def plots_from_metrics(metrics: Mapping[str, Any], out_dir: str | Path) -> Path:
+    """A run's two plots drawn again from its metrics.json alone, into ``out_dir`` (a run folder
+    from a node without matplotlib has none; the run folder itself is never rewritten)."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    _plots(out_dir, str(metrics["classifier"]), str(metrics["property"]), list(metrics["label_names"]),
+           np.asarray(metrics["test_confusion_matrix_total"]), len(metrics["test_per_seed"]), metrics.get("history", {}),
+           metrics.get("learning_curve", []), str(metrics["trainer"]["selection_metric"]))  # fmt: skip
+    return out_dir
+
+
 def _std(values: Sequence[float]) -> float:
     return float(np.std(values, ddof=1)) if len(values) > 1 else 0.0
 

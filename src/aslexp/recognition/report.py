@@ -165,14 +165,36 @@ def _strongest_simple(index, split: str, prop: str) -> str | None:
                                                   index[(split, m, prop)].get("val_mcc"))))  # fmt: skip
 
 
-def _split_seeds(metrics: Mapping[str, Any]) -> list[int]:
-    return [int(s["seed"]) for s in metrics.get("splits", [])]
+def _split_keys(metrics: Mapping[str, Any]) -> list[tuple[int, str]]:
+    """Per unit of a run with repeated splits: (split seed, its sizes); a split seed gives the same
+    split in every run of one dataset (K only says how many), the sizes guard against another data set."""
+    return [(int(s["seed"]), repr(sorted(s.get("sizes", {}).items()))) for s in metrics.get("splits", [])]
+
+
+def paired_on_shared_splits(metrics: Mapping[str, Any], reference: Mapping[str, Any], metric: str = "mcc"
+                            ) -> dict[str, Any] | None:  # fmt: skip
+    """``metrics`` minus ``reference`` in ``metric`` on the splits both runs have (e.g. a run over 3
+    splits against one over 10: the first 3 are the same splits), or None when they share fewer
+    than 2. Runs over one split pair their model seeds when both ran the same split and seeds."""
+    values, other = unit_values(metrics, metric), unit_values(reference, metric)
+    if metrics.get("statistics_unit", "seed") != "split" or reference.get("statistics_unit", "seed") != "split":
+        same = _split_keys(metrics) == _split_keys(reference) and metrics.get("seeds") == reference.get("seeds")
+        return paired_comparison(values, other) if same and len(values) == len(other) else None
+    keys, other_keys = _split_keys(metrics), _split_keys(reference)
+    if len(keys) != len(values) or len(other_keys) != len(other):
+        return None
+    position = {key: i for i, key in enumerate(other_keys)}
+    shared = [(values[i], other[position[key]]) for i, key in enumerate(keys) if key in position]
+    if len(shared) < 2:
+        return None
+    return paired_comparison([a for a, _ in shared], [b for _, b in shared])
 
 
 def comparisons(cells: Sequence[Mapping[str, Any]], metric: str = "mcc") -> list[dict[str, Any]]:
-    """Per (split, property, model): the paired difference in ``metric`` to the run's chance baseline
-    and to the strongest simple baseline (the best of rf/hgb/logreg/svm by validation), on the same
-    splits: mean difference, 95% t interval, wins/ties/losses, Wilcoxon p."""
+    """Per (split, property, model): the paired difference in ``metric`` to the run's chance baseline,
+    to the strongest simple baseline (the best of rf/hgb/logreg/svm by validation) and to each of
+    those four (``vs_feature``), on the splits both share: mean difference, 95% t interval,
+    wins/ties/losses, Wilcoxon p (``diff.n`` = the number of shared splits)."""
     index = _index(cells)
     rows = []
     for split, model, prop in index:
@@ -180,16 +202,13 @@ def comparisons(cells: Sequence[Mapping[str, Any]], metric: str = "mcc") -> list
         values = unit_values(metrics, metric)
         chance = paired_comparison(values, unit_values(metrics, metric, baseline=True)) if len(values) == len(
             unit_values(metrics, metric, baseline=True)) else None  # fmt: skip
+        feature = {other: paired_on_shared_splits(metrics, index[(split, other, prop)], metric)
+                   for other in FEATURE_BASELINES if other != model and (split, other, prop) in index}  # fmt: skip
         reference = _strongest_simple(index, split, prop)
-        simple = None
-        if reference is not None and reference != model:
-            other = index[(split, reference, prop)]
-            other_values = unit_values(other, metric)
-            if _split_seeds(other) == _split_seeds(metrics) and len(other_values) == len(values):
-                simple = paired_comparison(values, other_values)
         rows.append({"split": split, "property": prop, "model": model, "n": len(values),
                      "mean": mean_interval(values)["mean"], "chance_baseline": metrics["baseline"]["name"],
-                     "vs_chance": chance, "strongest_simple": reference, "vs_simple": simple})  # fmt: skip
+                     "vs_chance": chance, "strongest_simple": reference, "vs_simple": feature.get(reference),
+                     "vs_feature": feature})  # fmt: skip
     rows.sort(key=lambda r: (r["split"], r["property"], -_number(r["mean"])))
     return rows
 
@@ -214,7 +233,18 @@ def comparisons_markdown(rows: Sequence[Mapping[str, Any]], metric: str = "mcc")
                      f"{r['chance_baseline']}: {_diff_text(r['vs_chance'])} | {simple} |")  # fmt: skip
     lines.append(f"\nModel minus reference in test {metric} on the same splits: mean [95% t interval] "
                  "(wins/ties/losses over splits, Wilcoxon signed-rank p); ▲/▼: the interval lies above/below 0. "
-                 "The strongest simple baseline is the best of rf, hgb, logreg, svm by validation score.\n")  # fmt: skip
+                 "The strongest simple baseline is the best of rf, hgb, logreg, svm by validation score; a run "
+                 "over fewer splits is paired on the splits it shares with the reference (n = its splits).\n")  # fmt: skip
+    learned = [r for r in rows if r["model"] not in FEATURE_BASELINES and r.get("vs_feature")]
+    if learned:
+        references = [m for m in FEATURE_BASELINES if any(m in r["vs_feature"] for r in learned)]
+        lines += ["**Every learned model against each feature baseline** (same splits)", "",
+                  "| split | property | model | n | " + " | ".join(f"vs {m}" for m in references) + " |",
+                  "|" + "---|" * (4 + len(references))]  # fmt: skip
+        for r in learned:
+            cells = [_diff_text(r["vs_feature"].get(m)) for m in references]
+            lines.append(f"| {r['split']} | {r['property']} | {r['model']} | {r['n']} | " + " | ".join(cells) + " |")
+        lines.append("")
     return "\n".join(lines)
 
 

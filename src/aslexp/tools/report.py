@@ -13,6 +13,14 @@ layout and lexicon (a suffix names the group when a folder holds more than one):
                                       the chance baseline
     table_thesis_ch3.md               Table 3.4's layout (micro/macro F1, mean ± std)
     table_thesis_ch4.md               Tables 4.2/4.3's layout (A ± 95% half-width, Ā) and C.2's (P_μ, P_M, R_M, MCC)
+    comparisons.png                   the paired differences to the strongest simple baseline, per
+                                      property and split (95% intervals)
+    validation_curves.png             per property and split, the validation MCC per epoch of the
+                                      models trained over epochs (mean over runs) against the
+                                      feature baselines' validation MCC
+    run_plots/<split>_<property>_<model>/  confusion_matrix.png, learning_curves.png drawn from
+                                      metrics.json for runs whose folder has none (a GPU node
+                                      without matplotlib); the run folders are not touched
     agreement.json                    the thesis' section 4.4: Fleiss' kappa over the clips that all
                                       models misclassify, per task, with mean ± std over the six tasks;
                                       the mutual misclassification (clips in 2 (3) test sets wrong for
@@ -244,6 +252,127 @@ def plot_best_vs_baseline(rows: list[dict[str, Any]], path: Path) -> None:
     plt.close(fig)
 
 
+def plot_comparisons(rows: list[dict[str, Any]], path: Path) -> bool:
+    """Per (split, property) with a learned model paired against the strongest simple baseline: each
+    model's mean difference in test MCC with its 95% t interval (a forest plot). False if none."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+    for r in rows:
+        if r.get("vs_simple"):
+            panels[(r["split"], r["property"])].append(r)
+    if not panels:
+        return False
+    from aslexp.recognition.report import PROPERTY_ORDER, SPLIT_ORDER
+
+    def order(key: tuple[str, str]) -> tuple:
+        split, prop = key
+        return (SPLIT_ORDER.index(split) if split in SPLIT_ORDER else len(SPLIT_ORDER),
+                PROPERTY_ORDER.index(prop) if prop in PROPERTY_ORDER else len(PROPERTY_ORDER), key)  # fmt: skip
+
+    keys = sorted(panels, key=order)
+    columns = min(2, len(keys))
+    lines = (len(keys) + columns - 1) // columns
+    fig, axes = plt.subplots(lines, columns, figsize=(6.2 * columns, 0.5 + 0.32 * max(len(v) for v in panels.values())
+                                                          * lines + 1.1 * lines), squeeze=False, layout="constrained")
+    for ax, key in zip(axes.flat, keys):
+        members = sorted(panels[key], key=lambda r: r["vs_simple"]["diff"]["mean"])
+        for y, r in enumerate(members):
+            diff = r["vs_simple"]["diff"]
+            low, high = _finite(diff["low"], diff["mean"]), _finite(diff["high"], diff["mean"])
+            color = {1: "tab:green", -1: "tab:red", 0: "0.3"}[r["vs_simple"]["resolved"]]
+            ax.errorbar(diff["mean"], y, xerr=[[diff["mean"] - low], [high - diff["mean"]]], fmt="o", color=color, capsize=3)
+        ax.set_yticks(range(len(members)), [f"{r['model']} (n={r['vs_simple']['diff']['n']})" for r in members], fontsize=8)
+        ax.set_ylim(-0.6, len(members) - 0.4)
+        ax.axvline(0, color="k", lw=0.8)
+        reference = members[0]["strongest_simple"]
+        ax.set_title(f"{key[1]}, {key[0]} split: minus {reference}", fontsize=9)
+        ax.set_xlabel(f"test MCC minus {reference} (same splits), 95% CI", fontsize=8)
+        ax.grid(axis="x", alpha=0.3)
+    for ax in list(axes.flat)[len(keys):]:
+        ax.axis("off")
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return True
+
+
+def plot_validation_curves(members: list[dict[str, Any]], path: Path) -> bool:
+    """Per (split, property) with a model trained over epochs: its validation MCC per epoch, the mean
+    over the validation runs (splits x seeds) still training at that epoch, drawn while at least half
+    are; dashed, the validation MCC of each feature baseline (mean over its runs, fitted once).
+    False when no run was trained over epochs."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from aslexp.recognition.report import FEATURE_BASELINES, MODEL_ORDER, PROPERTY_ORDER, SPLIT_ORDER
+
+    panels: dict[tuple[str, str], dict[str, dict[str, Any]]] = defaultdict(dict)
+    for run in members:
+        panels[(run["split"], run["property"])][run["classifier"]] = run["metrics"]
+
+    def trained(metrics: dict[str, Any]) -> bool:
+        return any(len(h) > 1 for h in metrics.get("history", {}).values())
+
+    keys = [k for k in panels if any(trained(m) for m in panels[k].values())]
+    if not keys:
+        return False
+    keys.sort(key=lambda k: (SPLIT_ORDER.index(k[0]) if k[0] in SPLIT_ORDER else 9,
+                             PROPERTY_ORDER.index(k[1]) if k[1] in PROPERTY_ORDER else 9, k))  # fmt: skip
+    columns = min(2, len(keys))
+    lines = (len(keys) + columns - 1) // columns
+    fig, axes = plt.subplots(lines, columns, figsize=(6.4 * columns, 3.6 * lines), squeeze=False, layout="constrained")
+    for ax, key in zip(axes.flat, keys):
+        models = sorted(panels[key], key=lambda m: MODEL_ORDER.index(m) if m in MODEL_ORDER else 99)
+        for index, model in enumerate(models):
+            metrics = panels[key][model]
+            # One colour per model in every panel (its place in MODEL_ORDER).
+            color = f"C{(MODEL_ORDER.index(model) if model in MODEL_ORDER else index) % 10}"
+            if trained(metrics):
+                curves = [[_finite(r.get("val_mcc"), math.nan) for r in h] for h in metrics["history"].values()]
+                length = max(len(c) for c in curves)
+                grid = np.full((len(curves), length), np.nan)
+                for row, curve in enumerate(curves):
+                    grid[row, :len(curve)] = curve
+                running = np.sum(np.isfinite(grid), axis=0)
+                shown = running >= max(1, len(curves) / 2)
+                with np.errstate(all="ignore"):
+                    mean = np.where(shown, np.nanmean(np.where(np.isfinite(grid), grid, np.nan), axis=0), np.nan)
+                ax.plot(np.arange(1, length + 1), mean, color=color, label=f"{model} ({len(curves)} runs)")
+            elif model in FEATURE_BASELINES:
+                ax.axhline(_finite(metrics.get("val_mcc"), math.nan), color=color, ls="--", lw=1.2,
+                           label=f"{model} (fitted once)")  # fmt: skip
+        ax.set_title(f"{key[1]}, {key[0]} split", fontsize=9)
+        ax.set_xlabel("epoch", fontsize=8)
+        ax.set_ylabel("validation MCC (mean over runs)", fontsize=8)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=6, ncol=2)
+    for ax in list(axes.flat)[len(keys):]:
+        ax.axis("off")
+    fig.suptitle("Validation MCC per epoch (mean over the runs still training, shown while at least half are) "
+                 "against the feature baselines' validation MCC (dashed)", fontsize=9)  # fmt: skip
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return True
+
+
+def write_run_plots(members: list[dict[str, Any]], out_dir: Path) -> list[Path]:
+    """run_plots/<split>_<property>_<model>/ for the runs whose folder has no plots."""
+    from aslexp.recognition.experiment import CONFUSION_FILE, plots_from_metrics
+
+    written = []
+    for run in members:
+        if not (run["dir"] / CONFUSION_FILE).exists():
+            name = f"{run['split']}_{run['property']}_{run['classifier']}"
+            written.append(plots_from_metrics(run["metrics"], out_dir / name))
+    return written
+
+
 def write_report(paths: list[Path], out_dir: Path) -> dict[str, Any]:
     from aslexp.recognition.report import (
         collect_table,
@@ -275,6 +404,11 @@ def write_report(paths: list[Path], out_dir: Path) -> dict[str, Any]:
         compared = comparisons(cells)
         (out_dir / f"comparisons{suffix}.md").write_text(heading + comparisons_markdown(compared), encoding="utf-8")
         write_json(out_dir / f"comparisons{suffix}.json", compared)
+        plot_comparisons(compared, out_dir / f"comparisons{suffix}.png")
+        plot_validation_curves(members, out_dir / f"validation_curves{suffix}.png")
+        plotted = write_run_plots(members, out_dir / f"run_plots{suffix}")
+        if plotted:
+            log.info("%d run(s) without plots: drawn from metrics.json into %s", len(plotted), out_dir / f"run_plots{suffix}")
         (out_dir / f"table_thesis_ch3{suffix}.md").write_text(heading + thesis_ch3_table(cells), encoding="utf-8")
         (out_dir / f"table_thesis_ch4{suffix}.md").write_text(
             heading + thesis_ch4_table(cells) + "\n" + thesis_c2_table(cells), encoding="utf-8")
