@@ -13,8 +13,11 @@ on every environment's observation, the environments stepping, episode bookkeepi
 update (GAE and the PPO epochs). Printed per N: medians of steps/s of collection and of whole
 iterations, the efficiency steps/s(N) / (N x steps/s(1)) against one environment in this
 process (the default; the median of each round's own ratio), and the wall-clock of a 50 M-step run at that rate, without and with the
-evaluations the config asks for (they run in the learner, at one environment's speed). N = 1 is
-also measured in one worker process, to show what the inter-process round trip costs. All rows
+evaluations the config asks for (they run in the learner, at one environment's speed). Each N > 1
+is measured in both worker modes (``--modes``): lockstep workers (``vector_env: async``, one round
+trip per step, the policy batched in the learner) and rollout workers (``vector_env: workers``, the
+policy in each worker, one round trip per rollout). N = 1 is also measured in one worker process
+of each mode, to show what the inter-process round trips cost. All rows
 of one body and rate come from the same run, so their ratios hold even on a loaded machine;
 the absolute figures do not (the load average is printed).
 """
@@ -105,7 +108,8 @@ def scaling(args, data_root: Path) -> list[dict]:
         ppo_name = args.ppo_hand if body == "hand" else args.ppo_upper_body
         for rate in args.rates:
             factory = make_factory(body, rate, data_root)
-            runs = [(1, "sync")] + [(1, "async")] * args.async_one + [(n, "async") for n in args.envs if n > 1]
+            runs = ([(1, "sync")] + [(1, mode) for mode in args.modes] * args.async_one
+                    + [(n, mode) for n in args.envs if n > 1 for mode in args.modes])
             print(f"\n### {body}, {rate:g} Hz control, ppo={ppo_name}", flush=True)
             print("| N | environments | collection steps/s | efficiency | iteration steps/s | efficiency "
                   "| 50 M steps, training only | with evaluations |")
@@ -129,7 +133,8 @@ def scaling(args, data_root: Path) -> list[dict]:
                 # Evaluations run in the learner at about one environment's collection speed.
                 eval_steps = RUN_STEPS / config.eval_interval * len(config.phases) * config.eval_steps
                 with_eval = hours(rates["iteration"]) + eval_steps / reference["collect"] / 3600
-                where = "in process" if mode == "sync" else f"{n} worker{'s' if n > 1 else ''}"
+                kind = {"async": "lockstep", "workers": "rollout"}.get(mode, mode)
+                where = "in process" if mode == "sync" else f"{n} {kind} worker{'s' if n > 1 else ''}"
                 row = {"body": body, "rate_hz": rate, "ppo": ppo_name, "num_envs": n, "mode": mode,
                        "batch": config.batch_size, "collect_steps_per_s": round(rates["collect"], 1),
                        "collect_efficiency": round(eff_c, 3), "iteration_steps_per_s": round(rates["iteration"], 1),
@@ -228,6 +233,9 @@ def main() -> None:
                         help="policy inference while collecting: on the CPU or on the learner's device")
     parser.add_argument("--torch-threads", type=int, default=1)
     parser.add_argument("--async-one", type=int, default=1, choices=[0, 1], help="also N = 1 in a worker process")
+    parser.add_argument("--modes", nargs="+", default=["async", "workers"], choices=["async", "workers"],
+                        help="vector_env modes for the worker rows: async (lockstep, the policy batched in the "
+                             "learner) and workers (the policy in each worker, one message per rollout)")
     parser.add_argument("--csv", type=Path, default=None, help="also write the rows here")
     parser.add_argument("--backends", action="store_true", help="compare vector-env backends (hand, no policy)")
     parser.add_argument("--backend-steps", type=int, default=1500)

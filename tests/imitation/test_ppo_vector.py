@@ -17,8 +17,9 @@ from aslexp.envs.imitation import ImitationEnv
 from aslexp.rl.checkpoint import load_checkpoint, save_checkpoint
 from aslexp.rl.evaluate import baselines, evaluate, evaluate_phases, reference_policy
 from aslexp.rl.policy import RunningNormalizer
-from aslexp.rl.ppo import PPOConfig, PPOTrainer, resolve_device
-from aslexp.rl.vector import make_vector_env, worker_seeds
+from aslexp.rl.ppo import PPOConfig, PPOTrainer, make_agent, resolve_device
+from aslexp.rl.vector import DropInfo, make_vector_env, worker_seeds
+from aslexp.rl.workers import noise_seeds, rollout_segment
 
 TINY = dict(hidden_sizes=(32, 32), learning_rate=1e-3, steps_per_rollout=128, minibatch_size=64, epochs=2,
             log_std_init=-1.0, weight_decay=0.0, eval_interval=128, eval_steps=20, eval_episodes=2,
@@ -60,6 +61,60 @@ def test_two_workers_collect_the_transitions_of_two_single_environments(tmp_path
             if term or trunc:
                 obs, _ = env.reset()
         env.close()
+
+
+def test_rollout_workers_collect_what_the_same_loop_collects_in_this_process(tmp_path, motion_a):
+    # vector_env=workers: each worker steps its environment with a copy of the policy for the whole
+    # rollout. Its transitions equal rollout_segment run here with the same seeds, episode ends and
+    # the normaliser's statistics included; a second rollout continues the same episodes.
+    config = PPOConfig(**TINY, num_envs=2, vector_env="workers")
+    trainer = PPOTrainer(factory(motion_a), None, config, tmp_path, seed=3)
+    try:
+        first = trainer.collect()
+        second = trainer.collect()
+        counters = trainer.counters()
+    finally:
+        trainer.close()
+    assert first.batch_size == (2, 64) and trainer.steps == 256 and counters["episodes"] > 2
+    done, terminated = first["next", "done"].squeeze(-1), first["next", "terminated"].squeeze(-1)
+    assert terminated.sum() > 0 and (done & ~terminated).sum() > 0
+
+    for i, (reset_seed, noise_seed) in enumerate(zip(worker_seeds(3, 2), noise_seeds(3, 2))):
+        env = DropInfo(factory(motion_a)())
+        obs, _ = env.reset(seed=reset_seed)
+        generator = torch.Generator().manual_seed(noise_seed)
+        torch.manual_seed(3)  # as the trainer did: the initial weights the workers received
+        policy = make_agent(env, config)
+        segment, obs = rollout_segment(env, policy, generator, np.asarray(obs, np.float32), 64)
+        normalise = RunningNormalizer(segment["obs"].shape[-1])  # the statistics the first rollout used
+        assert torch.equal(normalise(torch.from_numpy(segment["obs"])), first["observation"][i])
+        assert torch.equal(torch.from_numpy(segment["action"]), first["action"][i])
+        assert torch.equal(torch.from_numpy(segment["reward"]), first["next", "reward"][i, :, 0])
+        assert torch.equal(torch.from_numpy(segment["terminated"]), terminated[i])
+        assert torch.equal(torch.from_numpy(segment["terminated"] | segment["truncated"]), done[i])
+        assert torch.equal(normalise(torch.from_numpy(segment["next_obs"])), first["next", "observation"][i])
+        env.close()
+    assert not torch.equal(first["observation"], second["observation"])
+
+
+def test_a_run_with_rollout_workers_trains_and_resumes(tmp_path, motion_a):
+    eval_env = ImitationEnv(motion_a, env={**ENV, "early_termination": {"min_reward": None}})
+    config = PPOConfig(**{**TINY, "total_steps": 128}, num_envs=2, vector_env="workers")
+    first = PPOTrainer(factory(motion_a), eval_env, config, tmp_path, seed=1)
+    try:
+        first.train()
+    finally:
+        first.close()
+    second = PPOTrainer(factory(motion_a), eval_env, PPOConfig(**TINY, num_envs=2, vector_env="workers"), tmp_path,
+                        seed=1)
+    try:
+        second.restore(tmp_path / "checkpoints" / "last.pt")
+        result = second.train()
+    finally:
+        second.close()
+    assert [h["step"] for h in result.history] == [128, 256] and np.isfinite(result.last_eval)
+    assert result.history[-1]["count_episodes"] > 0
+    eval_env.close()
 
 
 def test_gae_bootstraps_truncation_not_termination_in_each_environment(tmp_path, motion_a):
@@ -254,6 +309,7 @@ def test_the_scaling_benchmark_runs_on_tiny_settings(tmp_path, data_root):
         cwd=root, env={**os.environ, "ASLEXP_DATA_ROOT": str(data_root)}, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     rows = list(csv.DictReader(out.open()))
-    assert [(r["num_envs"], r["mode"]) for r in rows] == [("1", "sync"), ("1", "async"), ("2", "async")]
+    assert [(r["num_envs"], r["mode"]) for r in rows] == [("1", "sync"), ("1", "async"), ("1", "workers"),
+                                                          ("2", "async"), ("2", "workers")]
     assert float(rows[0]["collect_efficiency"]) == 1.0 and all(float(r["hours_50M"]) > 0 for r in rows)
-    assert "| 2 | 2 workers |" in proc.stdout
+    assert "| 2 | 2 lockstep workers |" in proc.stdout and "| 2 | 2 rollout workers |" in proc.stdout

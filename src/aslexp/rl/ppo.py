@@ -1,11 +1,12 @@
 """PPO for imitation, CleanRL-style: collect a rollout, GAE, clipped-surrogate epochs, repeat.
 
-Collection steps ``num_envs`` environments as one gymnasium vector environment (one in this
-process by default; with more, one worker process each: :mod:`aslexp.rl.vector` says why
-gymnasium's ``AsyncVectorEnv`` and not torchrl's ``ParallelEnv``). The policy runs once per step
-for all environments (batched inference); each environment keeps its own episode (returns,
-lengths, and same-step resets: a truncated episode is bootstrapped from its last observation,
-a terminated one is not). The rollout becomes a ``(num_envs, steps)`` TensorDict and the
+Collection steps ``num_envs`` environments: one in this process by default; with more, one worker
+process each, either with a copy of the policy that steps a whole rollout per message
+(``vector_env: workers``, the default for N > 1: :mod:`aslexp.rl.workers`) or in lockstep with the
+policy batched over all environments here (``async``: gymnasium's ``AsyncVectorEnv``;
+:mod:`aslexp.rl.vector` says why not torchrl's ``ParallelEnv``). Each environment keeps its own
+episode (returns, lengths, and same-step resets: a truncated episode is bootstrapped from its
+last observation, a terminated one is not). The rollout becomes a ``(num_envs, steps)`` TensorDict and the
 learning side is torchrl's: :class:`~torchrl.objectives.value.GAE` (time is the last batch
 dimension) and :class:`~torchrl.objectives.ClipPPOLoss`, on ``device`` (``auto``: CUDA when
 there is one). Rollout inference stays on the CPU by default (``rollout_device``): a batch of a
@@ -29,6 +30,7 @@ from __future__ import annotations
 
 import copy
 import csv
+import functools
 import logging
 import math
 import time
@@ -48,6 +50,7 @@ from aslexp.rl.checkpoint import load_checkpoint, save_checkpoint
 from aslexp.rl.evaluate import EvaluationSummary, even_phases, evaluate_phases
 from aslexp.rl.policy import Agent, ModelSpec
 from aslexp.rl.vector import cpu_cores, make_vector_env, mean_terms, resolve_mode, sum_counters, worker_seeds
+from aslexp.rl.workers import PolicyWorkers, actor_state, noise_seeds
 
 log = logging.getLogger("aslexp.ppo")
 LOG_PROB = "action_log_prob"
@@ -86,7 +89,7 @@ class PPOConfig:
     # controller (residual actions) is otherwise moved by advantages that are mostly critic error.
     critic_warmup_steps: int = 0
     num_envs: int = 1
-    vector_env: str = "auto"  # auto (sync for 1 env, async for more) | sync | async
+    vector_env: str = "auto"  # auto (sync for 1 env, workers for more) | sync | async | workers
     device: str = "auto"  # the learner's: auto (cuda if available) | cpu | cuda | cuda:N
     rollout_device: str = "cpu"  # policy inference while collecting: cpu | learner
     torch_threads: int = 1
@@ -103,7 +106,7 @@ class PPOConfig:
         for key, ok, expected in checks:
             if not ok:
                 raise ValueError(f"ppo config: {key} must be {expected}, got {getattr(self, key)!r}")
-        resolve_mode(self.vector_env, self.num_envs)
+        resolve_mode(self.vector_env, self.num_envs, self.rollout_device)
         resolve_device(self.device)  # an unknown or absent device fails here, before any work
 
     @classmethod
@@ -169,10 +172,16 @@ class TrainResult:
 
 def make_agent(env, config: PPOConfig) -> Agent:
     """An agent for an environment (or a vector environment: its single spaces)."""
-    obs_space = getattr(env, "single_observation_space", env.observation_space)
-    act_space = getattr(env, "single_action_space", env.action_space)
+    if hasattr(env, "single_observation_space"):
+        return agent_for_spaces(config.model, env.single_observation_space, env.single_action_space)
+    return agent_for_spaces(config.model, env.observation_space, env.action_space)
+
+
+def agent_for_spaces(model: ModelSpec, obs_space: gym.Space, act_space: gym.Space) -> Agent:
+    """An agent of architecture ``model`` for these spaces (picklable with functools.partial:
+    rollout workers build their policy copy with it)."""
     low, high = act_space.low.astype(np.float64), act_space.high.astype(np.float64)
-    return Agent(obs_space.shape[0], act_space.shape[0], config.model, (low + high) / 2, (high - low) / 2)
+    return Agent(obs_space.shape[0], act_space.shape[0], model, (low + high) / 2, (high - low) / 2)
 
 
 class EpisodeStats:
@@ -250,11 +259,18 @@ class PPOTrainer:
         torch.manual_seed(seed)
         self.rng = np.random.default_rng(seed)
         self.seed = seed
-        if resolve_mode(config.vector_env, config.num_envs) == "async":
+        self.mode = resolve_mode(config.vector_env, config.num_envs, config.rollout_device)
+        if self.mode in ("async", "workers"):
             cores = cpu_cores()
             log.info("starting %d environment worker process(es)%s", config.num_envs,
                      f" on {cores} cores: they will share them" if config.num_envs > cores else "")
-        self.envs = make_vector_env(env, config.num_envs, config.vector_env)
+        if self.mode == "workers":
+            if isinstance(env, gym.Env) or not callable(env):
+                raise ValueError("ppo config: vector_env workers needs an environment factory (a picklable "
+                                 "callable such as functools.partial(ImitationEnv, ...)), got an environment instance")
+            self.envs = PolicyWorkers(env, config.num_envs, functools.partial(agent_for_spaces, config.model))
+        else:
+            self.envs = make_vector_env(env, config.num_envs, config.vector_env)
         self._owns_envs = not isinstance(env, gym.Env)
         self.num_envs = config.num_envs
         self.agent = make_agent(self.envs, config).to(self.device)
@@ -330,6 +346,8 @@ class PPOTrainer:
     def collect(self) -> TensorDict:
         """One rollout: ``steps_per_env`` steps of every environment as a ``(num_envs, steps)``
         TensorDict of normalised observations (on the rollout device)."""
+        if self.mode == "workers":
+            return self._collect_in_workers()
         envs, agent, n_envs, n = self.envs, self.rollout_agent, self.num_envs, self.config.steps_per_env
         device = agent.device
         obs_size, act_size = envs.single_observation_space.shape[0], envs.single_action_space.shape[0]
@@ -358,6 +376,32 @@ class PPOTrainer:
                 self._obs = obs
                 if self.progress is not None:
                     self.progress.tick(self.steps + (t + 1) * n_envs)
+        return self._batch(raw_obs, next_raw, actions, rewards, terminated, done)
+
+    def _collect_in_workers(self) -> TensorDict:
+        """The rollout with the policy in the workers (``vector_env: workers``): one message per
+        worker and rollout; the same batch as :meth:`collect`'s."""
+        n = self.config.steps_per_env
+        if self._obs is None:  # a new run, or a resumed one: every environment starts an episode
+            self.envs.reset(worker_seeds(self.seed, self.num_envs, self.steps),
+                            noise_seeds(self.seed, self.num_envs, self.steps))
+            self.episodes = EpisodeStats(self.num_envs)
+            self._obs = True  # the observations live in the workers
+        segment = self.envs.rollout(actor_state(self.agent), n)
+        for t in range(n):
+            self.episodes.step(segment["reward"][t], segment["terminated"][t], segment["truncated"][t])
+        if self.progress is not None:
+            self.progress.tick(self.steps + n * self.num_envs)
+        actions = torch.from_numpy(segment["action"]).to(self.rollout_agent.device)
+        return self._batch(segment["obs"], segment["next_obs"], actions, segment["reward"], segment["terminated"],
+                           segment["terminated"] | segment["truncated"])
+
+    def _batch(self, raw_obs: np.ndarray, next_raw: np.ndarray, actions: torch.Tensor, rewards: np.ndarray,
+               terminated: np.ndarray, done: np.ndarray) -> TensorDict:
+        """``(steps, envs)`` arrays of a rollout -> the ``(envs, steps)`` TensorDict PPO learns from,
+        observations normalised with the statistics the actions were sampled under (then updated)."""
+        agent, n_envs, n = self.rollout_agent, self.num_envs, raw_obs.shape[0]
+        device = agent.device
         # (steps, envs) -> (envs, steps): torchrl's GAE takes time as the last batch dimension.
         raw = torch.from_numpy(np.ascontiguousarray(raw_obs.swapaxes(0, 1))).to(device)
         next_raw_t = torch.from_numpy(np.ascontiguousarray(next_raw.swapaxes(0, 1))).to(device)
@@ -442,7 +486,7 @@ class PPOTrainer:
         stopped = "total_steps"
         csv_file = ProgressCSV(self.out_dir / "progress.csv")
         log.info("PPO %s: %d environment(s) (%s), %d steps per update, learner on %s, rollout on %s",
-                 cfg.name, self.num_envs, resolve_mode(cfg.vector_env, self.num_envs), cfg.batch_size,
+                 cfg.name, self.num_envs, self.mode, cfg.batch_size,
                  self.device, self.rollout_agent.device)
         while self.steps < cfg.total_steps:
             t0 = time.perf_counter()

@@ -7,7 +7,10 @@ returned one already starts the next episode: PPO bootstraps a truncated episode
 * ``sync``: the environments step one after another in this process (``SyncVectorEnv``); with
   one environment this is the default, and the fastest: no inter-process round trip.
 * ``async``: one worker process per environment (``AsyncVectorEnv``, observations in shared
-  memory); the learner batches the policy over all of them and waits for the slowest.
+  memory); the learner batches the policy over all of them and waits for the slowest, at every
+  step (lockstep). ``auto`` picks it only when the rollout runs on the learner's device.
+* ``workers`` (:mod:`aslexp.rl.workers`, not a gymnasium vector environment): one process per
+  environment with its own copy of the policy, one round trip per rollout; ``auto`` for N > 1.
 
 Why gymnasium's ``AsyncVectorEnv`` and not torchrl's ``ParallelEnv``/collectors: on the hand
 (``ImitationEnv``, reference actions, no policy), on this 2-core machine shared with other work,
@@ -56,7 +59,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv, VectorEnv
 
-MODES = ("auto", "sync", "async")
+MODES = ("auto", "sync", "async", "workers")  # workers: aslexp.rl.workers (the policy in each worker)
 START_METHOD = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
 
 
@@ -104,12 +107,17 @@ def cpu_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def resolve_mode(mode: str, num_envs: int) -> str:
-    """``auto``: ``sync`` for one environment, ``async`` (one worker per environment) for more."""
+def resolve_mode(mode: str, num_envs: int, rollout_device: str = "cpu") -> str:
+    """``auto``: ``sync`` for one environment; for more, ``workers`` (the policy in every worker,
+    :mod:`aslexp.rl.workers`: one round trip per rollout, measured faster than lockstep workers
+    in bench/ppo_scaling.py) unless the rollout's inference is to run on the learner's device
+    (``rollout_device: learner``, e.g. a GPU batching every environment's step): then ``async``."""
     if mode not in MODES:
         raise ValueError(f"ppo config: vector_env must be one of {list(MODES)}, got {mode!r}")
     if mode == "auto":
-        return "sync" if num_envs == 1 else "async"
+        if num_envs == 1:
+            return "sync"
+        return "async" if rollout_device == "learner" else "workers"
     return mode
 
 

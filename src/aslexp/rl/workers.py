@@ -1,0 +1,190 @@
+"""Rollout workers: each environment steps in its own process WITH a copy of the policy.
+
+``vector_env: workers`` (:class:`PolicyWorkers`). Lockstep vector environments
+(:mod:`aslexp.rl.vector`, ``async``) send one action to every worker and wait for every
+observation at each step, with the policy batched in the learner: one inter-process round trip
+per step. For a physics simulator whose step takes a millisecond or two, that round trip (and
+the learner's inference, which the workers wait for) is the cost: on 2 cores, two lockstep
+workers collected 0.93x as fast as one environment in the learner's process (hand, 30 Hz,
+2026-11-23, ``bench/ppo_scaling.py``). Here each worker gets the policy's weights once per
+rollout, steps its environment ``steps`` times with a one-thread CPU copy of the actor
+(sampling from its own seeded generator), and sends back the whole segment: one round trip per
+rollout. What the learner needs comes back unchanged: raw observations (the observation
+normaliser's statistics are updated by the learner from all workers' observations, so they are
+merged exactly), actions, rewards, terminations and the final observation of every episode
+(same-step autoreset, as the vector environments).
+
+Determinism: worker ``i`` resets with the seed :func:`~aslexp.rl.vector.worker_seeds` gives it
+and samples its action noise from ``noise_seeds(seed, i, start_step)``; the same seeds give
+the same transitions, whatever the number of cores (:func:`rollout_segment` is the worker's
+whole loop, and runs in this process too, for one environment or a test).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import traceback
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+import torch
+
+from aslexp.rl.policy import Agent
+from aslexp.rl.vector import START_METHOD, DropInfo
+
+# The agent's entries the workers need (the critic stays with the learner).
+ACTOR_PREFIXES = ("normalizer.", "actor.", "action_center", "action_half_range")
+
+
+def noise_seeds(seed: int, num_envs: int, start_step: int = 0) -> list[int]:
+    """Seeds of the workers' action-noise generators (distinct from their reset seeds)."""
+    return [int(np.random.SeedSequence([seed, worker, start_step, 1]).generate_state(1)[0])
+            for worker in range(num_envs)]
+
+
+def actor_state(agent: Agent) -> dict[str, np.ndarray]:
+    """The weights a worker's policy copy needs, as numpy arrays (cheap to pickle)."""
+    return {k: v.detach().cpu().numpy() for k, v in agent.state_dict().items() if k.startswith(ACTOR_PREFIXES)}
+
+
+def rollout_segment(env: gym.Env, agent: Agent, generator: torch.Generator, obs: np.ndarray,
+                    steps: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """``steps`` steps of one environment under the agent's stochastic policy, from ``obs``.
+
+    Returns the segment (raw ``obs`` and ``next_obs`` -- the final observation where an episode
+    ended --, normalised ``action``, ``reward``, ``terminated``, ``truncated``) and the observation
+    to continue from (a new episode's first where the last step ended one)."""
+    obs_size, act_size = obs.shape[0], agent.action_center.shape[0]
+    out = {"obs": np.empty((steps, obs_size), np.float32), "next_obs": np.empty((steps, obs_size), np.float32),
+           "action": np.empty((steps, act_size), np.float32), "reward": np.empty(steps, np.float32),
+           "terminated": np.empty(steps, bool), "truncated": np.empty(steps, bool)}
+    with torch.no_grad():
+        for t in range(steps):
+            out["obs"][t] = obs
+            loc, scale = agent.head(agent.normalizer(torch.from_numpy(out["obs"][t:t + 1])))
+            a = loc + scale * torch.randn(loc.shape, generator=generator)
+            out["action"][t] = a[0].numpy()
+            next_obs, reward, terminated, truncated, _ = env.step(agent.to_env_action(a)[0].numpy())
+            out["next_obs"][t] = next_obs
+            out["reward"][t], out["terminated"][t], out["truncated"][t] = reward, terminated, truncated
+            if terminated or truncated:  # same-step autoreset, as gymnasium's vector environments
+                next_obs, _ = env.reset()
+            obs = np.asarray(next_obs, np.float32)
+    return out, obs
+
+
+def _serve(pipe, make_env: Callable[[], gym.Env], make_agent: Callable[[gym.Space, gym.Space], Agent]) -> None:
+    """A worker's loop: commands from the learner until ``close``."""
+    torch.set_num_threads(1)
+    env = agent = generator = obs = None
+    while True:
+        command, data = pipe.recv()
+        try:
+            if command == "close":
+                if env is not None:
+                    env.close()
+                pipe.send(("ok", None))
+                return
+            if env is None:
+                env = DropInfo(make_env())
+                agent = make_agent(env.observation_space, env.action_space)
+            if command == "spaces":
+                result = (env.observation_space, env.action_space)
+            elif command == "reset":
+                reset_seed, noise_seed = data
+                obs, _ = env.reset(seed=reset_seed)
+                obs = np.asarray(obs, np.float32)
+                generator = torch.Generator().manual_seed(noise_seed)
+                result = None
+            elif command == "rollout":
+                weights, steps = data
+                agent.load_state_dict({k: torch.from_numpy(v) for k, v in weights.items()}, strict=False)
+                result, obs = rollout_segment(env, agent, generator, obs, steps)
+            elif command == "call":
+                result = getattr(env, data)()
+            else:
+                raise ValueError(f"unknown command {command!r}")
+            pipe.send(("ok", result))
+        except Exception:  # noqa: BLE001 - the learner raises it, with this worker's traceback
+            pipe.send(("error", traceback.format_exc()))
+
+
+class WorkerError(RuntimeError):
+    """A rollout worker failed; the message carries its traceback."""
+
+
+class PolicyWorkers:
+    """``num_envs`` worker processes, each an environment and a copy of the policy.
+
+    ``make_env`` must be picklable (e.g. ``functools.partial(ImitationEnv, ...)``), as must
+    ``make_agent`` (observation space, action space -> an :class:`Agent` of the learner's
+    architecture, e.g. ``functools.partial(agent_for_spaces, config.model)``)."""
+
+    def __init__(self, make_env: Callable[[], gym.Env], num_envs: int,
+                 make_agent: Callable[[gym.Space, gym.Space], Agent]) -> None:
+        context = multiprocessing.get_context(START_METHOD)
+        self.num_envs = num_envs
+        self._pipes, self._processes = [], []
+        for index in range(num_envs):
+            parent, child = context.Pipe()
+            process = context.Process(target=_serve, args=(child, make_env, make_agent),
+                                      name=f"aslexp-rollout-{index}", daemon=True)
+            process.start()
+            child.close()
+            self._pipes.append(parent)
+            self._processes.append(process)
+        self._closed = False
+        self.single_observation_space, self.single_action_space = self._ask_one(0, "spaces", None)
+
+    def _ask_one(self, index: int, command: str, data: Any) -> Any:
+        self._pipes[index].send((command, data))
+        return self._answer(index)
+
+    def _answer(self, index: int) -> Any:
+        try:
+            status, result = self._pipes[index].recv()
+        except EOFError as exc:
+            raise WorkerError(f"rollout worker {index} died (exit code {self._processes[index].exitcode})") from exc
+        if status == "error":
+            raise WorkerError(f"rollout worker {index} failed:\n{result}")
+        return result
+
+    def _ask_all(self, command: str, per_worker: list[Any]) -> list[Any]:
+        for pipe, data in zip(self._pipes, per_worker):  # all start before any answer is awaited
+            pipe.send((command, data))
+        return [self._answer(i) for i in range(self.num_envs)]
+
+    def reset(self, reset_seeds: list[int], noise_seeds_: list[int]) -> None:
+        self._ask_all("reset", list(zip(reset_seeds, noise_seeds_)))
+
+    def rollout(self, weights: dict[str, np.ndarray], steps: int) -> dict[str, np.ndarray]:
+        """``steps`` steps of every worker; arrays shaped ``(steps, num_envs, ...)``."""
+        segments = self._ask_all("rollout", [(weights, steps)] * self.num_envs)
+        return {key: np.stack([s[key] for s in segments], axis=1) for key in segments[0]}
+
+    def call(self, name: str) -> list[Any]:
+        """``name()`` of every worker's (info-dropping) environment wrapper, as the vector envs' ``call``."""
+        return self._ask_all("call", [name] * self.num_envs)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for index, pipe in enumerate(self._pipes):
+            try:
+                pipe.send(("close", None))
+                pipe.recv()
+            except (BrokenPipeError, EOFError, OSError):
+                pass
+        for process in self._processes:
+            process.join(timeout=5)
+            if process.is_alive():
+                process.kill()
+
+    def __del__(self) -> None:  # a trainer that raised still stops its workers
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown
+            pass
