@@ -5,7 +5,8 @@ The actor acts in a normalised action space: the environment action is
 learned log standard deviation (as in the thesis' Stable-Baselines3 policy). Observations are
 normalised by running statistics held in the agent (the learner), updated from each rollout's
 observations of all environments at once: merging per-worker statistics would give the same
-mean and variance (the parallel-variance update is exact), and the workers never need them.
+mean and variance (the parallel-variance update is exact); rollout workers receive them, frozen
+for the rollout, with the weights.
 """
 
 from __future__ import annotations
