@@ -187,3 +187,22 @@ def test_letters_scratch_builds_the_61_value_environment_of_its_comments(data_ro
     assert eval_env.spec_env.early_termination["min_reward"] is None  # evaluations never end early
     train.close()
     eval_env.close()
+
+
+def test_a_linear_actor_beside_an_mlp_critic(motion_a):
+    import torch
+
+    from aslexp.rl.ppo import PPOConfig, make_agent
+
+    config = PPOConfig.from_dict({"hidden_sizes": [32, 32], "actor_hidden_sizes": [], "log_std_init": -2.0})
+    assert config.actor_hidden_sizes == () and PPOConfig.from_dict({}).actor_hidden_sizes is None
+    env = hand(motion_a, normalize_actions=True, observe_links=[], observe_future=[1])
+    agent = make_agent(env, config)
+    actor = [m for m in agent.head.net if isinstance(m, torch.nn.Linear)]
+    critic = [m for m in agent.critic.module if isinstance(m, torch.nn.Linear)]
+    assert [tuple(m.weight.shape) for m in actor] == [(15, 16)]  # phase + one future pose -> 15 targets
+    assert [tuple(m.weight.shape) for m in critic] == [(32, 16), (32, 32), (1, 32)]
+    obs, _ = env.reset(options={"time": 0.0})
+    action = agent.act(obs)
+    assert action.shape == (15,) and np.all(np.abs(action) < 0.1)  # near the box centre at first
+    env.close()
