@@ -164,7 +164,7 @@ def test_letters_scratch_overlay_composes_with_the_values_its_comments_claim():
     assert env["observe_links"] == [] and env["observe_future"] == [1, 2] and env["observe_joints"] is True
     assert env["episode_steps"] == 300
     # ppo=scratch: a linear policy beside an MLP critic, and the evaluation protocol of the bar.
-    assert ppo["name"] == "scratch" and ppo["actor_hidden_sizes"] is None and ppo["hidden_sizes"] == [256, 256]
+    assert ppo["name"] == "scratch" and ppo["actor_hidden_sizes"] == [] and ppo["hidden_sizes"] == [256, 256]
     assert ppo["num_envs"] == 2 and ppo["eval_steps"] == 300 and ppo["eval_episodes"] == 4
     # The sweep: letters A-E, one seed by default, and the summary callback.
     params = cfg["hydra"]["sweeper"]["params"]
