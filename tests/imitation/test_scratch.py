@@ -206,3 +206,26 @@ def test_a_linear_actor_beside_an_mlp_critic(motion_a):
     action = agent.act(obs)
     assert action.shape == (15,) and np.all(np.abs(action) < 0.1)  # near the box centre at first
     env.close()
+
+
+def test_letters_scratch_runs_end_to_end_with_its_summary(tmp_path):
+    """The documented command on a tiny budget: the run, and the sweep's table and curves against
+    each letter's reference-as-target bar measured in the same run."""
+    import csv
+    import json
+
+    from .test_jobs import run_job
+
+    sweep = tmp_path / "scratch"
+    run_job("imitate", "-m", "experiment=letters_scratch", "motion=B", "ppo.hidden_sizes=[32,32]",
+            "ppo.steps_per_rollout=128", "ppo.minibatch_size=128", "ppo.epochs=1", "ppo.total_steps=256",
+            "ppo.eval_interval=128", "ppo.eval_steps=24", "render.frames_every=8", "render.size=[48,48]",
+            "ppo.num_envs=1", "plots=false", "render.gif=false", f"hydra.sweep.dir={sweep}")
+    metrics = json.loads((sweep / "0" / "metrics.json").read_text())
+    assert metrics["motion"] == "B" and metrics["steps"] == 256
+    bar = metrics["baselines"]["reference"]
+    assert 0.5 < bar < metrics["baselines"]["lookahead"] <= 1.0  # the reference one step ahead tracks better
+    [row] = list(csv.DictReader((sweep / "scratch_table.csv").open(encoding="utf-8")))
+    assert row["motion"] == "B" and float(row["target"]) == pytest.approx(bar, abs=1e-4)
+    assert row["reached_target"] == "0/1"  # 256 steps of PPO do not imitate a letter
+    assert (sweep / "scratch_curves.png").stat().st_size > 0
