@@ -18,10 +18,16 @@ One control step (``1 / control_hz`` seconds):
 
 Episodes end when ``episode_steps`` have passed (truncated), and are terminated on a NaN action,
 a diverging simulation (non-finite state or joint speed above ``max_joint_velocity``) or, if
-configured, a step reward below ``early_termination.min_reward`` or a fall
+configured, a step reward below ``early_termination.min_reward`` (for ``early_termination.patience``
+consecutive control steps: 1 by default; more lets a policy recover from a moment every policy
+loses, such as a looping motion's jump back to its first frame) or a fall
 (``early_termination.fall``: with ``body.base: free``, a link other than ``body.ground_contacts``
 touching the ground, as the authors' "forbidden ground contact"). Every such end is flagged in
 ``info`` and counted in :attr:`ImitationEnv.counters`.
+
+Actions are in the controller's units (the joint range for absolute targets, +-``residual_range``
+for corrections) or, with ``normalize_actions``, in [-1, 1] per value mapped affinely onto that
+box (DeepMimic's parametrisation: any learner sees a unit box; :meth:`ImitationEnv.physical_action`).
 """
 
 from __future__ import annotations
@@ -73,7 +79,15 @@ class EnvSpec:
     observe_joints: bool = False
     observe_future_velocities: bool = False  # also the reference joint velocities at observe_future
     residual_velocity_range: float = 0.0  # rad/s; > 0 appends velocity-target corrections to the action
-    # Links in the observation (fnmatch patterns on link names, URDF order); None: every link.
+    # The policy's action is [-1, 1] per value, mapped affinely onto the box above (absolute: each
+    # joint's range, e.g. [-1, 1] -> [0, 2] rad; residual: +-residual_range, +-residual_velocity_range).
+    normalize_actions: bool = False
+    # The box of absolute targets: each joint's range (joint), or the range the reference motion
+    # visits widened by action_range_margin rad on each side, within the joint range (motion).
+    action_range: str = "joint"
+    action_range_margin: float = 0.25
+    # Links in the observation (fnmatch patterns on link names, URDF order); None: every link;
+    # []: none (the observation is then the phase and the observe_* options alone).
     observe_links: tuple[str, ...] | None = None
     camera: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_CAMERA))
     observation: str = "aslexp"  # aslexp (root frame, per link 13 values) | deepmimic (the authors')
@@ -91,10 +105,19 @@ class EnvSpec:
         spec = cls(**values)
         if spec.observation not in OBSERVATIONS:
             raise ValueError(f"env config: observation must be one of {OBSERVATIONS}, got {spec.observation!r}")
-        unknown_end = set(spec.early_termination or {}) - {"min_reward", "fall"}
+        unknown_end = set(spec.early_termination or {}) - {"min_reward", "fall", "patience"}
         if unknown_end:
             raise ValueError(f"env config: early_termination has unknown keys {sorted(unknown_end)}; "
-                             f"expected min_reward, fall")
+                             f"expected min_reward, patience, fall")
+        patience = (spec.early_termination or {}).get("patience", 1)
+        if patience is None or int(patience) != patience or patience < 1:
+            raise ValueError(f"env config: early_termination.patience must be an integer >= 1 "
+                             f"(control steps below min_reward before the end), got {patience!r}")
+        if spec.action_range not in ("joint", "motion"):
+            raise ValueError(f"env config: action_range must be joint or motion, got {spec.action_range!r}")
+        if spec.action_range == "motion" and (spec.action_mode != "absolute" or spec.action_range_margin < 0):
+            raise ValueError(f"env config: action_range motion needs action_mode absolute and "
+                             f"action_range_margin >= 0, got {spec.action_mode!r}, {spec.action_range_margin}")
         if spec.action_mode not in ("absolute", "residual"):
             raise ValueError(f"env config: action_mode must be absolute or residual, got {spec.action_mode!r}")
         ratio = spec.physics_hz / spec.control_hz
@@ -220,8 +243,10 @@ class ImitationEnv(gym.Env):
         self.joint_lower = np.asarray(lower)
         self.joint_upper = np.asarray(upper)
         if self.spec_env.action_mode == "absolute":
-            self.action_space = gym.spaces.Box(self.joint_lower.astype(np.float32),
-                                               self.joint_upper.astype(np.float32), dtype=np.float32)
+            low, high = self.joint_lower, self.joint_upper
+            if self.spec_env.action_range == "motion":
+                low, high = self._motion_range(self.spec_env.action_range_margin)
+            self.action_space = gym.spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
         else:
             r = float(self.spec_env.residual_range)
             self.action_space = gym.spaces.Box(-r, r, shape=(self.layout.action_size,), dtype=np.float32)
@@ -232,6 +257,18 @@ class ImitationEnv(gym.Env):
                 np.concatenate([self.action_space.low, np.full(self.velocity_size, -rv, np.float32)]),
                 np.concatenate([self.action_space.high, np.full(self.velocity_size, rv, np.float32)]),
                 dtype=np.float32)
+        # The box above is in physical units (rad, quaternion components, rad/s): the controller's.
+        # With normalize_actions the policy acts in [-1, 1] and step() maps onto that box.
+        self.physical_action_space = self.action_space
+        self._action_center = ((self.action_space.high.astype(np.float64) + self.action_space.low) / 2)
+        self._action_half_range = ((self.action_space.high.astype(np.float64) - self.action_space.low) / 2)
+        if self.spec_env.normalize_actions:
+            if np.any(self._action_half_range <= 0):
+                flat = [j.name for j in self.layout.joints for _ in range(1 if j.dof == 1 else 4)]
+                empty = sorted({flat[i] for i in np.flatnonzero(self._action_half_range[:len(flat)] <= 0)})
+                raise ValueError(f"env config: normalize_actions needs a non-empty range per action; "
+                                 f"joints {empty} of body {self.body_spec.name} have lower == upper")
+            self.action_space = gym.spaces.Box(-1.0, 1.0, shape=self.physical_action_space.shape, dtype=np.float32)
         self.observed_links = self._select_links(self.spec_env.observe_links)
         # Links read from PyBullet each step: the observed ones and the end effectors (None: all).
         self._state_links = (None if self.spec_env.observe_links is None else
@@ -247,15 +284,30 @@ class ImitationEnv(gym.Env):
         # -- episode state and counters --------------------------------------------------
         self.time = 0.0
         self.steps = 0
+        self._steps_below = 0
         self.last_sim_state: PoseSnapshot | None = None
         self.last_reference_state: PoseSnapshot | None = None
         self.counters: dict[str, int] = defaultdict(int)
         self._term_sums: dict[str, float] = defaultdict(float)
 
+    def _motion_range(self, margin: float) -> tuple[np.ndarray, np.ndarray]:
+        """Per action value, the reference's min and max over the motion (sampled at four times
+        its frame rate) widened by ``margin`` rad and kept within the joint range; quaternion
+        components keep [-1, 1]."""
+        frames = max(2, 4 * len(self.motion.frames))
+        q = np.stack([self.reference.joints(t) for t in np.linspace(0.0, self.reference.duration, frames)])
+        revolute = np.concatenate([[j.dof == 1] * (1 if j.dof == 1 else 4) for j in self.layout.joints])
+        low = np.where(revolute, np.maximum(self.joint_lower, q.min(axis=0) - margin), self.joint_lower)
+        high = np.where(revolute, np.minimum(self.joint_upper, q.max(axis=0) + margin), self.joint_upper)
+        return low, high
+
     def _select_links(self, patterns: tuple[str, ...] | None) -> np.ndarray:
-        """Indices of the observed links (all links, or those matching one of ``patterns``)."""
+        """Indices of the observed links (all links, those matching one of ``patterns``, or none
+        for an empty list)."""
         if patterns is None:
             return np.arange(self.sim.num_links)
+        if not patterns:
+            return np.zeros(0, dtype=int)
         import fnmatch
 
         chosen = [i for i, name in enumerate(self.sim.link_names)
@@ -278,7 +330,22 @@ class ImitationEnv(gym.Env):
             target = target - self.reference_targets(self.spec_env.reference_lookahead)
         if self.spec_env.residual_velocity_range > 0:
             target = np.concatenate([target, np.zeros(self.velocity_size)])
-        return target.astype(np.float32)
+        return self.normalize_action(target).astype(np.float32)
+
+    def physical_action(self, action: np.ndarray) -> np.ndarray:
+        """The controller's action (rad, quaternion components, rad/s) for a policy action: the
+        same values, or with ``normalize_actions`` the affine map of [-1, 1] onto the box
+        (-1 -> low, +1 -> high, exactly; values outside [-1, 1] are not clipped here: the
+        targets are clipped to the joint limits as for physical actions)."""
+        if not self.spec_env.normalize_actions:
+            return action
+        return self._action_center + self._action_half_range * action
+
+    def normalize_action(self, action: np.ndarray) -> np.ndarray:
+        """The inverse of :meth:`physical_action` (the policy action giving a physical one)."""
+        if not self.spec_env.normalize_actions:
+            return action
+        return (np.asarray(action, dtype=np.float64) - self._action_center) / self._action_half_range
 
     @contextmanager
     def thesis_pd(self):
@@ -385,6 +452,7 @@ class ImitationEnv(gym.Env):
         else:
             self.time = 0.0
         self.steps = 0
+        self._steps_below = 0  # consecutive steps with a reward below early_termination.min_reward
         q = self.reference.joints(self.time)
         qd = self.reference.joint_velocities(self.time)
         self.sim.set_state(q, qd)
@@ -405,7 +473,7 @@ class ImitationEnv(gym.Env):
             links = self.sim.link_states(links=self._state_links)
             return self._observation(links), 0.0, True, False, {"nan_action": True, "diverged": False}
 
-        self._drive(action)
+        self._drive(self.physical_action(action))
         self.time += self.control_dt
         self.steps += 1
 
@@ -428,7 +496,9 @@ class ImitationEnv(gym.Env):
         ending = self.spec_env.early_termination or {}
         min_reward = ending.get("min_reward")
         fell = bool(ending.get("fall")) and self.fallen()
-        early = fell or (min_reward is not None and reward < float(min_reward))
+        low = min_reward is not None and reward < float(min_reward)
+        self._steps_below = self._steps_below + 1 if low else 0
+        early = fell or self._steps_below >= int(ending.get("patience", 1))
         if early:
             self.counters["early_terminations"] += 1
             self.counters["falls"] += fell

@@ -207,6 +207,18 @@ class LettersSummary(_MultirunSummary):
         return summarize_letters(sweep_dir)
 
 
+class ScratchSummary(_MultirunSummary):
+    """From-scratch letters (experiment=letters_scratch): curves and table against each letter's
+    reference-as-target baseline (the bar, dashed), in scratch_curves.png and scratch_table.{md,csv}."""
+
+    kind = "scratch"
+
+    def summarize(self, sweep_dir: Path) -> dict:
+        from aslexp.rl.report import summarize_letters
+
+        return summarize_letters(sweep_dir, targets="reference", stem="scratch", lines=("reference",))
+
+
 class ThesisSummary(_MultirunSummary):
     """The thesis overlays: per letter or sign, the thesis' number, every no-learning baseline and the
     learned policies' last evaluation, all under the runs' reward (aslexp.rl.thesis_report)."""

@@ -90,6 +90,8 @@ class ModelSpec:
     activation: str = "relu"
     ortho_init: bool = True
     log_std_init: float = -3.0
+    # The actor's own hidden sizes (None: hidden_sizes; (): a linear policy, the critic keeps its MLP).
+    actor_hidden_sizes: tuple[int, ...] | None = None
 
 
 class Agent(nn.Module):
@@ -101,7 +103,8 @@ class Agent(nn.Module):
         self.spec = spec
         self.normalizer = RunningNormalizer(obs_size)
         hidden = list(spec.hidden_sizes)
-        head = GaussianHead(mlp(obs_size, hidden, action_size, spec.activation, spec.ortho_init, 0.01),
+        actor_hidden = hidden if spec.actor_hidden_sizes is None else list(spec.actor_hidden_sizes)
+        head = GaussianHead(mlp(obs_size, actor_hidden, action_size, spec.activation, spec.ortho_init, 0.01),
                             action_size, spec.log_std_init)
         self.actor = ProbabilisticActor(
             TensorDictModule(head, in_keys=["observation"], out_keys=["loc", "scale"]),

@@ -62,6 +62,7 @@ class PPOConfig:
 
     name: str = "custom"
     hidden_sizes: tuple[int, ...] = (1024, 1024)
+    actor_hidden_sizes: tuple[int, ...] | None = None  # None: hidden_sizes; []: a linear policy
     activation: str = "relu"
     learning_rate: float = 3e-4
     steps_per_rollout: int = 4096  # per update, all environments together
@@ -115,15 +116,17 @@ class PPOConfig:
         if unknown:
             raise ValueError(f"ppo config: unknown keys {sorted(unknown)}")
         values = dict(values)
-        if "hidden_sizes" in values:
-            values["hidden_sizes"] = tuple(int(h) for h in values["hidden_sizes"])
+        for key in ("hidden_sizes", "actor_hidden_sizes"):
+            if values.get(key) is not None:
+                values[key] = tuple(int(h) for h in values[key])
         if values.get("eval_phases") is not None:
             values["eval_phases"] = tuple(float(p) for p in values["eval_phases"])
         return cls(**values)
 
     @property
     def model(self) -> ModelSpec:
-        return ModelSpec(self.hidden_sizes, self.activation, self.ortho_init, self.log_std_init)
+        return ModelSpec(self.hidden_sizes, self.activation, self.ortho_init, self.log_std_init,
+                         self.actor_hidden_sizes)
 
     @property
     def steps_per_env(self) -> int:

@@ -151,7 +151,7 @@ def plot_curves(runs: dict[str, list[dict[str, Any]]], path: Path, title: str,
     ``lines``: per motion, named horizontal lines (baselines, the thesis' number)."""
     plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7.5, 4.2))
-    styles = (":", "--", "-.", (0, (1, 3)), (0, (5, 2, 1, 2)))
+    styles = ("--", ":", "-.", (0, (1, 3)), (0, (5, 2, 1, 2)))  # the first line (the bar) dashed
     for i, (motion, items) in enumerate(sorted(runs.items())):
         color = f"C{i % 10}"
         curves = [[(p["step"], p["eval_reward"]) for p in m["progress"] if "eval_reward" in p] for m in items]
@@ -177,12 +177,14 @@ def plot_curves(runs: dict[str, list[dict[str, Any]]], path: Path, title: str,
 
 
 def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None,
-                      targets: float | dict[str, float] | None = LETTERS_TARGET) -> dict[str, Any]:
+                      targets: float | dict[str, float] | str | None = LETTERS_TARGET,
+                      stem: str = "letters", lines: tuple[str, ...] | None = None) -> dict[str, Any]:
     """Per motion over seeds: the LAST evaluation (mean ± std; the headline), the best-so-far one
     (secondary: a maximum over evaluations is biased upward), every no-learning baseline the runs
-    measured, and how many seeds end above EVERY one of them; curves in ``letters_curves.png``,
-    the table in ``letters_table.{md,csv}``. ``targets`` (one value or one per motion) adds how many
-    seeds reached it and the median steps and minutes until they did."""
+    measured, and how many seeds end above EVERY one of them; curves in ``<stem>_curves.png``,
+    the table in ``<stem>_table.{md,csv}``. ``targets`` (one value, one per motion, or the name of a
+    baseline: each motion's own) adds how many seeds reached it and the median steps and minutes
+    until they did. ``lines``: the baselines drawn on the curves (default: the first three)."""
     runs = read_runs(sweep_dir)
     out_dir = Path(out_dir or sweep_dir)
     rows = []
@@ -202,7 +204,8 @@ def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None,
                                            f"/{len(trained)}")
         row["steps_mean"] = int(np.mean([m["steps"] for m in items]))
         row["minutes_mean"] = round(float(np.mean([m["seconds"] for m in items])) / 60, 1)
-        target = targets.get(str(letter)) if isinstance(targets, dict) else targets
+        target = (targets.get(str(letter)) if isinstance(targets, dict) else
+                  round(base[targets], 4) if isinstance(targets, str) else targets)
         if target is not None:
             reached = [p for p in (first_above(m["progress"], target) for m in trained) if p is not None]
             row.update({
@@ -211,12 +214,13 @@ def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None,
                 "median_minutes_to_target": round(float(np.median([p[1] for p in reached])) / 60, 2) if reached else None,
             })
         rows.append(row)
-    lines = {m: {k: float(np.mean([r["baselines"][k] for r in items if k in r["baselines"]]))
-                 for k in list(dict.fromkeys(k for r in items for k in r["baselines"]))[:3]}
+    drawn = {m: {k: float(np.mean([r["baselines"][k] for r in items if k in r["baselines"]]))
+                 for k in (lines or list(dict.fromkeys(k for r in items for k in r["baselines"]))[:3])}
              for m, items in runs.items()}
-    plot_curves(runs, out_dir / "letters_curves.png", "evaluation reward per motion (lines: no-learning baselines)",
-                lines)
-    table = write_table(rows, out_dir, "letters_table")
+    plot_curves(runs, out_dir / f"{stem}_curves.png",
+                f"evaluation reward per motion (lines: no-learning baselines{', ' + ', '.join(lines) if lines else ''})",
+                drawn)
+    table = write_table(rows, out_dir, f"{stem}_table")
     return {"rows": rows, "table": table}
 
 
