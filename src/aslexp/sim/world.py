@@ -9,14 +9,12 @@ character in a world that is never stepped (it only answers forward-kinematics q
 
 from __future__ import annotations
 
-import contextlib
 import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from aslexp.sim._pybullet import pybullet  # noqa: I001 - first: silences its import banner
+from aslexp.sim._pybullet import c_output_quieted, pybullet  # noqa: I001 - first: silences its import banner
 from pybullet_utils import bullet_client
 
 from aslexp.quaternion import rotate, wxyz_to_xyzw
@@ -36,30 +34,12 @@ class PhysicsConfig:
     non_contact_inner_iterations: int = 1
 
 
-@contextlib.contextmanager
-def _quiet_stdout():
-    """Silence C-level writes to stdout (file descriptor 1) for the duration of the block."""
-    try:
-        sys.stdout.flush()
-        saved = os.dup(1)
-    except (OSError, ValueError, AttributeError):
-        yield
-        return
-    try:
-        with open(os.devnull, "w") as devnull:
-            os.dup2(devnull.fileno(), 1)
-            yield
-    finally:
-        os.dup2(saved, 1)
-        os.close(saved)
-
-
 class World:
     """One PyBullet physics server in DIRECT mode (no GUI, no shared state with other worlds)."""
 
     def __init__(self, physics: PhysicsConfig | None = None) -> None:
         self.physics = physics or PhysicsConfig()
-        with _quiet_stdout():  # PyBullet's C code prints "argv[0]=" on every connection
+        with c_output_quieted((1,)):  # PyBullet's C code prints "argv[0]=" on every connection
             self.client = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
         self.client.setTimeStep(1.0 / self.physics.physics_hz)
         self.client.setGravity(*self.physics.gravity)
@@ -126,10 +106,11 @@ class Character:
             raise FileNotFoundError(f"URDF not found: {path}")
         # A kinematic reference is never stepped: a fixed base is the cheapest holder for it.
         self.base = "fixed" if kinematic else spec.base
-        self.id = pb.loadURDF(
-            str(path), list(base_position), wxyz_to_xyzw(np.asarray(base_orientation_wxyz)),
-            useFixedBase=self.base == "fixed", globalScaling=spec.global_scaling, flags=flags,
-        )
+        with c_output_quieted((1, 2)):  # "no axis element for Joint" per spherical joint, per load
+            self.id = pb.loadURDF(
+                str(path), list(base_position), wxyz_to_xyzw(np.asarray(base_orientation_wxyz)),
+                useFixedBase=self.base == "fixed", globalScaling=spec.global_scaling, flags=flags,
+            )
         self._pin: int | None = None
         if self.base == "pinned":
             # Held by a constraint, not welded: PyBullet 3.2.7's stable PD reads a fixed-base body's
