@@ -25,6 +25,7 @@ from aslexp.tuning.worker import (
     INTERRUPTED,
     Outcome,
     WorkerSettings,
+    ask_claimed,
     budget_used,
     fail_stale_trials,
     run_worker,
@@ -85,6 +86,51 @@ def test_a_dead_local_worker_s_trial_is_failed_as_interrupted_and_not_counted(jo
     assert frozen.state == TrialState.FAIL and frozen.user_attrs[ATTR_STATE] == INTERRUPTED
     assert study.trials[live.number].state == TrialState.RUNNING  # our own process is alive
     assert budget_used(study.trials) == 1
+
+
+_KILLED_AFTER_ASK = """
+import os, signal, sys
+import optuna
+from optuna.distributions import FloatDistribution
+from aslexp.tuning.storage import open_storage
+from aslexp.tuning.worker import ask_claimed, worker_identity
+study = optuna.load_study(study_name="unit", storage=open_storage(sys.argv[1]))
+ask_claimed(study, {"x": FloatDistribution(-1, 1)}, worker_identity())
+os.kill(os.getpid(), signal.SIGKILL)  # dies before running or telling the trial
+"""
+
+
+def test_a_worker_killed_right_after_asking_leaves_a_trial_a_resume_replaces(journal: str) -> None:
+    """The trial is born owned (one journal record), so the dead worker is recognised at once.
+
+    When the owner was written after ``ask``, a kill in between left an ownerless RUNNING trial
+    that counted toward the budget for ever: a resumed 6-trial sweep stopped at 5 completes.
+    """
+    _study(journal)
+    killed = subprocess.run([sys.executable, "-c", _KILLED_AFTER_ASK, journal])
+    assert killed.returncode == -9
+    created = [json.loads(line) for line in Path(journal).read_text().splitlines()
+               if '"datetime_start"' in line and '"study_id"' in line]
+    assert len(created) == 1 and ATTR_WORKER in created[0]["user_attrs"]  # the same record
+
+    settings = WorkerSettings(storage_spec=journal, study_name="unit", n_trials=2,
+                              heartbeat_interval=0)
+    study = optuna.load_study(study_name="unit", storage=open_storage(journal))
+    summary = run_worker(study, SPACE, settings, lambda t: Outcome("complete", value=0.0))
+    assert summary.stale_failed == [0]
+    trials = study.trials
+    assert trials[0].state == TrialState.FAIL and trials[0].user_attrs[ATTR_STATE] == INTERRUPTED
+    assert [t.state for t in trials[1:]] == [TrialState.COMPLETE] * 2  # the budget is met
+    assert all(t.user_attrs[ATTR_WORKER] for t in trials)
+
+
+def test_ask_claimed_takes_an_enqueued_trial_first(journal: str) -> None:
+    study = _study(journal)
+    study.enqueue_trial({"x": 0.25})
+    trial = ask_claimed(study, SPACE, worker_identity())
+    assert trial.params == {"x": 0.25}
+    assert study.trials[0].user_attrs[ATTR_WORKER] == worker_identity()
+    assert ask_claimed(study, SPACE, worker_identity()).number == 1
 
 
 def test_a_remote_worker_is_judged_by_its_heartbeat(journal: str) -> None:

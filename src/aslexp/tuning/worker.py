@@ -29,6 +29,7 @@ import traceback
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from typing import Any
 
 import optuna
@@ -268,9 +269,8 @@ def _run_worker(study: optuna.Study, distributions: Mapping[str, BaseDistributio
                     log.info("%s: budget spent (%d/%d trials); stopping",
                              settings.worker_label, used, settings.n_trials)
                     break
-                trial = study.ask(dict(distributions))
                 # No heartbeat yet: until the first one, the trial's start time stands for it.
-                study._storage.set_trial_user_attr(trial._trial_id, ATTR_WORKER, identity)
+                trial = ask_claimed(study, distributions, identity)
                 if on_asked is not None:
                     on_asked(trial)
             log.info("%s: trial %d (%d/%d) %s", settings.worker_label, trial.number, used + 1,
@@ -305,6 +305,33 @@ def _run_worker(study: optuna.Study, distributions: Mapping[str, BaseDistributio
                                "resumes the sweep and runs it again")
         raise
     return summary
+
+
+def ask_claimed(study: optuna.Study, distributions: Mapping[str, BaseDistribution],
+                identity: Mapping[str, Any]) -> Trial:
+    """``study.ask(distributions)`` with the worker's identity written by the same storage
+    operation that creates the trial.
+
+    Asking first and tagging after left a window: a worker killed between the two writes left a
+    RUNNING trial with no owner, which no one may judge dead and which counted toward the budget
+    for ever (a resumed sweep then stopped one trial short). Journal and RDB storages both create
+    a trial from a template in one append or one transaction.
+    """
+    study._thread_local.cached_all_trials = None  # what Study.ask does: sync once per trial
+    trial_id = study._pop_waiting_trial_id()  # an enqueued trial exists already: tag it after
+    if trial_id is None:
+        template = FrozenTrial(
+            number=-1, state=TrialState.RUNNING, value=None, values=None,
+            datetime_start=datetime.now(timezone.utc), datetime_complete=None, params={},
+            distributions={}, user_attrs={ATTR_WORKER: dict(identity)}, system_attrs={},
+            intermediate_values={}, trial_id=-1)
+        trial_id = study._storage.create_new_trial(study._study_id, template_trial=template)
+    else:
+        study._storage.set_trial_user_attr(trial_id, ATTR_WORKER, dict(identity))
+    trial = optuna.Trial(study, trial_id)
+    for name, distribution in distributions.items():
+        trial._suggest(name, distribution)
+    return trial
 
 
 def trial_run_dir(study: optuna.Study, trial: Trial) -> str | None:
