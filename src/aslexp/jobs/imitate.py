@@ -231,6 +231,20 @@ class ThesisSummary(_MultirunSummary):
         return summarize_thesis(sweep_dir)
 
 
+class ResidualSummary(_MultirunSummary):
+    """A residual policy on a controller that loses reward for a physical reason
+    (experiment=signs_free_residual): per sign the controller, the same on a pinned base, the
+    smoothed-reference baselines and the learned last evaluation over seeds, with the verdict
+    (aslexp.rl.residual_report)."""
+
+    kind = "residual"
+
+    def summarize(self, sweep_dir: Path) -> dict:
+        from aslexp.rl.residual_report import summarize_residual
+
+        return summarize_residual(sweep_dir)
+
+
 class SignsSummary(_MultirunSummary):
     """The signs experiment: curves and the table beside thesis table 6.7."""
 

@@ -115,6 +115,46 @@ def reference_policy(lookahead: int) -> Policy:
     return lambda obs, env: env.reference_action(lookahead)
 
 
+def smoothed_reference_policy(alpha: float, groups: tuple[str, ...] | None = None) -> Policy:
+    """A no-learning baseline for a residual action: the reference one step ahead, low-pass
+    filtered, ``target_t = alpha * target_(t-1) + (1 - alpha) * reference_(t+1)`` on the joints of
+    ``groups`` (all joints when None; quaternion targets are renormalised by the controller).
+
+    Gentler targets mean smaller reaction torques: on the standing upper body this alone stops
+    much of the feet's slip (the yaw drift that costs the authors' stable PD its reward), so it is
+    the simple baseline a learned correction has to be compared with, not only the bare controller.
+    The filter restarts with every episode (``env.steps == 0``).
+    """
+    if not 0.0 <= alpha < 1.0:
+        raise ValueError(f"smoothing alpha must be in [0, 1), got {alpha}")
+    state: dict[str, np.ndarray | None] = {"previous": None, "index": None}
+
+    def policy(obs: np.ndarray, env: ImitationEnv) -> np.ndarray:
+        if state["index"] is None:
+            chosen = [i for i, j in enumerate(env.layout.joints) if groups is None or j.group in groups]
+            if not chosen:
+                raise ValueError(f"smoothing: no joint in groups {list(groups or [])}; the body's groups "
+                                 f"are {sorted({j.group for j in env.layout.joints})}")
+            starts = np.cumsum([0] + [j.dof for j in env.layout.joints])
+            state["index"] = np.concatenate([np.arange(starts[i], starts[i + 1]) for i in chosen])
+        base = env.reference_targets(env.spec_env.reference_lookahead)
+        ahead = env.reference_targets(1)
+        if env.steps == 0 or state["previous"] is None:
+            state["previous"] = ahead.copy()
+        target = ahead.copy()
+        index = state["index"]
+        target[index] = alpha * state["previous"][index] + (1.0 - alpha) * ahead[index]
+        state["previous"] = target
+        action = target - base if env.spec_env.action_mode == "residual" else target
+        if env.spec_env.residual_velocity_range > 0:  # no velocity-target correction
+            action = np.concatenate([action, np.zeros(env.velocity_size)])
+        # Within the action box, as a policy's would be (a residual's +-residual_range).
+        action = np.clip(action, env.physical_action_space.low, env.physical_action_space.high)
+        return env.normalize_action(action).astype(np.float32)
+
+    return policy
+
+
 def baselines(env: ImitationEnv, steps: int | None = None, phases: tuple[float, ...] = (0.0,)) -> dict[str, float]:
     """Mean reward of the reference-tracking baselines, each evaluated as a policy is: one
     deterministic episode from each of ``phases``, averaged (pass the PPO config's phases).
