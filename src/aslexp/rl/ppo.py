@@ -297,7 +297,9 @@ class PPOTrainer:
         self.history: list[dict[str, Any]] = []
         self.episodes = EpisodeStats(self.num_envs)
         self.progress: Progress | None = None
-        self._obs: np.ndarray | None = None
+        # Episodes run on across rollouts; a new run or a resumed one starts them all again.
+        self._episodes_started = False
+        self._obs: np.ndarray | None = None  # in-process collection: the environments' current observations
 
     def close(self) -> None:
         """Stop the worker processes (an environment instance passed in stays open)."""
@@ -337,7 +339,7 @@ class PPOTrainer:
         torch.set_rng_state(payload["torch_rng"])
         self.rng.bit_generator.state = payload["numpy_rng"]
         self._sync_rollout_agent()
-        self._obs = None
+        self._episodes_started, self._obs = False, None
         log.info("resumed from %s at step %d (saved with %s environment(s), now %d)", path, self.steps,
                  payload.get("num_envs", 1), self.num_envs)
 
@@ -360,9 +362,10 @@ class PPOTrainer:
         rewards = np.empty((n, n_envs), np.float32)
         terminated = np.empty((n, n_envs), bool)
         done = np.empty((n, n_envs), bool)
-        if self._obs is None:  # a new run, or a resumed one: every environment starts an episode
+        if not self._episodes_started:
             self._obs, _ = envs.reset(seed=worker_seeds(self.seed, n_envs, self.steps))
             self.episodes = EpisodeStats(n_envs)
+            self._episodes_started = True
         with torch.no_grad():
             for t in range(n):
                 raw_obs[t] = self._obs
@@ -385,11 +388,11 @@ class PPOTrainer:
         """The rollout with the policy in the workers (``vector_env: workers``): one message per
         worker and rollout; the same batch as :meth:`collect`'s."""
         n = self.config.steps_per_env
-        if self._obs is None:  # a new run, or a resumed one: every environment starts an episode
+        if not self._episodes_started:  # the observations live in the workers
             self.envs.reset(worker_seeds(self.seed, self.num_envs, self.steps),
                             noise_seeds(self.seed, self.num_envs, self.steps))
             self.episodes = EpisodeStats(self.num_envs)
-            self._obs = True  # the observations live in the workers
+            self._episodes_started = True
         segment = self.envs.rollout(actor_state(self.agent), n)
         for t in range(n):
             self.episodes.step(segment["reward"][t], segment["terminated"][t], segment["truncated"][t])
