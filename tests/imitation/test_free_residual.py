@@ -118,3 +118,35 @@ def test_signs_free_residual_composes_with_the_values_its_comments_claim():
     params = cfg["hydra"]["sweeper"]["params"]
     assert params["motion"] == "'00433','52861','69318','69546'" and params["seed"] == "0,1,2"
     assert cfg["hydra"]["callbacks"]["residual_summary"]["_target_"] == "aslexp.jobs.imitate.ResidualSummary"
+
+
+def test_observe_reference_root_shows_the_turn_the_heading_frame_hides(data_root):
+    from aslexp import quaternion
+    from aslexp.jobs._common import to_dict
+    from aslexp.jobs.imitate import build_envs
+    from hydra import compose, initialize_config_dir
+
+    from aslexp.envs.config import CONF_DIR
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = to_dict(compose(config_name="imitate", overrides=[
+            "experiment=signs_free_residual", "motion='00433'", "env.observe_reference_root=true"]))
+    make_train_env, eval_env = build_envs(cfg, data_root)
+    eval_env.close()
+    env = make_train_env()
+    plain_size = 2 + 13 * len(env.observed_links) + env.layout.action_size
+    assert env.observation_space.shape == (plain_size + 7,)
+    obs, _ = env.reset(options={"phase": 0.3})
+    assert np.allclose(obs[-7:-4], 0.0, atol=1e-6)  # the body starts on the reference's root
+    # Turn the simulated root by 20 degrees about the vertical: the links in the heading frame do not
+    # change, the reference's root is seen turned by -20 degrees.
+    position, rotation, velocity, spin = env.reference.root(env.time)
+    turn = np.radians(20.0)
+    env.sim.set_base(position, quaternion.multiply(np.array([np.cos(turn / 2), 0.0, np.sin(turn / 2), 0.0]),
+                                                   rotation), velocity, spin)
+    turned = env._observation(env.sim.link_states(links=env._state_links))
+    assert np.allclose(turned[:-7], obs[:-7], atol=1e-4)  # what deepmimic's observation sees: nothing
+    seen = turned[-4:]  # the reference's root in the simulated root's heading frame
+    relative = quaternion.multiply(quaternion.conjugate(seen), obs[-4:])  # (w, x, y, z)
+    assert np.degrees(2 * np.arctan2(relative[2], relative[0])) == pytest.approx(20.0, abs=0.1)
+    env.close()

@@ -78,6 +78,10 @@ class EnvSpec:
     observe_future: tuple[int, ...] = ()
     observe_joints: bool = False
     observe_future_velocities: bool = False  # also the reference joint velocities at observe_future
+    # The reference's root now, in the frame the links are seen in (position relative to the
+    # simulated root, rotation): 7 values that show how far the body has drifted or turned, which
+    # the heading frame of the deepmimic observation hides (it removes the yaw).
+    observe_reference_root: bool = False
     residual_velocity_range: float = 0.0  # rad/s; > 0 appends velocity-target corrections to the action
     # The policy's action is [-1, 1] per value, mapped affinely onto the box above (absolute: each
     # joint's range, e.g. [-1, 1] -> [0, 2] rad; residual: +-residual_range, +-residual_velocity_range).
@@ -279,6 +283,7 @@ class ImitationEnv(gym.Env):
             obs_size += len(self.spec_env.observe_future) * self.velocity_size
         if self.spec_env.observe_joints:
             obs_size += self.layout.action_size + self.velocity_size
+        obs_size += 7 * self.spec_env.observe_reference_root
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(obs_size,), dtype=np.float32)
 
         # -- episode state and counters --------------------------------------------------
@@ -436,6 +441,10 @@ class ImitationEnv(gym.Env):
                 parts.append(self.reference.joint_velocities(self.time + k * self.control_dt))
         if self.spec_env.observe_joints:
             parts.extend(self.sim.joint_state())
+        if self.spec_env.observe_reference_root:
+            ref_pos, ref_rot, _, _ = self.reference.root(self.time)
+            ref_local = quaternion.multiply(quaternion.conjugate(frame), ref_rot)
+            parts += [(ref_pos - root_pos) @ to_frame.T, ref_local if ref_local[0] >= 0 else -ref_local]
         return np.concatenate(parts).astype(np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
