@@ -158,7 +158,8 @@ def summarize_residual(sweep_dir: str | Path, out_dir: str | Path | None = None)
                          **({"pinned": compare} if compare is not None else {})}
     (out_dir / "residual_baselines.json").write_text(json.dumps(everything, indent=1))
     plot_curves(runs, out_dir / "residual_curves.png",
-                "last evaluations (dashed: controller, dotted: best smoothed reference, dash-dot: pinned base)",
+                "every evaluation, mean ± std over seeds\n(dashed: controller, dotted: best smoothed "
+                "reference, dash-dot: pinned base)",
                 lines)
     table = write_table(rows, out_dir, "residual_table")
     return {"rows": rows, "table": table}
