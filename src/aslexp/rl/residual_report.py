@@ -144,6 +144,8 @@ def summarize_residual(sweep_dir: str | Path, out_dir: str | Path | None = None)
             row["seed spread (std)"] = round(spread, 3)
             if loss is not None and loss <= min_loss:
                 row["verdict"] = f"no gain to find (the controller loses {loss:.3f} <= {min_loss})"
+            elif len(trained) < 2:
+                row["verdict"] = "one seed: no spread to judge by (the rule needs several)"
             else:
                 beats = gain > spread and bool(np.all(last > controller))
                 row["verdict"] = ("beats the controller by more than the seed spread" if beats
