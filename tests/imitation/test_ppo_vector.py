@@ -35,7 +35,7 @@ def factory(motion, **env):
 
 
 def test_two_workers_collect_the_transitions_of_two_single_environments(tmp_path, motion_a):
-    trainer = PPOTrainer(factory(motion_a), None, PPOConfig(**TINY, num_envs=2, vector_env="async"), tmp_path,
+    trainer = PPOTrainer(factory(motion_a), None, PPOConfig(**TINY, num_envs=2, vector_env="async", device="cpu"), tmp_path,
                          seed=3)
     try:
         batch = trainer.collect()
@@ -118,7 +118,7 @@ def test_a_run_with_rollout_workers_trains_and_resumes(tmp_path, motion_a):
 
 
 def test_gae_bootstraps_truncation_not_termination_in_each_environment(tmp_path, motion_a):
-    config = PPOConfig(**TINY, num_envs=2, gamma=0.9, gae_lambda=0.8)
+    config = PPOConfig(**TINY, num_envs=2, gamma=0.9, gae_lambda=0.8, device="cpu")  # CPU tensors compared below
     trainer = PPOTrainer(factory(motion_a), None, config, tmp_path, seed=0)
     batch = trainer.collect()
     with torch.no_grad():
