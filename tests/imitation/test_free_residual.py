@@ -120,6 +120,27 @@ def test_signs_free_residual_composes_with_the_values_its_comments_claim():
     assert cfg["hydra"]["callbacks"]["residual_summary"]["_target_"] == "aslexp.jobs.imitate.ResidualSummary"
 
 
+def test_the_root_variant_changes_only_what_its_name_says():
+    """experiment=signs_free_residual_root: the base experiment plus two named changes, nothing else."""
+    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
+
+    from aslexp.envs.config import CONF_DIR
+
+    def composed(name):
+        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+            return OmegaConf.to_container(compose(config_name="imitate", overrides=[f"experiment={name}"],
+                                                  return_hydra_config=True), resolve=False)
+
+    base, variant = composed("signs_free_residual"), composed("signs_free_residual_root")
+    assert variant["env"]["observe_reference_root"] is True and base["env"]["observe_reference_root"] is False
+    assert variant["ppo"]["log_std_init"] == -1.75 and base["ppo"]["log_std_init"] == -1.0
+    for cfg in (base, variant):
+        cfg["env"].pop("observe_reference_root"), cfg["ppo"].pop("log_std_init")
+        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+    assert variant == base  # same body, controller, reward, budget, report, sweep and callbacks
+
+
 def test_observe_reference_root_shows_the_turn_the_heading_frame_hides(data_root):
     from aslexp import quaternion
     from aslexp.jobs._common import to_dict
