@@ -48,7 +48,9 @@ def _overlap(rows: list[dict[str, str]]) -> bool:
 
 def test_recipe_a_the_launcher_runs_each_trial_as_a_slurm_job_two_in_flight(tmp_path):
     sweep = tmp_path / "sweep"
-    run_sweep(sweep, "hydra.sweeper.n_trials=4", "hydra.sweeper.n_workers=2", "sleep=3", *SLURM,
+    # 8 s per trial: Slurm starts a job submitted beside a running one 1-3 s later; with 3 s trials
+    # the second could start just as the first ended, and "two in flight" was left to chance (CI).
+    run_sweep(sweep, "hydra.sweeper.n_trials=4", "hydra.sweeper.n_workers=2", "sleep=8", *SLURM,
               timeout=300)
     study = _study(sweep)
     assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 4
