@@ -95,15 +95,20 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
     assert "| 52861 (snow) |" in again.stdout and "verdict" in again.stdout
 
 
-def test_signs_free_residual_composes_with_the_values_its_comments_claim():
+def _composed(experiment: str) -> dict:
+    """The imitate config of an experiment overlay, Hydra's own section included, unresolved."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
     from aslexp.envs.config import CONF_DIR
 
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = OmegaConf.to_container(compose(config_name="imitate", overrides=["experiment=signs_free_residual"],
-                                             return_hydra_config=True), resolve=False)
+        return OmegaConf.to_container(compose(config_name="imitate", overrides=[f"experiment={experiment}"],
+                                              return_hydra_config=True), resolve=False)
+
+
+def test_signs_free_residual_composes_with_the_values_its_comments_claim():
+    cfg = _composed("signs_free_residual")
     env, ppo, report = cfg["env"], cfg["ppo"], cfg["report"]["residual"]
     # The authors' controller and Table 6.4 Run 3's reward on the standing body.
     assert cfg["body"]["base"] == "free" and cfg["controller"]["mode"] == "stable_pd"
@@ -122,17 +127,7 @@ def test_signs_free_residual_composes_with_the_values_its_comments_claim():
 
 def test_the_root_variant_changes_only_what_its_name_says():
     """experiment=signs_free_residual_root: the base experiment plus two named changes, nothing else."""
-    from hydra import compose, initialize_config_dir
-    from omegaconf import OmegaConf
-
-    from aslexp.envs.config import CONF_DIR
-
-    def composed(name):
-        with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-            return OmegaConf.to_container(compose(config_name="imitate", overrides=[f"experiment={name}"],
-                                                  return_hydra_config=True), resolve=False)
-
-    base, variant = composed("signs_free_residual"), composed("signs_free_residual_root")
+    base, variant = _composed("signs_free_residual"), _composed("signs_free_residual_root")
     assert variant["env"]["observe_reference_root"] is True and base["env"]["observe_reference_root"] is False
     assert variant["ppo"]["log_std_init"] == -1.75 and base["ppo"]["log_std_init"] == -1.0
     for cfg in (base, variant):

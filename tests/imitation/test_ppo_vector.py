@@ -35,8 +35,8 @@ def factory(motion, **env):
 
 
 def test_two_workers_collect_the_transitions_of_two_single_environments(tmp_path, motion_a):
-    trainer = PPOTrainer(factory(motion_a), None, PPOConfig(**TINY, num_envs=2, vector_env="async", device="cpu"), tmp_path,
-                         seed=3)
+    config = PPOConfig(**TINY, num_envs=2, vector_env="async", device="cpu")  # CPU tensors compared below
+    trainer = PPOTrainer(factory(motion_a), None, config, tmp_path, seed=3)
     try:
         batch = trainer.collect()
     finally:
