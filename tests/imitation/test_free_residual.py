@@ -136,6 +136,17 @@ def test_the_root_variant_changes_only_what_its_name_says():
     assert variant == base  # same body, controller, reward, budget, report, sweep and callbacks
 
 
+def test_the_anneal_variant_adds_only_its_two_schedules():
+    """experiment=signs_free_residual_anneal: the root variant plus a noise and a learning-rate schedule."""
+    root, anneal = _composed("signs_free_residual_root"), _composed("signs_free_residual_anneal")
+    assert (anneal["ppo"]["log_std_final"], anneal["ppo"]["learning_rate_final"]) == (-3.0, 0.0)
+    assert (root["ppo"]["log_std_final"], root["ppo"]["learning_rate_final"]) == (None, None)
+    for cfg in (root, anneal):
+        cfg["ppo"].pop("log_std_final"), cfg["ppo"].pop("learning_rate_final")
+        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+    assert anneal == root
+
+
 def test_observe_reference_root_shows_the_turn_the_heading_frame_hides(data_root):
     from aslexp import quaternion
     from aslexp.jobs._common import to_dict

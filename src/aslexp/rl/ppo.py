@@ -65,6 +65,12 @@ class PPOConfig:
     actor_hidden_sizes: tuple[int, ...] | None = None  # None: hidden_sizes; []: a linear policy
     activation: str = "relu"
     learning_rate: float = 3e-4
+    # Linear schedules over total_steps, set before each rollout (None: constant learning rate; a
+    # learned log-std). With log_std_final the noise is not learned but follows the schedule, as
+    # DeepMimic's fixed exploration noise: the policy PPO optimises late is close to the
+    # deterministic one that is evaluated.
+    learning_rate_final: float | None = None
+    log_std_final: float | None = None
     steps_per_rollout: int = 4096  # per update, all environments together
     minibatch_size: int = 256
     epochs: int = 3
@@ -101,6 +107,8 @@ class PPOConfig:
                   ("steps_per_rollout", self.steps_per_rollout >= self.num_envs, f"at least num_envs ({self.num_envs})"),
                   ("eval_episodes", self.eval_episodes >= 1, "at least 1"),
                   ("eval_last_k", self.eval_last_k >= 1, "at least 1"),
+                  ("learning_rate_final", self.learning_rate_final is None or self.learning_rate_final >= 0,
+                   "null or at least 0"),
                   ("rollout_device", self.rollout_device in ("cpu", "learner"), "cpu or learner"),
                   ("eval_phases", self.eval_phases is None or (len(self.eval_phases) > 0 and all(
                       0.0 <= p < 1.0 for p in self.eval_phases)), "null or a non-empty list of phases in [0, 1)")]
@@ -127,6 +135,16 @@ class PPOConfig:
     def model(self) -> ModelSpec:
         return ModelSpec(self.hidden_sizes, self.activation, self.ortho_init, self.log_std_init,
                          self.actor_hidden_sizes)
+
+    def scheduled(self, steps: int) -> tuple[float, float | None]:
+        """(learning rate, log-std or None: learned) at ``steps`` environment steps."""
+        fraction = min(max(steps / self.total_steps, 0.0), 1.0) if self.total_steps > 0 else 1.0
+
+        def linear(start: float, end: float | None) -> float | None:
+            return None if end is None else start + fraction * (end - start)
+
+        lr = linear(self.learning_rate, self.learning_rate_final)
+        return (self.learning_rate if lr is None else lr), linear(self.log_std_init, self.log_std_final)
 
     @property
     def steps_per_env(self) -> int:
@@ -290,6 +308,8 @@ class PPOTrainer:
                        average_gae=False, device=self.device)
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=config.learning_rate,
                                           weight_decay=config.weight_decay)
+        if config.log_std_final is not None:  # the noise follows its schedule: no gradient moves it
+            self.agent.head.log_std.requires_grad_(False)
         self.steps = 0
         self.iteration = 0
         self.elapsed = 0.0  # training seconds before this process (resume)
@@ -342,6 +362,17 @@ class PPOTrainer:
         self._episodes_started, self._obs = False, None
         log.info("resumed from %s at step %d (saved with %s environment(s), now %d)", path, self.steps,
                  payload.get("num_envs", 1), self.num_envs)
+
+    def apply_schedules(self) -> dict[str, float]:
+        """Set the learning rate and (if scheduled) the log-std for the next update."""
+        lr, log_std = self.config.scheduled(self.steps)
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+        if log_std is not None:
+            with torch.no_grad():
+                self.agent.head.log_std.fill_(log_std)
+            self._sync_rollout_agent()
+        return {"learning_rate": lr}
 
     def _sync_rollout_agent(self) -> None:
         if self.rollout_agent is not self.agent:
@@ -495,6 +526,7 @@ class PPOTrainer:
                  cfg.name, self.num_envs, self.mode, cfg.batch_size,
                  self.device, self.rollout_agent.device)
         while self.steps < cfg.total_steps:
+            scheduled = self.apply_schedules()
             t0 = time.perf_counter()
             batch = self.collect()
             t1 = time.perf_counter()
@@ -511,6 +543,7 @@ class PPOTrainer:
                 **{f"train_{k}": round(v, 5) for k, v in self.episodes.pop().items()},
                 **{k: round(v, 6) for k, v in stats.items()},
                 "log_std": round(float(self.agent.head.log_std.detach().mean()), 4),
+                "learning_rate": float(f"{scheduled['learning_rate']:.4g}"),
                 **{f"count_{k}": v for k, v in self.counters().items()},
             }
             time_up = cfg.max_minutes is not None and elapsed > 60 * cfg.max_minutes
