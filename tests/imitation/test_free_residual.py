@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 import subprocess
 import sys
 
@@ -94,6 +95,19 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
                            text=True, timeout=120, check=True)
     assert "| 52861 (snow) |" in again.stdout and "verdict" in again.stdout
 
+    # Re-evaluated by job number (docs/imitation_upper_body.md), under the same protocol: the same
+    # last evaluations, read as learned policies; no best-so-far; the curves show one point per run.
+    reevaluated = tmp_path / "reevaluated"
+    reevaluated.mkdir()
+    shutil.copytree(sweep / "baselines", reevaluated / "baselines")  # the same protocol: cached
+    run_job("imitate", "-m", "experiment=signs_free_residual", "motion='52861'", "seed=0,1", *TINY,
+            f"resume={sweep}/${{hydra:job.num}}", f"hydra.sweep.dir={reevaluated}")
+    with open(reevaluated / "residual_table.csv", newline="", encoding="utf-8") as fh:
+        [same] = list(csv.DictReader(fh))
+    assert same["learned, last evaluation"] == row["learned, last evaluation"]
+    assert same["verdict"] == row["verdict"] and same["learned, best so far (secondary)"] == "n/a (re-evaluated)"
+    assert (reevaluated / "residual_curves.png").stat().st_size > 0
+
 
 def _composed(experiment: str) -> dict:
     """The imitate config of an experiment overlay, Hydra's own section included, unresolved."""
@@ -146,6 +160,18 @@ def test_the_anneal_variant_adds_only_its_two_schedules():
         cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
     assert anneal == root
 
+
+
+def test_the_kl_variant_adds_only_a_trust_region_and_twice_the_budget():
+    """experiment=signs_free_residual_anneal_kl: the anneal variant, target_kl 0.02, 164 k steps."""
+    anneal, kl = _composed("signs_free_residual_anneal"), _composed("signs_free_residual_anneal_kl")
+    assert (anneal["ppo"]["target_kl"], anneal["ppo"]["total_steps"]) == (None, 81920)
+    assert (kl["ppo"]["target_kl"], kl["ppo"]["total_steps"], kl["ppo"]["max_minutes"]) == (0.02, 163840, 30)
+    for cfg in (anneal, kl):
+        for key in ("target_kl", "total_steps", "max_minutes"):
+            cfg["ppo"].pop(key)
+        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+    assert kl == anneal
 
 def test_observe_reference_root_shows_the_turn_the_heading_frame_hides(data_root):
     from aslexp import quaternion

@@ -53,6 +53,43 @@ def test_imitate_trains_writes_figures_and_resumes(tmp_path):
     assert (out / "checkpoints" / "last.pt").stat().st_size > 1000
 
 
+
+def test_a_sweep_re_evaluated_by_job_number_reports_what_training_under_that_protocol_would(tmp_path):
+    """docs/imitation_upper_body.md's re-evaluation command, small: resume=SWEEP/${hydra:job.num}."""
+    from aslexp.rl.report import learned
+
+    def metrics(folder: Path) -> dict:
+        return json.loads((folder / "metrics.json").read_text())
+
+    sweep = tmp_path / "sweep"
+    run_job("imitate", "-m", "motion=B", *SMALL, "ppo.total_steps=256", "seed=0,1", f"hydra.sweep.dir={sweep}")
+    finished = {p: p.read_bytes() for p in sweep.rglob("*") if p.is_file()}
+
+    # Resumed with no steps left, by job number: nothing trains; each run's policy under 3 phases.
+    again = tmp_path / "eval3"
+    run_job("imitate", "-m", "motion=B", *SMALL, "ppo.total_steps=256", "seed=0,1", "ppo.eval_episodes=3",
+            f"resume={sweep}/${{hydra:job.num}}", f"hydra.sweep.dir={again}")
+    for num in (0, 1):
+        m = metrics(again / str(num))
+        assert m["seed"] == num and m["stopped"] == "evaluated" and m["steps"] == 256 and learned(m)
+        assert m["eval_protocol"]["phases"] == [0.0, 1 / 3, 2 / 3]
+        assert m["last_eval"] != metrics(sweep / str(num))["last_eval"]  # 4 phases there
+
+    # Exactly what a run trained with 3 phases reports: evaluation draws nothing from training's streams.
+    direct = tmp_path / "direct"
+    run_job("imitate", "motion=B", *SMALL, "ppo.total_steps=256", "seed=1", "ppo.eval_episodes=3",
+            f"hydra.run.dir={direct}")
+    assert metrics(again / "1")["last_eval"] == metrics(direct)["last_eval"]
+    assert metrics(again / "1")["baselines"] == metrics(direct)["baselines"]
+
+    # A misnumbered run folder is refused before any work, in one line; the sweep is never rewritten.
+    proc = run_job("imitate", "motion=B", *SMALL, "ppo.total_steps=256", "seed=1", f"resume={sweep}/0",
+                   f"hydra.run.dir={tmp_path / 'wrong'}", check=False)
+    assert proc.returncode == 1 and "seed is 0, expected this run's 1" in proc.stderr, proc.stderr[-2000:]
+    assert len(proc.stderr.strip().splitlines()) == 1 and not (tmp_path / "wrong" / "metrics.json").exists()
+    assert {p: p.read_bytes() for p in sweep.rglob("*") if p.is_file()} == finished
+
+
 def test_tune_pd_sweep_runs_a_few_trials(tmp_path):
     sweep = tmp_path / "sweep"
     run_job("tune_pd", "-m", "+sweeps=pd_gains_1", "hydra.sweeper.n_trials=7", "tuning.random.seconds=1.0",

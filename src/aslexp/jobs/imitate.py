@@ -5,6 +5,7 @@
     aslexp imitate motion=A env=residual ppo=fast seed=1      # fast settings for this hardware
     aslexp imitate motion=A ppo.total_steps=0                 # baselines and plots only
     aslexp imitate hydra.run.dir=outputs/imitate/X resume=outputs/imitate/X   # continue a run
+    aslexp imitate <the run's overrides> resume=RUN ppo.eval_episodes=16 hydra.run.dir=NEW   # re-evaluate it
     aslexp imitate -m experiment=letters                     # letters x seeds (figure 5.9)
     aslexp imitate -m experiment=letters_thesis              # the same as the thesis ran it, beside it
 
@@ -54,11 +55,23 @@ def build_envs(cfg: dict[str, Any], data_root: Path):
     return make_train_env, eval_env
 
 
-def _resume_path(resume: str | None) -> Path | None:
+def _resume_path(resume: str | None, cfg: dict[str, Any]) -> Path | None:
+    """The checkpoint to resume from; a run folder's must have imitated this run's motion and seed
+    (a re-evaluation sweep addresses runs by number: a misnumbered one would score another policy)."""
     if not resume:
         return None
     path = Path(resume)
-    return path / "checkpoints" / "last.pt" if path.is_dir() else path
+    checkpoint = path / "checkpoints" / "last.pt" if path.is_dir() else path
+    saved = checkpoint.parent.parent / ".hydra" / "config.yaml"
+    if saved.is_file():
+        import yaml
+
+        run = yaml.safe_load(saved.read_text()) or {}
+        for key, theirs, ours in (("motion", (run.get("motion") or {}).get("name"), cfg["motion"]["name"]),
+                                  ("seed", run.get("seed"), cfg.get("seed"))):
+            if str(theirs) != str(ours):
+                raise ValueError(f"resume: {saved}: {key} is {theirs!r}, expected this run's {ours!r}")
+    return checkpoint
 
 
 def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=None) -> dict[str, Any]:
@@ -74,6 +87,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
 
     data_root = resolve_data_root(cfg.get("data_root"))
     ppo = PPOConfig.from_dict(cfg["ppo"])
+    resume = _resume_path(cfg.get("resume"), cfg)  # a wrong run folder stops here, before any work
     make_train_env, eval_env = build_envs(cfg, data_root)
     base = baselines(eval_env, ppo.eval_steps, ppo.phases)  # the policy's evaluation protocol
     log.info("motion %s: baselines %s", cfg["motion"]["name"], {k: round(v, 4) for k, v in base.items()})
@@ -88,7 +102,6 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     trainer = PPOTrainer(make_train_env, eval_env, ppo, out_dir, seed=int(cfg.get("seed") or 0), on_eval=on_eval)
     history_logger = HistoryLogger(metric_logger or MetricLogger(), trainer.history)
     try:  # worker processes end with the job, also when a sweep prunes it
-        resume = _resume_path(cfg.get("resume"))
         if resume is not None:
             trainer.restore(resume)  # a corrupt or mismatched checkpoint stops here, before any training
         started = time.perf_counter()
@@ -98,9 +111,12 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         counters = trainer.counters()
     finally:
         trainer.close()
-    if result is None:
-        result_eval = trainer.evaluate().mean_reward
-        best_eval, last_eval, stopped = result_eval, result_eval, "no_training"
+    if result is None:  # nothing to train: evaluate the policy as it is, under this config's protocol
+        result_eval = round(trainer.evaluate().mean_reward, 5)  # as the trainer's evaluations are
+        # A resumed checkpoint with no steps left is re-evaluated ("evaluated": e.g. a finished run
+        # under more start phases); with total_steps=0 only the baselines were measured.
+        stopped = "evaluated" if trainer.steps > 0 else "no_training"
+        best_eval, last_eval = result_eval, result_eval
     else:
         best_eval, last_eval, stopped = result.best_eval, result.last_eval, result.stopped
 

@@ -133,6 +133,10 @@ def read_runs(sweep_dir: str | Path) -> dict[str, list[dict[str, Any]]]:
         if "motion" not in metrics:
             continue
         metrics["progress"] = read_progress(metrics_path.parent)
+        if metrics.get("stopped") == "evaluated" and not metrics["progress"]:
+            # A re-evaluated checkpoint: its one evaluation under this protocol is its curve (a point).
+            metrics["progress"] = [{"step": float(metrics["steps"]), "seconds": float(metrics.get("seconds") or 0.0),
+                                    "eval_reward": float(metrics["last_eval"])}]
         metrics["run_dir"] = str(metrics_path.parent)
         runs[str(metrics["motion"])].append(metrics)
     if not runs:
@@ -141,8 +145,9 @@ def read_runs(sweep_dir: str | Path) -> dict[str, list[dict[str, Any]]]:
 
 
 def learned(metrics: dict[str, Any]) -> bool:
-    """True for a run that trained (a run with ppo.total_steps=0 only measured its baselines)."""
-    return metrics.get("stopped") != "no_training" and metrics.get("steps", 0) > 0
+    """True for a trained policy's run: one that trained, or re-evaluated a trained checkpoint
+    (``stopped: evaluated``); a run with ppo.total_steps=0 only measured its baselines."""
+    return metrics.get("steps", 0) > 0
 
 
 def plot_curves(runs: dict[str, list[dict[str, Any]]], path: Path, title: str,

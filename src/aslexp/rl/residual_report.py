@@ -136,7 +136,10 @@ def summarize_residual(sweep_dir: str | Path, out_dir: str | Path | None = None)
                 base["controller_drift"]["max_yaw_deg"], base["controller_drift"]["max_tilt_deg"]),
             **{f"smoothed reference, alpha {a}": round(v, 3) for a, v in smoothed.items()},
             "learned, last evaluation": f"{mean_std(last)} (n={len(trained)})" if trained else "pending",
-            "learned, best so far (secondary)": mean_std(m["best_eval"] for m in trained) if trained else "pending",
+            # A re-evaluation has one evaluation under its protocol: no best-so-far to show.
+            "learned, best so far (secondary)": (
+                "pending" if not trained else "n/a (re-evaluated)" if any(m.get("stopped") == "evaluated" for m in trained)
+                else mean_std(m["best_eval"] for m in trained)),
         }
         if trained:
             gain, spread = float(last.mean()) - controller, float(last.std())
