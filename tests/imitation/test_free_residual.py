@@ -107,6 +107,10 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
     assert same["learned, last evaluation"] == row["learned, last evaluation"]
     assert same["verdict"] == row["verdict"] and same["learned, best so far (secondary)"] == "n/a (re-evaluated)"
     assert (reevaluated / "residual_curves.png").stat().st_size > 0
+    # ... and the table again from a shell, outside Hydra: each run's resume=${hydra:job.num} is its own.
+    again = subprocess.run([sys.executable, "-m", "aslexp.rl.residual_report", str(reevaluated)],
+                           capture_output=True, text=True, timeout=120)
+    assert again.returncode == 0 and "n/a (re-evaluated)" in again.stdout, again.stderr[-2000:]
 
 
 def _composed(experiment: str) -> dict:
@@ -161,7 +165,6 @@ def test_the_anneal_variant_adds_only_its_two_schedules():
     assert anneal == root
 
 
-
 def test_the_kl_variant_adds_only_a_trust_region_and_twice_the_budget():
     """experiment=signs_free_residual_anneal_kl: the anneal variant, target_kl 0.02, 164 k steps."""
     anneal, kl = _composed("signs_free_residual_anneal"), _composed("signs_free_residual_anneal_kl")
@@ -172,6 +175,7 @@ def test_the_kl_variant_adds_only_a_trust_region_and_twice_the_budget():
             cfg["ppo"].pop(key)
         cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
     assert kl == anneal
+
 
 def test_observe_reference_root_shows_the_turn_the_heading_frame_hides(data_root):
     from aslexp import quaternion

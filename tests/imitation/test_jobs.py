@@ -53,7 +53,6 @@ def test_imitate_trains_writes_figures_and_resumes(tmp_path):
     assert (out / "checkpoints" / "last.pt").stat().st_size > 1000
 
 
-
 def test_a_sweep_re_evaluated_by_job_number_reports_what_training_under_that_protocol_would(tmp_path):
     """docs/imitation_upper_body.md's re-evaluation command, small: resume=SWEEP/${hydra:job.num}."""
     from aslexp.rl.report import learned

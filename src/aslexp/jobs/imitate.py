@@ -62,15 +62,16 @@ def _resume_path(resume: str | None, cfg: dict[str, Any]) -> Path | None:
         return None
     path = Path(resume)
     checkpoint = path / "checkpoints" / "last.pt" if path.is_dir() else path
-    saved = checkpoint.parent.parent / ".hydra" / "config.yaml"
-    if saved.is_file():
-        import yaml
+    run_dir = checkpoint.parent.parent
+    if (run_dir / ".hydra" / "config.yaml").is_file():
+        from aslexp.rl.report import run_config
 
-        run = yaml.safe_load(saved.read_text()) or {}
+        run = run_config(run_dir)
         for key, theirs, ours in (("motion", (run.get("motion") or {}).get("name"), cfg["motion"]["name"]),
                                   ("seed", run.get("seed"), cfg.get("seed"))):
             if str(theirs) != str(ours):
-                raise ValueError(f"resume: {saved}: {key} is {theirs!r}, expected this run's {ours!r}")
+                raise ValueError(f"resume: {run_dir / '.hydra' / 'config.yaml'}: {key} is {theirs!r}, "
+                                 f"expected this run's {ours!r}")
     return checkpoint
 
 

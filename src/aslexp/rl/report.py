@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -124,6 +125,41 @@ def mean_std(values) -> str:
     return f"{values.mean():.3f} ± {values.std():.3f}" if len(values) > 1 else f"{values[0]:.3f}"
 
 
+def run_config(run_dir: str | Path) -> dict[str, Any]:
+    """A run's composed config (``.hydra/config.yaml``), interpolations resolved. ``${hydra:...}``
+    values (e.g. ``resume=SWEEP/${hydra:job.num}``) are the run's own, from its ``.hydra/hydra.yaml``:
+    outside that run, Hydra's resolver has nothing (or another job) to answer from."""
+    from omegaconf import OmegaConf
+
+    path = Path(run_dir) / ".hydra" / "config.yaml"
+    if not path.is_file():
+        raise FileNotFoundError(f"{run_dir}: no .hydra/config.yaml (needed to rebuild the run's environment)")
+    config = OmegaConf.to_container(OmegaConf.load(path), resolve=False)
+    hydra_path = path.parent / "hydra.yaml"
+    if hydra_path.is_file():
+        own = OmegaConf.load(hydra_path).hydra
+
+        def substitute(value):
+            if isinstance(value, dict):
+                return {k: substitute(v) for k, v in value.items()}
+            if isinstance(value, list):
+                return [substitute(v) for v in value]
+            if isinstance(value, str) and "${hydra:" in value:
+                return re.sub(r"\$\{hydra:([^}]+)\}", lambda m: str(OmegaConf.select(own, m.group(1).strip())), value)
+            return value
+
+        config = substitute(config)
+    return OmegaConf.to_container(OmegaConf.create(config), resolve=True)
+
+
+def best_so_far(trained: list[dict[str, Any]]) -> str:
+    """The best-so-far column over seeds; a re-evaluated run (``stopped: evaluated``) has one
+    evaluation under its protocol, so there is no best-so-far to show."""
+    if any(m.get("stopped") == "evaluated" for m in trained):
+        return "n/a (re-evaluated)"
+    return mean_std(m.get("best_eval") for m in trained)
+
+
 def read_runs(sweep_dir: str | Path) -> dict[str, list[dict[str, Any]]]:
     """Every imitation run (metrics.json with a motion) under ``sweep_dir``, by motion, with its
     progress rows and, if present, its composed config (``.hydra/config.yaml``)."""
@@ -200,7 +236,7 @@ def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None,
         trained = [m for m in items if learned(m)]
         row = {"motion": letter, "seeds": " ".join(str(m.get("seed")) for m in items),
                "last_eval": mean_std(m.get("last_eval") for m in trained) if trained else "pending",
-               "best_eval (secondary)": mean_std(m.get("best_eval") for m in trained) if trained else "pending",
+               "best_eval (secondary)": best_so_far(trained) if trained else "pending",
                **{f"baseline_{k}": round(v, 4) for k, v in base.items()}}
         if strongest is not None and trained:
             last = [m.get("last_eval") for m in trained]

@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.rl.report import learned, mean_std, plot_curves, read_runs, write_table
-from aslexp.rl.thesis_report import GLOSSES, run_config
+from aslexp.rl.report import best_so_far, learned, mean_std, plot_curves, read_runs, run_config, write_table
+from aslexp.rl.thesis_report import GLOSSES
 
 
 def root_drift(env, policy, steps: int) -> dict[str, float]:
@@ -136,10 +136,7 @@ def summarize_residual(sweep_dir: str | Path, out_dir: str | Path | None = None)
                 base["controller_drift"]["max_yaw_deg"], base["controller_drift"]["max_tilt_deg"]),
             **{f"smoothed reference, alpha {a}": round(v, 3) for a, v in smoothed.items()},
             "learned, last evaluation": f"{mean_std(last)} (n={len(trained)})" if trained else "pending",
-            # A re-evaluation has one evaluation under its protocol: no best-so-far to show.
-            "learned, best so far (secondary)": (
-                "pending" if not trained else "n/a (re-evaluated)" if any(m.get("stopped") == "evaluated" for m in trained)
-                else mean_std(m["best_eval"] for m in trained)),
+            "learned, best so far (secondary)": best_so_far(trained) if trained else "pending",
         }
         if trained:
             gain, spread = float(last.mean()) - controller, float(last.std())

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.rl.report import learned, mean_std, plot_curves, read_runs, write_table
+from aslexp.rl.report import best_so_far, learned, mean_std, plot_curves, read_runs, run_config, write_table
 
 # Thesis Table 6.7 (THESIS.md 4.8): sign -> (Run 1 mean, std, Run 2 mean, std), 10 seeds, 50 M steps.
 THESIS_TABLE_6_7 = {"00433": (0.827, 0.020, 0.868, 0.007), "52861": (0.832, 0.022, 0.853, 0.017),
@@ -39,16 +39,6 @@ def thesis_number(kind: str, motion: str) -> tuple[str, float | None]:
         mean, std = THESIS_TABLE_6_7[motion][0:2] if kind == "signs_run1" else THESIS_TABLE_6_7[motion][2:4]
         return f"{mean:.3f} ± {std:.3f} (Table 6.7 {'Run 1' if kind == 'signs_run1' else 'Run 2'})", mean
     return "-", None
-
-
-def run_config(run_dir: str | Path) -> dict[str, Any]:
-    """A run's composed config (``.hydra/config.yaml``), interpolations resolved."""
-    from omegaconf import OmegaConf
-
-    path = Path(run_dir) / ".hydra" / "config.yaml"
-    if not path.is_file():
-        raise FileNotFoundError(f"{run_dir}: no .hydra/config.yaml (needed to rebuild the run's environment)")
-    return OmegaConf.to_container(OmegaConf.load(path), resolve=True)
 
 
 def motion_baselines(cfg: dict[str, Any], cache: Path) -> list[dict[str, Any]]:
@@ -98,7 +88,7 @@ def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -
                **{baseline_column(b): round(b["reward"], 3) if not b["fell"] else f"{b['reward']:.3f} (fell)"
                   for b in baselines},
                "learned, last evaluation": f"{mean_std(last)} (n={len(trained)})" if trained else "pending",
-               "learned, best so far (secondary)": mean_std(m.get("best_eval") for m in trained) if trained else "pending"}
+               "learned, best so far (secondary)": best_so_far(trained) if trained else "pending"}
         if trained and baselines:
             strongest = max(baselines, key=lambda b: b["reward"])
             row["strongest baseline"] = baseline_column(strongest)
