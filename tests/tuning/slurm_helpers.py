@@ -56,12 +56,30 @@ def wait_for_jobs(job_ids: list[str], timeout: float = 180) -> None:
     raise AssertionError(f"Slurm jobs {job_ids} still queued after {timeout} s")
 
 
-def accounting(job_ids: list[str]) -> dict[str, dict[str, str]]:
-    """``sacct`` rows (allocations only) by job id: State, Start, End."""
-    out = subprocess.run(["sacct", "-X", "-n", "-P", "-o", "JobID,State,Start,End", "-j",
-                          ",".join(job_ids)], capture_output=True, text=True, check=True).stdout
-    rows = {}
-    for line in out.splitlines():
-        job, state, start, end = line.split("|")
-        rows[job] = {"State": state, "Start": start, "End": end}
-    return rows
+def accounting(job_ids: list[str], array_tasks: tuple[int, ...] = (),
+               timeout: float = 60) -> dict[str, dict[str, str]]:
+    """``sacct`` rows (allocations only) by job id: State, Start, End.
+
+    slurmdbd records asynchronously: squeue can be empty while sacct still lacks a row or shows it
+    unfinished (CI once saw task 1 of an array and not task 0). So poll until every expected row
+    (each job id, or ``<id>_<task>`` for each of ``array_tasks``) is there and has ended; after
+    ``timeout`` return what sacct has, for the caller's assertion to show."""
+    expected = ({f"{j}_{t}" for j in job_ids for t in array_tasks} if array_tasks
+                else set(job_ids))
+    deadline = time.monotonic() + timeout
+    while True:
+        out = subprocess.run(["sacct", "-X", "-n", "-P", "-o", "JobID,State,Start,End", "-j",
+                              ",".join(job_ids)], capture_output=True, text=True, check=True).stdout
+        rows = {}
+        for line in out.splitlines():
+            job, state, start, end = line.split("|")
+            rows[job] = {"State": state, "Start": start, "End": end}
+        settled = expected <= rows.keys() and all(
+            rows[j]["End"] not in ("", "Unknown") and rows[j]["State"] not in _UNFINISHED
+            for j in expected)
+        if settled or time.monotonic() > deadline:
+            return rows
+        time.sleep(0.5)
+
+
+_UNFINISHED = {"PENDING", "RUNNING", "REQUEUED", "RESIZING", "SUSPENDED", "COMPLETING"}

@@ -161,7 +161,7 @@ def _run_sbatch(command: Command, tmp: Path, env: dict, pg_url: str | None) -> N
     job = subprocess.run(["sbatch", "--parsable", str(script)], env=env, capture_output=True,
                          text=True, check=True).stdout.strip()
     wait_for_jobs([job], timeout=600)
-    rows = accounting([job])
+    rows = accounting([job], array_tasks=(1, 2))
     logs = "\n".join(p.read_text() for p in sorted(tmp.glob("sweep_worker-*.out")))
     assert len(rows) == 2 and {r["State"] for r in rows.values()} == {"COMPLETED"}, f"{rows}\n{logs[-3000:]}"
 

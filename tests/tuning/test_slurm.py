@@ -75,7 +75,7 @@ def test_recipe_b_an_array_of_two_workers_shares_one_study(tmp_path):
     job = subprocess.run(["sbatch", "--parsable", str(script)], capture_output=True, text=True,
                          check=True).stdout.strip()
     wait_for_jobs([job])
-    rows = accounting([job])
+    rows = accounting([job], array_tasks=(0, 1))
     assert sorted(rows) == [f"{job}_0", f"{job}_1"]
     assert {r["State"] for r in rows.values()} == {"COMPLETED"}, rows
     study = _study(sweep)
@@ -139,7 +139,7 @@ def test_extraction_as_an_array_job_one_shard_per_task_resumable(tmp_path):
     first = subprocess.run(["sbatch", "--parsable", str(script)], capture_output=True, text=True,
                            check=True).stdout.strip()
     wait_for_jobs([first], timeout=600)
-    assert {r["State"] for r in accounting([first]).values()} == {"COMPLETED"}
+    assert {r["State"] for r in accounting([first], array_tasks=(0, 1)).values()} == {"COMPLETED"}
     arrays = sorted(out.glob("*.npy"))
     assert [p.stem for p in arrays] == ["63185", "68011", "70212"]
     logs = [(tmp_path / f"extract-{i}.out").read_text() for i in (0, 1)]
@@ -148,5 +148,5 @@ def test_extraction_as_an_array_job_one_shard_per_task_resumable(tmp_path):
     again = subprocess.run(["sbatch", "--parsable", str(script)], capture_output=True, text=True,
                            check=True).stdout.strip()
     wait_for_jobs([again], timeout=600)
-    assert {r["State"] for r in accounting([again]).values()} == {"COMPLETED"}
+    assert {r["State"] for r in accounting([again], array_tasks=(0, 1)).values()} == {"COMPLETED"}
     assert {p: p.stat().st_mtime_ns for p in arrays} == stamps  # resumed: nothing recomputed
