@@ -89,6 +89,12 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
     else:
         beats = gain > spread and min(last) > stored["controller"]
         assert row["verdict"].startswith("beats") == beats and ("NOT" in row["verdict"]) == (not beats)
+    # How large the learned correction is beside the noise it was learned under (medians over seeds).
+    sizes = [json.loads((sweep / str(k) / "metrics.json").read_text()) for k in (0, 1)]
+    rms = [m["last_eval_action_rms"] for m in sizes]
+    assert all(0 < r < 1 for r in rms) and sizes[0]["exploration_std"] == pytest.approx(np.exp(-1.0), rel=1e-3)
+    assert row["learned correction RMS / exploration std (box half-widths)"] == "{:.3f} / {:.3f}".format(
+        np.median(rms), np.median([m["exploration_std"] for m in sizes]))
     assert (sweep / "residual_curves.png").stat().st_size > 0
     # The documented command prints the table again (baselines from the sweep's cache).
     again = subprocess.run([sys.executable, "-m", "aslexp.rl.residual_report", str(sweep)], capture_output=True,
@@ -106,6 +112,8 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
         [same] = list(csv.DictReader(fh))
     assert same["learned, last evaluation"] == row["learned, last evaluation"]
     assert same["verdict"] == row["verdict"] and same["learned, best so far (secondary)"] == "n/a (re-evaluated)"
+    assert (same["learned correction RMS / exploration std (box half-widths)"]
+            == row["learned correction RMS / exploration std (box half-widths)"])
     assert (reevaluated / "residual_curves.png").stat().st_size > 0
     # ... and the table again from a shell, outside Hydra: each run's resume=${hydra:job.num} is its own.
     again = subprocess.run([sys.executable, "-m", "aslexp.rl.residual_report", str(reevaluated)],

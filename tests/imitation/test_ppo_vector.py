@@ -223,6 +223,12 @@ def test_evaluation_is_several_phases_and_the_headline_is_the_last(tmp_path, mot
     assert summary.rewards == singles and singles[0] != singles[1]
     assert summary.mean_reward == pytest.approx(np.mean(singles)) and summary.std > 0
     assert baselines(eval_env, 20, (0.0, 0.5))["lookahead"] == pytest.approx(summary.mean_reward)
+    # The actions' size, in half-widths of the action box: a quarter of the way from the centre to
+    # the upper edge on every value is 0.25; the box centre is 0.
+    low, high = eval_env.action_space.low, eval_env.action_space.high
+    quarter = evaluate_phases(eval_env, lambda obs, env: (low + high) / 2 + (high - low) / 8, 20, (0.0, 0.5))
+    centre = evaluate(eval_env, lambda obs, env: (low + high) / 2, 20)
+    assert quarter.action_rms == pytest.approx(0.25) and centre.action_rms == pytest.approx(0.0, abs=1e-12)
 
     rows = []
     config = PPOConfig(**{**TINY, "total_steps": 384, "eval_phases": (0.0, 0.25, 0.5)}, progress_interval=0.0)
@@ -234,7 +240,8 @@ def test_evaluation_is_several_phases_and_the_headline_is_the_last(tmp_path, mot
     assert len(rows) == 3 and rows == result.history  # on_progress: every update's row
     assert result.last_eval == evals[-1] and result.best_eval == max(evals)
     assert rows[-1]["last_eval"] == evals[-1] and rows[-1]["best_eval"] == max(evals)
-    assert {"eval_reward_std", "eval_reward_min", "steps_per_s", "train_reward", "loss_critic"} <= set(rows[-1])
+    assert {"eval_reward_std", "eval_reward_min", "eval_action_rms", "steps_per_s", "train_reward",
+            "loss_critic"} <= set(rows[-1])
     assert config.eval_protocol["phases"] == [0.0, 0.25, 0.5]
     lines = [r.getMessage() for r in caplog.records if "steps/s" in r.getMessage()]
     assert lines and all("ETA" in line for line in lines) and "step 384/384" in lines[-1]

@@ -113,13 +113,16 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     finally:
         trainer.close()
     if result is None:  # nothing to train: evaluate the policy as it is, under this config's protocol
-        result_eval = round(trainer.evaluate().mean_reward, 5)  # as the trainer's evaluations are
+        summary = trainer.evaluate()
+        result_eval, action_rms = round(summary.mean_reward, 5), summary.action_rms  # rounded as the trainer's are
         # A resumed checkpoint with no steps left is re-evaluated ("evaluated": e.g. a finished run
         # under more start phases); with total_steps=0 only the baselines were measured.
         stopped = "evaluated" if trainer.steps > 0 else "no_training"
         best_eval, last_eval = result_eval, result_eval
     else:
         best_eval, last_eval, stopped = result.best_eval, result.last_eval, result.stopped
+        action_rms = next((h["eval_action_rms"] for h in reversed(trainer.history) if "eval_action_rms" in h),
+                          float("nan"))
 
     # When did the evaluation first pass each baseline?
     passed: dict[str, Any] = {}
@@ -167,6 +170,10 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         "env_steps_per_s": float(np.mean([h["env_steps_per_s"] for h in rows])) if rows else None,
         "wall_seconds_this_process": time.perf_counter() - started,
         "counters": counters, **passed,
+        # How far the evaluated policy's actions are from the box centre (a residual's: from the
+        # controller) and the exploration noise it was trained with, in the same units (half-widths).
+        "last_eval_action_rms": round(action_rms, 5) if np.isfinite(action_rms) else None,
+        "exploration_std": round(float(np.exp(trainer.agent.head.log_std.detach().mean().item())), 5),
     }
     eval_env.close()
     return metrics

@@ -8,6 +8,7 @@ state does not make the number; the baselines are measured under the same protoc
 from __future__ import annotations
 
 import contextlib
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -31,6 +32,10 @@ class Evaluation:
     ended_early: bool
     trajectory: dict[str, np.ndarray] = field(default_factory=dict)
     phase: float = 0.0  # of the motion at the start
+    # RMS of the actions over steps and values, each as (action - box centre) / box half-width: 0 is
+    # the centre (for a residual action: no correction, the controller), 1 the box's edge. In the
+    # units of the policy's exploration std (exp(log_std)), so the two compare directly.
+    action_rms: float = float("nan")
 
 
 @dataclass
@@ -43,6 +48,7 @@ class EvaluationSummary:
     phases: tuple[float, ...]
     terms: dict[str, float]  # per-term means over the episodes
     ended_early: int  # episodes that ended before their planned steps
+    action_rms: float = float("nan")  # over every step of every episode (see Evaluation)
 
 
 def even_phases(count: int) -> tuple[float, ...]:
@@ -66,8 +72,13 @@ def evaluate(env: ImitationEnv, policy: Policy, steps: int | None = None, record
     traj: dict[str, list] = {"time": [], "q_sim": [], "q_ref": [], "qd_sim": [], "qd_ref": [], "reward": [],
                              "frames": []}
     ended_early = False
+    centre, half = _action_box(env)
+    squares = 0.0
     for k in range(steps):
-        obs, reward, terminated, truncated, info = env.step(policy(obs, env))
+        action = policy(obs, env)
+        if centre is not None:
+            squares += float(np.mean(((np.asarray(action, dtype=np.float64).reshape(-1) - centre) / half) ** 2))
+        obs, reward, terminated, truncated, info = env.step(action)
         rewards.append(reward)
         for name, value in info.items():
             if name.startswith("r_"):
@@ -90,8 +101,18 @@ def evaluate(env: ImitationEnv, policy: Policy, steps: int | None = None, record
     return Evaluation(
         mean_reward=float(np.sum(rewards) / steps), steps=len(rewards),
         terms={k: v / n for k, v in term_sums.items()}, ended_early=ended_early, trajectory=trajectory,
-        phase=float(phase),
+        phase=float(phase), action_rms=math.sqrt(squares / n) if centre is not None else float("nan"),
     )
+
+
+def _action_box(env) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Centre and half-width of a bounded Box action space (None, None otherwise)."""
+    space = getattr(env, "action_space", None)
+    low, high = getattr(space, "low", None), getattr(space, "high", None)
+    if low is None or not (np.all(np.isfinite(low)) and np.all(np.isfinite(high)) and np.all(high > low)):
+        return None, None
+    low, high = np.asarray(low, dtype=np.float64), np.asarray(high, dtype=np.float64)
+    return (low + high) / 2, (high - low) / 2
 
 
 def evaluate_phases(env: ImitationEnv, policy: Policy, steps: int | None = None,
@@ -107,6 +128,8 @@ def evaluate_phases(env: ImitationEnv, policy: Policy, steps: int | None = None,
         phases=tuple(float(p) for p in phases),
         terms={k: float(np.mean([e.terms[k] for e in episodes if k in e.terms])) for k in names},
         ended_early=sum(e.ended_early for e in episodes),
+        action_rms=math.sqrt(sum(e.action_rms ** 2 * e.steps for e in episodes)
+                             / max(sum(e.steps for e in episodes), 1)),
     )
 
 

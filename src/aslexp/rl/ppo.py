@@ -555,6 +555,7 @@ class PPOTrainer:
                 summary = self.evaluate()
                 row.update({"eval_reward": round(summary.mean_reward, 5), "eval_reward_std": round(summary.std, 5),
                             "eval_reward_min": round(min(summary.rewards), 5),
+                            "eval_action_rms": round(summary.action_rms, 5),
                             **{f"eval_{k}": round(v, 5) for k, v in summary.terms.items()}})
             self.history.append(row)
             if evaluated:

@@ -152,6 +152,11 @@ def summarize_residual(sweep_dir: str | Path, out_dir: str | Path | None = None)
                                   else "does NOT beat the controller by more than the seed spread")
             if best_alpha is not None:
                 row["learned - best smoothed"] = round(float(last.mean()) - smoothed[best_alpha], 3)
+            sizes = [(m["last_eval_action_rms"], m["exploration_std"]) for m in trained
+                     if m.get("last_eval_action_rms") is not None and m.get("exploration_std") is not None]
+            # Is the learned correction larger than the noise it was learned under? (medians over seeds)
+            row["learned correction RMS / exploration std (box half-widths)"] = (
+                "{:.3f} / {:.3f}".format(*np.median(np.asarray(sizes), axis=0)) if sizes else "n/a (older runs)")
             row["steps per run"] = int(np.median([m["steps"] for m in trained]))
             row["minutes per run"] = round(float(np.median([m["seconds"] for m in trained])) / 60, 1)
         rows.append(row)
