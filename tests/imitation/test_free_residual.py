@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from aslexp.envs.imitation import ImitationEnv
-from aslexp.rl.evaluate import evaluate, reference_policy, smoothed_reference_policy
+from aslexp.rl.evaluate import constant_correction_policy, evaluate, reference_policy, smoothed_reference_policy
 
 from .test_jobs import run_job
 
@@ -52,10 +52,25 @@ def test_smoothing_groups_select_joints_and_fail_clearly(motion_a):
     env.close()
 
 
+def test_a_constant_random_correction_has_the_asked_size_and_holds_still(motion_a):
+    env = ImitationEnv(motion_a, env={**FIXED, "action_mode": "residual", "residual_range": 0.5,
+                                      "normalize_actions": True})
+    actions = []
+    draw = constant_correction_policy(0.04, seed=3)
+    run = evaluate(env, lambda obs, e: actions.append(draw(obs, e)) or actions[-1], 10)
+    assert run.action_rms == pytest.approx(0.04, rel=1e-5) and all(np.array_equal(a, actions[0]) for a in actions)
+    assert not np.array_equal(actions[0], constant_correction_policy(0.04, seed=4)(None, env))
+    np.testing.assert_array_equal(actions[0], constant_correction_policy(0.04, seed=3)(None, env))
+    absolute = ImitationEnv(motion_a, env=FIXED)
+    with pytest.raises(ValueError, match="need a residual action"):
+        constant_correction_policy(0.04, seed=3)(None, absolute)
+    env.close(), absolute.close()
+
+
 TINY = ["ppo.hidden_sizes=[32,32]", "ppo.steps_per_rollout=64", "ppo.minibatch_size=64", "ppo.epochs=1",
         "ppo.total_steps=64", "ppo.eval_interval=64", "ppo.eval_steps=12", "ppo.eval_episodes=2",
         "ppo.critic_warmup_steps=0", "ppo.num_envs=1", "plots=false", "render.gif=false",
-        "report.residual.smoothing=[0.6]"]
+        "report.residual.smoothing=[0.6]", "report.residual.random_corrections.count=2"]
 
 
 def test_signs_free_residual_runs_end_to_end(tmp_path):
@@ -73,6 +88,10 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
     assert stored["controller"] == pytest.approx(metrics["baselines"]["lookahead"], abs=1e-9)
     assert float(row["controller"]) == pytest.approx(stored["controller"], abs=5e-4)
     assert 0 < stored["controller"] <= 1 and 0 < stored["compare"] <= 1 and set(stored["smoothed"]) == {"0.6"}
+    chance = stored["random_corrections"]  # two fixed random corrections of RMS 0.04: chance
+    assert chance["seeds"] == [0, 1] and chance["rms"] == 0.04 and len(set(chance["scores"])) == 2
+    assert row["constant random corrections, RMS 0.04 (n=2): mean ± std / best"] == "{:.3f} ± {:.3f} / {:.3f}".format(
+        np.mean(chance["scores"]), np.std(chance["scores"]), max(chance["scores"]))
     drift = stored["controller_drift"]  # where the root went under the controller, from phase 0
     assert 0 <= drift["max_tilt_deg"] < 90 and 0 <= drift["max_yaw_deg"] <= 180
     assert row["controller from phase 0: max yaw / tilt (deg)"] == (

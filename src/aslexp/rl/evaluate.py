@@ -178,6 +178,31 @@ def smoothed_reference_policy(alpha: float, groups: tuple[str, ...] | None = Non
     return policy
 
 
+def constant_correction_policy(rms: float, seed: int) -> Policy:
+    """A no-learning control for a residual policy: the controller plus one fixed random correction,
+    a Gaussian vector rescaled to RMS ``rms`` in half-widths of the action box (the units of
+    ``Evaluation.action_rms``), drawn once from ``seed`` and held for every step of every episode.
+
+    A family of these at the size a learned correction has measures how far a correction that
+    learned nothing moves the evaluation: on a body whose feet slip, tiny target changes decide
+    whether they slip, and a learned gain smaller than this spread is not told apart from chance.
+    """
+    if rms < 0:
+        raise ValueError(f"a correction's RMS must be >= 0, got {rms}")
+    state: dict[str, np.ndarray] = {}
+
+    def policy(obs: np.ndarray, env: ImitationEnv) -> np.ndarray:
+        if env.spec_env.action_mode != "residual":
+            raise ValueError("constant random corrections need a residual action (env.action_mode=residual)")
+        if "action" not in state:
+            centre, half = _action_box(env)
+            draw = np.random.default_rng(seed).standard_normal(centre.shape)
+            state["action"] = (centre + half * draw * (rms / math.sqrt(float(np.mean(draw ** 2))))).astype(np.float32)
+        return state["action"]
+
+    return policy
+
+
 def baselines(env: ImitationEnv, steps: int | None = None, phases: tuple[float, ...] = (0.0,)) -> dict[str, float]:
     """Mean reward of the reference-tracking baselines, each evaluated as a policy is: one
     deterministic episode from each of ``phases``, averaged (pass the PPO config's phases).

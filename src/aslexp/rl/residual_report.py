@@ -15,6 +15,10 @@ control steps from each of ``ppo.phases``; deterministic):
   filtered (:func:`aslexp.rl.evaluate.smoothed_reference_policy`) for each ``alpha`` of
   ``report.residual.smoothing``; the best alpha is picked on these same episodes, which flatters the
   baseline, never the policy;
+* ``constant random corrections`` (``report.residual.random_corrections``: count, rms, seed): the
+  controller plus a fixed random correction of the size a learned one has, one per draw
+  (:func:`aslexp.rl.evaluate.constant_correction_policy`): mean ± std and the best over the draws.
+  The spread is how far a correction that learned nothing moves the evaluation;
 * the learned policy's LAST evaluation, mean ± std over seeds (the headline); the best-so-far
   evaluation as a secondary column; and the verdict: above the controller by more than the seed
   spread (the larger of the policy's std over seeds and 0)?
@@ -61,7 +65,8 @@ def residual_baselines(cfg: dict[str, Any], cache: Path) -> dict[str, Any]:
     from aslexp.data.root import resolve_data_root
     from aslexp.envs.config import deep_merge
     from aslexp.envs.imitation import ImitationEnv, resolve_motion_path
-    from aslexp.rl.evaluate import evaluate_phases, reference_policy, smoothed_reference_policy
+    from aslexp.rl.evaluate import (constant_correction_policy, evaluate_phases, reference_policy,
+                                    smoothed_reference_policy)
     from aslexp.rl.ppo import PPOConfig
 
     settings = (cfg.get("report") or {}).get("residual") or {}
@@ -93,6 +98,16 @@ def residual_baselines(cfg: dict[str, Any], cache: Path) -> dict[str, Any]:
         groups = settings.get("smoothing_groups")
         rows["smoothed"] = {str(a): score(env, smoothed_reference_policy(float(a), tuple(groups) if groups else None))
                             for a in settings.get("smoothing", [])}
+        chance = settings.get("random_corrections")
+        if chance:
+            unknown = set(chance) - {"count", "rms", "seed"}
+            if unknown:
+                raise ValueError(f"report.residual.random_corrections: unknown keys {sorted(unknown)}; "
+                                 f"expected count, rms, seed")
+            first, rms = int(chance.get("seed", 0)), float(chance["rms"])
+            rows["random_corrections"] = {
+                "rms": rms, "seeds": [first + k for k in range(int(chance["count"]))],
+                "scores": [score(env, constant_correction_policy(rms, first + k)) for k in range(int(chance["count"]))]}
     finally:
         env.close()
     compare = settings.get("compare") or {}
@@ -135,6 +150,7 @@ def summarize_residual(sweep_dir: str | Path, out_dir: str | Path | None = None)
             "controller from phase 0: max yaw / tilt (deg)": "{:.1f} / {:.1f}".format(
                 base["controller_drift"]["max_yaw_deg"], base["controller_drift"]["max_tilt_deg"]),
             **{f"smoothed reference, alpha {a}": round(v, 3) for a, v in smoothed.items()},
+            **_chance_column(base.get("random_corrections")),
             "learned, last evaluation": f"{mean_std(last)} (n={len(trained)})" if trained else "pending",
             "learned, best so far (secondary)": best_so_far(trained) if trained else "pending",
         }
@@ -170,6 +186,14 @@ def summarize_residual(sweep_dir: str | Path, out_dir: str | Path | None = None)
                 lines)
     table = write_table(rows, out_dir, "residual_table")
     return {"rows": rows, "table": table}
+
+
+def _chance_column(chance: dict[str, Any] | None) -> dict[str, str]:
+    if not chance:
+        return {}
+    scores = np.asarray(chance["scores"], dtype=float)
+    return {f"constant random corrections, RMS {chance['rms']:g} (n={len(scores)}): mean ± std / best":
+            f"{mean_std(scores)} / {scores.max():.3f}"}
 
 
 if __name__ == "__main__":
