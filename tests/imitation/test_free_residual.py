@@ -218,19 +218,6 @@ def test_the_batch_variant_changes_only_the_samples_per_update_at_twice_the_budg
     assert batch == anneal
 
 
-def test_the_quiet_variant_changes_only_the_final_noise_at_twice_the_budget():
-    """experiment=signs_free_residual_anneal_quiet: the anneal variant, log-std falling to -4, 164 k steps."""
-    anneal, quiet = _composed("signs_free_residual_anneal"), _composed("signs_free_residual_anneal_quiet")
-    keys = ("log_std_init", "log_std_final", "total_steps", "max_minutes")
-    assert [anneal["ppo"][k] for k in keys] == [-1.75, -3.0, 81920, 12]
-    assert [quiet["ppo"][k] for k in keys] == [-1.75, -4.0, 163840, 30]
-    for cfg in (anneal, quiet):
-        for key in keys[1:]:
-            cfg["ppo"].pop(key)
-        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
-    assert quiet == anneal
-
-
 def test_observe_reference_root_shows_the_turn_the_heading_frame_hides(data_root):
     from aslexp import quaternion
     from aslexp.jobs._common import to_dict
