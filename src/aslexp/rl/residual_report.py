@@ -29,6 +29,8 @@ control steps from each of ``ppo.phases``; deterministic):
 from __future__ import annotations
 
 import json
+import logging
+import time
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +38,8 @@ import numpy as np
 
 from aslexp.rl.report import best_so_far, learned, mean_std, plot_curves, read_runs, run_config, write_table
 from aslexp.rl.thesis_report import GLOSSES
+
+log = logging.getLogger("aslexp.residual")
 
 
 def root_drift(env, policy, steps: int) -> dict[str, float]:
@@ -86,8 +90,24 @@ def residual_baselines(cfg: dict[str, Any], cache: Path) -> dict[str, Any]:
         return ImitationEnv(motion, body=deep_merge(cfg["body"], body_overrides), controller=cfg["controller"],
                             reward=cfg["reward"], env=env_cfg, data_root=data_root, complete_configs=True)
 
+    chance = settings.get("random_corrections") or {}
+    if set(chance) - {"count", "rms", "seed"} or (chance and "rms" not in chance):
+        raise ValueError(f"report.residual.random_corrections: keys {sorted(chance)}; expected rms and "
+                         f"optionally count (default 1) and seed (default 0)")
+    planned = (2 + len(settings.get("smoothing", [])) + (int(chance.get("count", 1)) if chance else 0)
+               + bool(settings.get("compare")))  # controller, its drift, smoothing, chance, compare
+    started, done = time.perf_counter(), [0]
+
     def score(env: ImitationEnv, policy) -> float:
-        return evaluate_phases(env, policy, ppo.eval_steps, ppo.phases).mean_reward
+        value = evaluate_phases(env, policy, ppo.eval_steps, ppo.phases).mean_reward
+        tick()
+        return value
+
+    def tick() -> None:  # minutes of evaluations per sign: say how far along they are
+        done[0] += 1
+        each = (time.perf_counter() - started) / done[0]
+        log.info("residual baselines %s: %d/%d evaluations (%.1f s each, ETA %.0f s)", cfg["motion"]["name"],
+                 done[0], planned, each, each * (planned - done[0]))
 
     lookahead = int(cfg["env"].get("reference_lookahead", 1))
     rows: dict[str, Any] = {}
@@ -95,19 +115,15 @@ def residual_baselines(cfg: dict[str, Any], cache: Path) -> dict[str, Any]:
     try:
         rows["controller"] = score(env, reference_policy(lookahead))
         rows["controller_drift"] = root_drift(env, reference_policy(lookahead), ppo.eval_steps)
+        tick()
         groups = settings.get("smoothing_groups")
         rows["smoothed"] = {str(a): score(env, smoothed_reference_policy(float(a), tuple(groups) if groups else None))
                             for a in settings.get("smoothing", [])}
-        chance = settings.get("random_corrections")
         if chance:
-            unknown = set(chance) - {"count", "rms", "seed"}
-            if unknown:
-                raise ValueError(f"report.residual.random_corrections: unknown keys {sorted(unknown)}; "
-                                 f"expected count, rms, seed")
             first, rms = int(chance.get("seed", 0)), float(chance["rms"])
-            rows["random_corrections"] = {
-                "rms": rms, "seeds": [first + k for k in range(int(chance["count"]))],
-                "scores": [score(env, constant_correction_policy(rms, first + k)) for k in range(int(chance["count"]))]}
+            seeds = [first + k for k in range(int(chance.get("count", 1)))]
+            rows["random_corrections"] = {"rms": rms, "seeds": seeds,
+                                          "scores": [score(env, constant_correction_policy(rms, seed)) for seed in seeds]}
     finally:
         env.close()
     compare = settings.get("compare") or {}
