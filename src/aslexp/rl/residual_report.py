@@ -22,6 +22,8 @@ control steps from each of ``ppo.phases``; deterministic):
 * the learned policy's LAST evaluation, mean ± std over seeds (the headline); the best-so-far
   evaluation as a secondary column; and the verdict: above the controller by more than the seed
   spread (the larger of the policy's std over seeds and 0)?
+* the learned correction's size at the last evaluation beside the exploration noise, both in
+  half-widths of the action box (metrics.json ``last_eval_action_rms``, ``exploration_std``).
 
     python -m aslexp.rl.residual_report outputs/imitate-multirun/<sweep>      # the table again
 """
