@@ -143,16 +143,17 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
     assert again.returncode == 0 and "n/a (re-evaluated)" in again.stdout, again.stderr[-2000:]
 
 
-def _composed(experiment: str) -> dict:
-    """The imitate config of an experiment overlay, Hydra's own section included, unresolved."""
+def _composed(experiment: str, *overrides: str) -> dict:
+    """The imitate config of an experiment overlay (and overrides), Hydra's own section included, unresolved."""
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
     from aslexp.envs.config import CONF_DIR
 
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        return OmegaConf.to_container(compose(config_name="imitate", overrides=[f"experiment={experiment}"],
-                                              return_hydra_config=True), resolve=False)
+        composed = compose(config_name="imitate", overrides=[f"experiment={experiment}", *overrides],
+                           return_hydra_config=True)
+        return OmegaConf.to_container(composed, resolve=False)
 
 
 def test_signs_free_residual_composes_with_the_values_its_comments_claim():
@@ -219,6 +220,18 @@ def test_the_batch_variant_changes_only_the_samples_per_update_at_twice_the_budg
             cfg["ppo"].pop(key)
         cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
     assert batch == anneal
+
+
+def test_the_quiet_variant_is_the_probe_s_overrides_of_the_anneal_variant():
+    """experiment=signs_free_residual_anneal_quiet composes exactly what the documented probe ran:
+    the anneal variant with ppo.total_steps=163840 ppo.max_minutes=30 ppo.log_std_final=-4."""
+    probe = _composed("signs_free_residual_anneal", "ppo.total_steps=163840", "ppo.max_minutes=30",
+                      "ppo.log_std_final=-4")
+    quiet = _composed("signs_free_residual_anneal_quiet")
+    assert (quiet["ppo"]["log_std_init"], quiet["ppo"]["log_std_final"]) == (-1.75, -4.0)
+    for cfg in (probe, quiet):
+        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+    assert quiet == probe
 
 
 def test_observe_reference_root_shows_the_turn_the_heading_frame_hides(data_root):
