@@ -142,6 +142,19 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
                            capture_output=True, text=True, timeout=120)
     assert again.returncode == 0 and "n/a (re-evaluated)" in again.stdout, again.stderr[-2000:]
 
+    # What the exploration noise alone costs the controller in the run's training episodes (the
+    # documented command, two short episodes per noise): no noise is the controller itself.
+    cost = subprocess.run([sys.executable, "-m", "aslexp.rl.noise_cost", str(sweep / "0"), "--betas", "0,2",
+                           "--log-std", "-1.75", "--episodes", "2", "--steps", "12"],
+                          capture_output=True, text=True, timeout=300)
+    assert cost.returncode == 0, cost.stderr[-2000:]
+    table = cost.stdout.splitlines()
+    assert table[0].startswith("motion 52861, 2 training episodes") and len(table) == 6
+    assert [line.split(" | ")[0] for line in table[3:]] == ["| none (the controller)", "| white", "| red"]
+    assert "0.174 (log-std -1.75)" in table[4] and "3/3 noises" in cost.stderr
+    quiet = [float(line.split(" | ")[2].split(" ± ")[0]) for line in table[3:]]
+    assert all(0 < r <= 1 for r in quiet)
+
 
 def _composed(experiment: str, *overrides: str) -> dict:
     """The imitate config of an experiment overlay (and overrides), Hydra's own section included, unresolved."""
@@ -232,6 +245,18 @@ def test_the_quiet_variant_is_the_probe_s_overrides_of_the_anneal_variant():
     for cfg in (probe, quiet):
         cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
     assert quiet == probe
+
+
+def test_the_red_noise_variant_changes_only_the_colour_of_the_quiet_variant_s_noise():
+    """experiment=signs_free_residual_anneal_quiet_red: the quiet variant with ppo.noise_beta=2 over
+    the 300-step episode (its horizon), nothing else; white noise (0) is every other experiment's."""
+    quiet, red = _composed("signs_free_residual_anneal_quiet"), _composed("signs_free_residual_anneal_quiet_red")
+    assert (quiet["ppo"]["noise_beta"], red["ppo"]["noise_beta"]) == (0.0, 2.0)
+    assert red["ppo"]["noise_horizon"] == red["env"]["episode_steps"] == 300
+    for cfg in (quiet, red):
+        cfg["ppo"].pop("noise_beta")
+        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+    assert red == quiet
 
 
 def test_observe_reference_root_shows_the_turn_the_heading_frame_hides(data_root):

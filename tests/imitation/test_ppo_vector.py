@@ -16,6 +16,7 @@ from aslexp.envs.config import CONF_DIR
 from aslexp.envs.imitation import ImitationEnv
 from aslexp.rl.checkpoint import load_checkpoint, save_checkpoint
 from aslexp.rl.evaluate import baselines, evaluate, evaluate_phases, reference_policy
+from aslexp.rl.noise import ActionNoise
 from aslexp.rl.policy import RunningNormalizer
 from aslexp.rl.ppo import PPOConfig, PPOTrainer, make_agent, resolve_device
 from aslexp.rl.vector import DropInfo, make_vector_env, worker_seeds
@@ -63,11 +64,13 @@ def test_two_workers_collect_the_transitions_of_two_single_environments(tmp_path
         env.close()
 
 
-def test_rollout_workers_collect_what_the_same_loop_collects_in_this_process(tmp_path, motion_a):
+@pytest.mark.parametrize("beta", [0.0, 1.0])
+def test_rollout_workers_collect_what_the_same_loop_collects_in_this_process(tmp_path, motion_a, beta):
     # vector_env=workers: each worker steps its environment with a copy of the policy for the whole
     # rollout. Its transitions equal rollout_segment run here with the same seeds, episode ends and
-    # the normaliser's statistics included; a second rollout continues the same episodes.
-    config = PPOConfig(**TINY, num_envs=2, vector_env="workers")
+    # the normaliser's statistics included; a second rollout continues the same episodes. With
+    # white noise (beta 0) and with pink noise (beta 1, restarted at every episode's end).
+    config = PPOConfig(**TINY, num_envs=2, vector_env="workers", noise_beta=beta, noise_horizon=16)
     trainer = PPOTrainer(factory(motion_a), None, config, tmp_path, seed=3)
     try:
         first = trainer.collect()
@@ -82,10 +85,10 @@ def test_rollout_workers_collect_what_the_same_loop_collects_in_this_process(tmp
     for i, (reset_seed, noise_seed) in enumerate(zip(worker_seeds(3, 2), noise_seeds(3, 2))):
         env = DropInfo(factory(motion_a)())
         obs, _ = env.reset(seed=reset_seed)
-        generator = torch.Generator().manual_seed(noise_seed)
+        noise = ActionNoise(env.action_space.shape[0], noise_seed, beta, horizon=16)
         torch.manual_seed(3)  # as the trainer did: the initial weights the workers received
         policy = make_agent(env, config)
-        segment, obs = rollout_segment(env, policy, generator, np.asarray(obs, np.float32), 64)
+        segment, obs = rollout_segment(env, policy, noise, np.asarray(obs, np.float32), 64)
         normalise = RunningNormalizer(segment["obs"].shape[-1])  # the statistics the first rollout used
         assert torch.equal(normalise(torch.from_numpy(segment["obs"])), first["observation"][i])
         assert torch.equal(torch.from_numpy(segment["action"]), first["action"][i])

@@ -17,6 +17,10 @@ few observations per step is faster there than a round trip to a GPU.
 algorithm. (Stable-Baselines3's ``n_steps`` is per environment: the thesis code's 10 environments
 x ``n_steps`` 4096 is ``steps_per_rollout: 40960`` here.)
 
+Exploration is the Gaussian policy's noise, white by default; ``noise_beta`` > 0 correlates it over
+time (:mod:`aslexp.rl.noise`: pink, red), each environment drawing from its own seeded sequence in
+every collection mode.
+
 Every ``eval_interval`` environment steps the policy is evaluated deterministically from
 ``eval_episodes`` start phases (``on_eval(step, reward, row)`` is called: the job reports to the
 sweep there) and a checkpoint is written; ``resume_from`` continues a run from its checkpoint.
@@ -48,6 +52,7 @@ from torchrl.objectives.value import GAE
 
 from aslexp.rl.checkpoint import load_checkpoint, save_checkpoint
 from aslexp.rl.evaluate import EvaluationSummary, even_phases, evaluate_phases
+from aslexp.rl.noise import ActionNoise
 from aslexp.rl.policy import Agent, ModelSpec
 from aslexp.rl.vector import cpu_cores, make_vector_env, mean_terms, resolve_mode, sum_counters, worker_seeds
 from aslexp.rl.workers import PolicyWorkers, actor_state, noise_seeds
@@ -82,6 +87,10 @@ class PPOConfig:
     max_grad_norm: float = 100.0
     target_kl: float | None = 0.05
     log_std_init: float = -3.0
+    # Colour of the exploration noise (aslexp.rl.noise): 0 white, independent at every step; > 0
+    # correlated over time with a power spectrum ~ 1/f^beta (1: pink) over noise_horizon steps.
+    noise_beta: float = 0.0
+    noise_horizon: int = 300
     ortho_init: bool = True
     weight_decay: float = 1e-5
     total_steps: int = 50_000_000
@@ -107,6 +116,8 @@ class PPOConfig:
                   ("steps_per_rollout", self.steps_per_rollout >= self.num_envs, f"at least num_envs ({self.num_envs})"),
                   ("eval_episodes", self.eval_episodes >= 1, "at least 1"),
                   ("eval_last_k", self.eval_last_k >= 1, "at least 1"),
+                  ("noise_beta", self.noise_beta >= 0, "at least 0 (0: white noise, 1: pink)"),
+                  ("noise_horizon", self.noise_horizon >= 2, "at least 2 steps"),
                   ("learning_rate_final", self.learning_rate_final is None or self.learning_rate_final >= 0,
                    "null or at least 0"),
                   ("rollout_device", self.rollout_device in ("cpu", "learner"), "cpu or learner"),
@@ -320,6 +331,7 @@ class PPOTrainer:
         # Episodes run on across rollouts; a new run or a resumed one starts them all again.
         self._episodes_started = False
         self._obs: np.ndarray | None = None  # in-process collection: the environments' current observations
+        self._noise: list[ActionNoise] = []  # in-process collection with coloured noise: one per environment
 
     def close(self) -> None:
         """Stop the worker processes (an environment instance passed in stays open)."""
@@ -393,21 +405,29 @@ class PPOTrainer:
         rewards = np.empty((n, n_envs), np.float32)
         terminated = np.empty((n, n_envs), bool)
         done = np.empty((n, n_envs), bool)
+        coloured = self.config.noise_beta > 0
         if not self._episodes_started:
             self._obs, _ = envs.reset(seed=worker_seeds(self.seed, n_envs, self.steps))
             self.episodes = EpisodeStats(n_envs)
             self._episodes_started = True
+            if coloured:  # white noise stays torch's global stream, as it always was
+                self._noise = [ActionNoise(act_size, s, self.config.noise_beta, self.config.noise_horizon)
+                               for s in noise_seeds(self.seed, n_envs, self.steps)]
         with torch.no_grad():
             for t in range(n):
                 raw_obs[t] = self._obs
                 loc, scale = agent.head(agent.normalizer(torch.from_numpy(raw_obs[t]).to(device)))
-                a = loc + scale * torch.randn_like(loc)
+                eps = torch.stack([noise.sample() for noise in self._noise]).to(device) if coloured \
+                    else torch.randn_like(loc)
+                a = loc + scale * eps
                 actions[t] = a
                 obs, reward, term, trunc, info = envs.step(agent.to_env_action(a).cpu().numpy())
                 next_raw[t] = obs
                 ended = term | trunc
                 for i in np.flatnonzero(ended):  # same-step reset: obs already starts the next episode
                     next_raw[t, i] = info["final_obs"][i]
+                    if coloured:
+                        self._noise[i].restart()
                 rewards[t], terminated[t], done[t] = reward, term, ended
                 self.episodes.step(reward, term, trunc)
                 self._obs = obs
@@ -421,7 +441,8 @@ class PPOTrainer:
         n = self.config.steps_per_env
         if not self._episodes_started:  # the observations live in the workers
             self.envs.reset(worker_seeds(self.seed, self.num_envs, self.steps),
-                            noise_seeds(self.seed, self.num_envs, self.steps))
+                            noise_seeds(self.seed, self.num_envs, self.steps),
+                            self.config.noise_beta, self.config.noise_horizon)
             self.episodes = EpisodeStats(self.num_envs)
             self._episodes_started = True
         segment = self.envs.rollout(actor_state(self.agent), n)

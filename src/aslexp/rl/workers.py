@@ -1,15 +1,15 @@
 """Rollout workers: each environment steps in its own process WITH a copy of the policy.
 
 ``vector_env: workers`` (:class:`PolicyWorkers`). Lockstep vector environments
-(:mod:`aslexp.rl.vector`, ``async``) send one action to every worker and wait for every
-observation at each step, with the policy batched in the learner: one inter-process round trip
-per step. For a physics simulator whose step takes a millisecond or two, that round trip (and
-the learner's inference, which the workers wait for) is the cost: on 2 cores, two lockstep
-workers collected 0.93x as fast as one environment in the learner's process (hand, 30 Hz,
-2026-11-23, ``bench/ppo_scaling.py``). Here each worker gets the policy's weights once per
-rollout, steps its environment ``steps`` times with a one-thread CPU copy of the actor
-(sampling from its own seeded generator), and sends back the whole segment: one round trip per
-rollout. What the learner needs comes back unchanged: raw observations (the observation
+(:mod:`aslexp.rl.vector`, ``async``) send one action to every worker and wait for every observation
+at each step, with the policy batched in the learner: one inter-process round trip per step. For a
+physics simulator whose step takes a millisecond or two, that round trip (and the learner's
+inference, which the workers wait for) is the cost: on 2 cores, two lockstep workers collected
+0.93x as fast as one environment in the learner's process (hand, 30 Hz, 2026-11-23,
+``bench/ppo_scaling.py``). Here each worker gets the policy's weights once per rollout, steps its
+environment ``steps`` times with a one-thread CPU copy of the actor (sampling from its own seeded
+noise, white or coloured: :mod:`aslexp.rl.noise`), and sends back the whole segment: one round trip
+per rollout. What the learner needs comes back unchanged: raw observations (the observation
 normaliser's statistics are updated by the learner from all workers' observations, so they are
 merged exactly), actions, rewards, terminations and the final observation of every episode
 (same-step autoreset, as the vector environments).
@@ -31,6 +31,7 @@ import gymnasium as gym
 import numpy as np
 import torch
 
+from aslexp.rl.noise import ActionNoise
 from aslexp.rl.policy import Agent
 from aslexp.rl.vector import START_METHOD, DropInfo
 
@@ -49,7 +50,7 @@ def actor_state(agent: Agent) -> dict[str, np.ndarray]:
     return {k: v.detach().cpu().numpy() for k, v in agent.state_dict().items() if k.startswith(ACTOR_PREFIXES)}
 
 
-def rollout_segment(env: gym.Env, agent: Agent, generator: torch.Generator, obs: np.ndarray,
+def rollout_segment(env: gym.Env, agent: Agent, noise: ActionNoise, obs: np.ndarray,
                     steps: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """``steps`` steps of one environment under the agent's stochastic policy, from ``obs``.
 
@@ -64,13 +65,14 @@ def rollout_segment(env: gym.Env, agent: Agent, generator: torch.Generator, obs:
         for t in range(steps):
             out["obs"][t] = obs
             loc, scale = agent.head(agent.normalizer(torch.from_numpy(out["obs"][t:t + 1])))
-            a = loc + scale * torch.randn(loc.shape, generator=generator)
+            a = loc + scale * noise.sample()
             out["action"][t] = a[0].numpy()
             next_obs, reward, terminated, truncated, _ = env.step(agent.to_env_action(a)[0].numpy())
             out["next_obs"][t] = next_obs
             out["reward"][t], out["terminated"][t], out["truncated"][t] = reward, terminated, truncated
             if terminated or truncated:  # same-step autoreset, as gymnasium's vector environments
                 next_obs, _ = env.reset()
+                noise.restart()
             obs = np.asarray(next_obs, np.float32)
     return out, obs
 
@@ -78,7 +80,7 @@ def rollout_segment(env: gym.Env, agent: Agent, generator: torch.Generator, obs:
 def _serve(pipe, make_env: Callable[[], gym.Env], make_agent: Callable[[gym.Space, gym.Space], Agent]) -> None:
     """A worker's loop: commands from the learner until ``close``."""
     torch.set_num_threads(1)
-    env = agent = generator = obs = None
+    env = agent = noise = obs = None
     while True:
         command, data = pipe.recv()
         try:
@@ -93,15 +95,15 @@ def _serve(pipe, make_env: Callable[[], gym.Env], make_agent: Callable[[gym.Spac
             if command == "spaces":
                 result = (env.observation_space, env.action_space)
             elif command == "reset":
-                reset_seed, noise_seed = data
+                reset_seed, noise_seed, beta, horizon = data
                 obs, _ = env.reset(seed=reset_seed)
                 obs = np.asarray(obs, np.float32)
-                generator = torch.Generator().manual_seed(noise_seed)
+                noise = ActionNoise(env.action_space.shape[0], noise_seed, beta, horizon)
                 result = None
             elif command == "rollout":
                 weights, steps = data
                 agent.load_state_dict({k: torch.from_numpy(v) for k, v in weights.items()}, strict=False)
-                result, obs = rollout_segment(env, agent, generator, obs, steps)
+                result, obs = rollout_segment(env, agent, noise, obs, steps)
             elif command == "call":
                 result = getattr(env, data)()
             else:
@@ -156,8 +158,10 @@ class PolicyWorkers:
             pipe.send((command, data))
         return [self._answer(i) for i in range(self.num_envs)]
 
-    def reset(self, reset_seeds: list[int], noise_seeds_: list[int]) -> None:
-        self._ask_all("reset", list(zip(reset_seeds, noise_seeds_)))
+    def reset(self, reset_seeds: list[int], noise_seeds_: list[int], noise_beta: float = 0.0,
+              noise_horizon: int = 300) -> None:
+        """New episodes from these seeds; action noise of colour ``noise_beta`` (0: white)."""
+        self._ask_all("reset", [(r, n, noise_beta, noise_horizon) for r, n in zip(reset_seeds, noise_seeds_)])
 
     def rollout(self, weights: dict[str, np.ndarray], steps: int) -> dict[str, np.ndarray]:
         """``steps`` steps of every worker; arrays shaped ``(steps, num_envs, ...)``."""
