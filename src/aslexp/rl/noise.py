@@ -1,13 +1,14 @@
 """Exploration noise of a Gaussian policy: white (independent at every step) or coloured.
 
 The policy acts ``mean + std * eps``. With white noise ``eps`` is drawn afresh at every step: at
-30 Hz on a body standing on slipping feet that is a jerk on every joint 30 times a second, and the
-jerks, not the exploration, make the training episodes fall. Coloured noise (Eberhard et al.,
+30 Hz, a jerk on every joint 30 times a second. Coloured noise (Eberhard et al.,
 "Pink noise is all you need", ICLR 2023; for PPO: Hollenstein et al., "Colored noise in PPO",
 AAAI 2024) keeps the same unit Gaussian at every step -- so PPO's per-step log-probabilities and
 its ratio are unchanged -- but correlates it over time: its power spectrum falls as 1/f^beta over a
 sequence of ``horizon`` steps (beta 0: white, 1: pink, 2: red, a random walk's). A new sequence
-starts with every episode.
+starts with every episode. (On the standing upper body, red noise of the same size costs the
+controller less reward than white, but falls as often, and PPO learned worse under it:
+docs/imitation_upper_body.md, "Probes on 69318".)
 """
 
 from __future__ import annotations
@@ -52,7 +53,7 @@ class ActionNoise:
             raise ValueError(f"ppo config: noise_beta must be >= 0 and noise_horizon >= 2, got {beta}, {horizon}")
         self.size, self.beta, self.horizon = size, float(beta), int(horizon)
         self._generator = torch.Generator().manual_seed(seed) if self.beta == 0 else None
-        self._rng = np.random.default_rng(seed)
+        self._rng = np.random.default_rng(seed) if self.beta > 0 else None
         self._sequence: np.ndarray | None = None
         self._index = 0
 

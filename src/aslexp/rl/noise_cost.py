@@ -33,10 +33,10 @@ def noise_cost(env, beta: float | None, log_std: float, episodes: int, seed: int
     rewards, lengths, falls = [], [], 0
     for k in range(episodes):
         env.reset(seed=seed + k)
-        noise = ActionNoise(len(centre), seed + k, beta or 0.0, horizon)
+        noise = ActionNoise(len(centre), seed + k, beta, horizon) if beta is not None else None
         total, length = 0.0, 0
         for _ in range(limit):
-            eps = noise.sample().numpy() if beta is not None else 0.0
+            eps = noise.sample().numpy() if noise is not None else 0.0
             _, reward, terminated, truncated, _ = env.step((centre + half * np.exp(log_std) * eps).astype(np.float32))
             total, length = total + float(reward), length + 1
             if terminated or truncated:
@@ -59,15 +59,10 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--horizon", type=int, default=300, help="steps of one coloured sequence")
     args = parser.parse_args(argv)
 
-    from aslexp.data.root import resolve_data_root
-    from aslexp.envs.imitation import ImitationEnv, resolve_motion_path
-    from aslexp.rl.report import run_config
+    from aslexp.rl.report import run_config, run_env
 
     cfg = run_config(args.run_dir)
-    data_root = resolve_data_root(cfg.get("data_root"))
-    env = ImitationEnv(resolve_motion_path(cfg["motion"]["file"], data_root), body=cfg["body"],
-                       controller=cfg["controller"], reward=cfg["reward"], env=cfg["env"], data_root=data_root,
-                       complete_configs=True)
+    env = run_env(cfg)  # as trained: its training episodes
     names = {0.0: "white", 0.5: "beta 0.5", 1.0: "pink", 2.0: "red"}
     settings = [(None, 0.0)] + [(float(b), float(s)) for s in args.log_std.split(",") for b in args.betas.split(",")]
     lines = [f"motion {cfg['motion']['name']}, {args.episodes} training episodes per row (RSI; a fall ends one)",

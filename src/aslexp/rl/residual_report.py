@@ -38,7 +38,8 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.rl.report import best_so_far, learned, mean_std, plot_curves, read_runs, run_config, write_table
+from aslexp.rl.report import (best_so_far, learned, mean_std, plot_curves, read_runs, run_config, run_env,
+                              write_table)
 from aslexp.rl.thesis_report import GLOSSES
 
 log = logging.getLogger("aslexp.residual")
@@ -68,9 +69,7 @@ def root_drift(env, policy, steps: int) -> dict[str, float]:
 
 def residual_baselines(cfg: dict[str, Any], cache: Path) -> dict[str, Any]:
     """The comparison rows for one motion (deterministic: computed once, cached in ``cache``)."""
-    from aslexp.data.root import resolve_data_root
-    from aslexp.envs.config import deep_merge
-    from aslexp.envs.imitation import ImitationEnv, resolve_motion_path
+    from aslexp.envs.imitation import ImitationEnv
     from aslexp.rl.evaluate import (constant_correction_policy, evaluate_phases, reference_policy,
                                     smoothed_reference_policy)
     from aslexp.rl.ppo import PPOConfig
@@ -84,13 +83,8 @@ def residual_baselines(cfg: dict[str, Any], cache: Path) -> dict[str, Any]:
         stored = json.loads(cache.read_text())
         if stored.get("key") == key:
             return stored["rows"]
-    data_root = resolve_data_root(cfg.get("data_root"))
-    motion = resolve_motion_path(cfg["motion"]["file"], data_root)
-    env_cfg = deep_merge(cfg["env"], {"early_termination": {"min_reward": None}})
-
-    def make(body_overrides: dict[str, Any]) -> ImitationEnv:
-        return ImitationEnv(motion, body=deep_merge(cfg["body"], body_overrides), controller=cfg["controller"],
-                            reward=cfg["reward"], env=env_cfg, data_root=data_root, complete_configs=True)
+    def make(body_overrides: dict[str, Any]) -> ImitationEnv:  # evaluations score whole episodes
+        return run_env(cfg, {"early_termination": {"min_reward": None}}, body_overrides)
 
     chance = settings.get("random_corrections") or {}
     if set(chance) - {"count", "rms", "seed"} or (chance and "rms" not in chance):
