@@ -62,6 +62,14 @@ def angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return 2.0 * np.arccos(np.clip(dot, 0.0, 1.0))
 
 
+def twist_angle(a: np.ndarray, b: np.ndarray, axis: int) -> float:
+    """The angle (rad, in [-pi, pi)) by which b is turned from a about a's coordinate axis ``axis``
+    (0 x, 1 y, 2 z): the twist of conj(a) * b (e.g. a body's yaw against its reference's)."""
+    relative = multiply(conjugate(np.asarray(a, dtype=np.float64)), np.asarray(b, dtype=np.float64))
+    turn = 2.0 * np.arctan2(relative[1 + axis], relative[0])
+    return float((turn + np.pi) % (2.0 * np.pi) - np.pi)
+
+
 def to_matrix(q: np.ndarray) -> np.ndarray:
     """(..., 4) -> (..., 3, 3) rotation matrices."""
     q = np.asarray(q, dtype=np.float64)

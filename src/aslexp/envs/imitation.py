@@ -82,6 +82,12 @@ class EnvSpec:
     # simulated root, rotation): 7 values that show how far the body has drifted or turned, which
     # the heading frame of the deepmimic observation hides (it removes the yaw).
     observe_reference_root: bool = False
+    # Training only: with ImitationEnv(..., shape_reward=True), as aslexp.jobs.imitate builds its
+    # training envs, the reward PPO learns from is the step reward times exp(-heading_shaping * yaw^2),
+    # yaw the turn (rad) of the simulated root against the reference's about the up axis. The turn of
+    # slipping feet builds over seconds, past a 30 Hz policy's horizon; this charges it at every step.
+    # Every score (evaluations, baselines, reports) stays the reward config's alone. 0: off.
+    heading_shaping: float = 0.0
     residual_velocity_range: float = 0.0  # rad/s; > 0 appends velocity-target corrections to the action
     # The policy's action is [-1, 1] per value, mapped affinely onto the box above (absolute: each
     # joint's range, e.g. [-1, 1] -> [0, 2] rad; residual: +-residual_range, +-residual_velocity_range).
@@ -117,6 +123,9 @@ class EnvSpec:
         if patience is None or int(patience) != patience or patience < 1:
             raise ValueError(f"env config: early_termination.patience must be an integer >= 1 "
                              f"(control steps below min_reward before the end), got {patience!r}")
+        if not (np.isfinite(spec.heading_shaping) and spec.heading_shaping >= 0):
+            raise ValueError(f"env config: heading_shaping must be a number >= 0 (the scale k of the training "
+                             f"reward's factor exp(-k yaw^2); 0 off), got {spec.heading_shaping!r}")
         if spec.action_range not in ("joint", "motion"):
             raise ValueError(f"env config: action_range must be joint or motion, got {spec.action_range!r}")
         if spec.action_range == "motion" and (spec.action_mode != "absolute" or spec.action_range_margin < 0):
@@ -166,15 +175,19 @@ class ImitationEnv(gym.Env):
         render_mode: str | None = None,
         render_size: tuple[int, int] = (320, 320),
         complete_configs: bool = False,
+        shape_reward: bool = False,
     ) -> None:
         """Group values are names, partial dicts merged over the group default, or None; with
         ``complete_configs`` dicts are taken as they are (the jobs pass Hydra-composed groups,
-        which merged over another body's default file would gain its keys and reward terms)."""
+        which merged over another body's default file would gain its keys and reward terms).
+        ``shape_reward``: a training env, whose returned reward carries the env's training-only
+        shaping (``heading_shaping``); every other env returns the reward config's reward."""
         super().__init__()
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
         self.render_size = tuple(render_size)
+        self.shape_reward = bool(shape_reward)
         if data_root is None:
             from aslexp.data.root import resolve_data_root
 
@@ -514,6 +527,12 @@ class ImitationEnv(gym.Env):
         truncated = self.steps >= self.spec_env.episode_steps and not early
         info = {"nan_action": False, "diverged": False, "early_termination": early, "fall": fell,
                 **{f"r_{k}": v for k, v in terms.items()}, **{f"e_{k}": v for k, v in errors.items()}}
+        if self.shape_reward and self.spec_env.heading_shaping > 0:
+            yaw = quaternion.twist_angle(ref_state.root_rot, sim_state.root_rot, UP_AXIS)
+            heading = float(np.exp(-self.spec_env.heading_shaping * yaw * yaw))
+            self._term_sums["heading"] += heading  # logged as train_heading; train_reward stays unshaped
+            info["r_heading"] = heading
+            reward *= heading
         return self._observation(links), reward, early, truncated, info
 
     def fallen(self) -> bool:

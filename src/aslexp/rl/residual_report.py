@@ -59,9 +59,7 @@ def root_drift(env, policy, steps: int) -> dict[str, float]:
         _, reference, _, _ = env.reference.root(env.time)
         up = quaternion.to_matrix(rotation)[:, UP_AXIS]
         tilt = max(tilt, float(np.degrees(np.arccos(np.clip(up[UP_AXIS], -1.0, 1.0)))))
-        relative = quaternion.multiply(quaternion.conjugate(reference), rotation)  # (w, x, y, z)
-        turn = 2.0 * np.arctan2(relative[1 + UP_AXIS], relative[0])  # about the up axis
-        yaw = max(yaw, abs(float(np.degrees((turn + np.pi) % (2 * np.pi) - np.pi))))
+        yaw = max(yaw, abs(float(np.degrees(quaternion.twist_angle(reference, rotation, UP_AXIS)))))
         if terminated:
             break
     return {"max_tilt_deg": tilt, "max_yaw_deg": yaw}
