@@ -289,3 +289,75 @@ def test_observe_reference_root_shows_the_turn_the_heading_frame_hides(data_root
     relative = quaternion.multiply(quaternion.conjugate(seen), obs[-4:])  # (w, x, y, z)
     assert np.degrees(2 * np.arctan2(relative[2], relative[0])) == pytest.approx(20.0, abs=0.1)
     env.close()
+
+
+def test_the_heading_variant_changes_only_the_training_reward_of_the_quiet_variant():
+    """experiment=signs_free_residual_anneal_quiet_heading: the quiet variant with env.heading_shaping=10,
+    nothing else; 0 (off) is every other experiment's."""
+    quiet = _composed("signs_free_residual_anneal_quiet")
+    heading = _composed("signs_free_residual_anneal_quiet_heading")
+    assert (quiet["env"]["heading_shaping"], heading["env"]["heading_shaping"]) == (0.0, 10.0)
+    assert quiet["env"]["offset_shaping"] == heading["env"]["offset_shaping"] == 0.0
+    for cfg in (quiet, heading):
+        cfg["env"].pop("heading_shaping")
+        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+    assert heading == quiet
+
+
+def test_drift_shaping_charges_the_turn_and_offset_in_training_envs_only(data_root):
+    """env.heading_shaping, env.offset_shaping: the training env's reward is the reward config's times
+    exp(-heading_shaping yaw^2 - offset_shaping |d|^2), yaw and d the simulated root's turn and horizontal
+    offset against the reference's; the evaluation env scores the reward alone."""
+    from aslexp import quaternion
+    from aslexp.jobs._common import to_dict
+    from aslexp.jobs.imitate import build_envs
+    from hydra import compose, initialize_config_dir
+
+    from aslexp.envs.config import CONF_DIR
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = to_dict(compose(config_name="imitate", overrides=[
+            "experiment=signs_free_residual_anneal_quiet_heading", "motion='00433'", "env.offset_shaping=100"]))
+    make_train_env, eval_env = build_envs(cfg, data_root)
+    train_env = make_train_env()
+    action = np.zeros(train_env.action_space.shape, np.float32)
+    turn = np.radians(15.0)
+    steps = []
+    for env in (train_env, eval_env):
+        env.reset(options={"phase": 0.3})
+        position, rotation, velocity, spin = env.reference.root(env.time)  # turn the body by 15 degrees
+        env.sim.set_base(position, quaternion.multiply(np.array([np.cos(turn / 2), 0.0, np.sin(turn / 2), 0.0]),
+                                                       rotation), velocity, spin)
+        steps.append(env.step(action))
+        env.close()
+    (_, shaped, _, _, info), (_, plain, _, _, eval_info) = steps
+    yaw = quaternion.twist_angle(train_env.last_reference_state.root_rot, train_env.last_sim_state.root_rot, 1)
+    assert abs(np.degrees(yaw)) == pytest.approx(15.0, abs=2.0)  # one step later, still turned
+    offset = np.delete(train_env.last_sim_state.root_pos - train_env.last_reference_state.root_pos, 1)
+    assert info["r_drift"] == pytest.approx(np.exp(-10.0 * yaw ** 2 - 100.0 * offset @ offset), rel=1e-9)
+    assert "r_drift" not in eval_info
+    # Same state, same action, same physics: the unshaped rewards agree, the shaped one carries the factor.
+    assert shaped == pytest.approx(plain * info["r_drift"], rel=1e-6)
+    assert shaped < 0.8 * plain
+    means = train_env.pop_term_means()  # training logs: train_reward unshaped, train_drift the factor
+    assert means["reward"] == pytest.approx(plain, rel=1e-6) and means["drift"] == info["r_drift"]
+
+
+@pytest.mark.parametrize("name,value", [("heading_shaping", -1.0), ("offset_shaping", "a lot"),
+                                        ("offset_shaping", float("nan"))])
+def test_drift_shaping_scales_must_be_numbers_of_zero_or_more(name, value):
+    from aslexp.envs.imitation import EnvSpec
+
+    with pytest.raises(ValueError, match=f"{name} must be a number >= 0"):
+        EnvSpec.from_dict({name: value})
+
+
+def test_the_drift_variant_adds_only_the_offset_charge_to_the_heading_variant():
+    heading = _composed("signs_free_residual_anneal_quiet_heading")
+    drift = _composed("signs_free_residual_anneal_quiet_drift")
+    assert (heading["env"]["offset_shaping"], drift["env"]["offset_shaping"]) == (0.0, 100.0)
+    assert drift["env"]["heading_shaping"] == 10.0
+    for cfg in (heading, drift):
+        cfg["env"].pop("offset_shaping")
+        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+    assert drift == heading

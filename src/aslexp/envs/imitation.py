@@ -53,6 +53,8 @@ from aslexp.sim.world import Character, PhysicsConfig, World
 
 
 OBSERVATIONS = ("aslexp", "deepmimic")
+# Env keys that shape the training reward alone (ImitationEnv shape_reward): no score depends on them.
+TRAINING_ONLY_KEYS = ("heading_shaping", "offset_shaping")
 UP_AXIS = 1  # the motions and worlds are y-up (gravity -9.8 y)
 
 # Rendering camera (TinyRenderer) looking at the mean link position: the hand's view.
@@ -83,11 +85,13 @@ class EnvSpec:
     # the heading frame of the deepmimic observation hides (it removes the yaw).
     observe_reference_root: bool = False
     # Training only: with ImitationEnv(..., shape_reward=True), as aslexp.jobs.imitate builds its
-    # training envs, the reward PPO learns from is the step reward times exp(-heading_shaping * yaw^2),
-    # yaw the turn (rad) of the simulated root against the reference's about the up axis. The turn of
-    # slipping feet builds over seconds, past a 30 Hz policy's horizon; this charges it at every step.
-    # Every score (evaluations, baselines, reports) stays the reward config's alone. 0: off.
+    # training envs, the reward PPO learns from is the step reward times
+    # exp(-heading_shaping * yaw^2 - offset_shaping * |d|^2): yaw the turn (rad) of the simulated
+    # root against the reference's about the up axis, d its horizontal offset (m). Slipping feet turn
+    # and shift the body over seconds, past a 30 Hz policy's horizon; this charges the drift at every
+    # step. Every score (evaluations, baselines, reports) stays the reward config's alone. 0: off.
     heading_shaping: float = 0.0
+    offset_shaping: float = 0.0
     residual_velocity_range: float = 0.0  # rad/s; > 0 appends velocity-target corrections to the action
     # The policy's action is [-1, 1] per value, mapped affinely onto the box above (absolute: each
     # joint's range, e.g. [-1, 1] -> [0, 2] rad; residual: +-residual_range, +-residual_velocity_range).
@@ -123,9 +127,11 @@ class EnvSpec:
         if patience is None or int(patience) != patience or patience < 1:
             raise ValueError(f"env config: early_termination.patience must be an integer >= 1 "
                              f"(control steps below min_reward before the end), got {patience!r}")
-        if not (np.isfinite(spec.heading_shaping) and spec.heading_shaping >= 0):
-            raise ValueError(f"env config: heading_shaping must be a number >= 0 (the scale k of the training "
-                             f"reward's factor exp(-k yaw^2); 0 off), got {spec.heading_shaping!r}")
+        for name in ("heading_shaping", "offset_shaping"):
+            value = getattr(spec, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
+                raise ValueError(f"env config: {name} must be a number >= 0 (a scale of the training reward's "
+                                 f"factor exp(-heading_shaping yaw^2 - offset_shaping |d|^2); 0 off), got {value!r}")
         if spec.action_range not in ("joint", "motion"):
             raise ValueError(f"env config: action_range must be joint or motion, got {spec.action_range!r}")
         if spec.action_range == "motion" and (spec.action_mode != "absolute" or spec.action_range_margin < 0):
@@ -181,7 +187,7 @@ class ImitationEnv(gym.Env):
         ``complete_configs`` dicts are taken as they are (the jobs pass Hydra-composed groups,
         which merged over another body's default file would gain its keys and reward terms).
         ``shape_reward``: a training env, whose returned reward carries the env's training-only
-        shaping (``heading_shaping``); every other env returns the reward config's reward."""
+        shaping (``heading_shaping``, ``offset_shaping``); every other env returns the reward config's reward."""
         super().__init__()
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -527,12 +533,14 @@ class ImitationEnv(gym.Env):
         truncated = self.steps >= self.spec_env.episode_steps and not early
         info = {"nan_action": False, "diverged": False, "early_termination": early, "fall": fell,
                 **{f"r_{k}": v for k, v in terms.items()}, **{f"e_{k}": v for k, v in errors.items()}}
-        if self.shape_reward and self.spec_env.heading_shaping > 0:
+        yaw_scale, position_scale = self.spec_env.heading_shaping, self.spec_env.offset_shaping
+        if self.shape_reward and (yaw_scale > 0 or position_scale > 0):
             yaw = quaternion.twist_angle(ref_state.root_rot, sim_state.root_rot, UP_AXIS)
-            heading = float(np.exp(-self.spec_env.heading_shaping * yaw * yaw))
-            self._term_sums["heading"] += heading  # logged as train_heading; train_reward stays unshaped
-            info["r_heading"] = heading
-            reward *= heading
+            offset = np.delete(sim_state.root_pos - ref_state.root_pos, UP_AXIS)
+            drift = float(np.exp(-yaw_scale * yaw * yaw - position_scale * float(offset @ offset)))
+            self._term_sums["drift"] += drift  # logged as train_drift; train_reward stays unshaped
+            info["r_drift"] = drift
+            reward *= drift
         return self._observation(links), reward, early, truncated, info
 
     def fallen(self) -> bool:

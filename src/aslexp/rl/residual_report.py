@@ -67,15 +67,16 @@ def root_drift(env, policy, steps: int) -> dict[str, float]:
 
 def residual_baselines(cfg: dict[str, Any], cache: Path) -> dict[str, Any]:
     """The comparison rows for one motion (deterministic: computed once, cached in ``cache``)."""
-    from aslexp.envs.imitation import ImitationEnv
+    from aslexp.envs.imitation import TRAINING_ONLY_KEYS, ImitationEnv
     from aslexp.rl.evaluate import (constant_correction_policy, evaluate_phases, reference_policy,
                                     smoothed_reference_policy)
     from aslexp.rl.ppo import PPOConfig
 
     settings = (cfg.get("report") or {}).get("residual") or {}
     ppo = PPOConfig.from_dict(cfg["ppo"])
+    scored_env = {k: v for k, v in cfg["env"].items() if k not in TRAINING_ONLY_KEYS}  # shaping scores nothing
     key = {"settings": settings, "body": cfg["body"], "controller": cfg["controller"], "reward": cfg["reward"],
-           "env": cfg["env"], "motion": cfg["motion"], "protocol": ppo.eval_protocol}
+           "env": scored_env, "motion": cfg["motion"], "protocol": ppo.eval_protocol}
     key = json.loads(json.dumps(key))
     if cache.is_file():
         stored = json.loads(cache.read_text())
