@@ -142,6 +142,25 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
                            capture_output=True, text=True, timeout=120)
     assert again.returncode == 0 and "n/a (re-evaluated)" in again.stdout, again.stderr[-2000:]
 
+    # Charging the drift in training (env.heading_shaping, env.offset_shaping) changes what PPO learns
+    # from, not what is scored: the cached baselines still hold, and in two rollout workers the first
+    # rollout (same seed, same policy before any update) is the unshaped run's, with the factor logged.
+    runs = {}
+    for name, charge in (("plain", []), ("shaped", ["env.heading_shaping=10", "env.offset_shaping=100"])):
+        runs[name] = tmp_path / name
+        runs[name].mkdir()
+        shutil.copytree(sweep / "baselines", runs[name] / "baselines")
+        ran = run_job("imitate", "-m", "experiment=signs_free_residual", "motion='52861'", "seed=0", *TINY,
+                      "ppo.total_steps=128", "ppo.num_envs=2", *charge, f"hydra.sweep.dir={runs[name]}")
+        assert "residual baselines 52861" not in ran.stdout + ran.stderr  # training-only keys: cache holds
+    rows = {}
+    for name, folder in runs.items():
+        with open(folder / "0" / "progress.csv", newline="", encoding="utf-8") as fh:
+            rows[name] = [r for r in csv.DictReader(fh) if r["train_reward"]]
+    shaped_rows, plain_rows = rows["shaped"], rows["plain"]
+    assert shaped_rows[0]["train_reward"] == plain_rows[0]["train_reward"]
+    assert all(0 < float(r["train_drift"]) <= 1 for r in shaped_rows) and "train_drift" not in plain_rows[0]
+
     # What the exploration noise alone costs the controller in the run's training episodes (the
     # documented command, two short episodes per noise): no noise is the controller itself.
     cost = subprocess.run([sys.executable, "-m", "aslexp.rl.noise_cost", str(sweep / "0"), "--betas", "0,2",
@@ -361,3 +380,14 @@ def test_the_drift_variant_adds_only_the_offset_charge_to_the_heading_variant():
         cfg["env"].pop("offset_shaping")
         cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
     assert drift == heading
+
+
+def test_the_328k_variant_is_the_probe_s_overrides_of_the_quiet_variant():
+    """experiment=signs_free_residual_anneal_quiet_328k composes what the 69318 probe ran:
+    the quiet variant with ppo.total_steps=327680 ppo.max_minutes=60, schedules stretched over it."""
+    probe = _composed("signs_free_residual_anneal_quiet", "ppo.total_steps=327680", "ppo.max_minutes=60")
+    longer = _composed("signs_free_residual_anneal_quiet_328k")
+    assert (longer["ppo"]["log_std_final"], longer["ppo"]["learning_rate_final"]) == (-4.0, 0.0)
+    for cfg in (probe, longer):
+        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+    assert longer == probe
