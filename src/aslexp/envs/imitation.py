@@ -127,7 +127,7 @@ class EnvSpec:
         if patience is None or int(patience) != patience or patience < 1:
             raise ValueError(f"env config: early_termination.patience must be an integer >= 1 "
                              f"(control steps below min_reward before the end), got {patience!r}")
-        for name in ("heading_shaping", "offset_shaping"):
+        for name in TRAINING_ONLY_KEYS:
             value = getattr(spec, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
                 raise ValueError(f"env config: {name} must be a number >= 0 (a scale of the training reward's "

@@ -48,7 +48,7 @@ def build_envs(cfg: dict[str, Any], data_root: Path):
     common = dict(body=cfg["body"], controller=cfg["controller"], reward=cfg["reward"], data_root=data_root,
                   complete_configs=True)  # Hydra composed every group: no merge over the hand's files
     make_train_env = functools.partial(ImitationEnv, cfg["motion"]["file"], env=cfg["env"], shape_reward=True,
-                                       **common)  # training shaping (env.heading_shaping) applies here only
+                                       **common)  # env.heading_shaping / offset_shaping apply here only
     eval_cfg = deep_merge(cfg["env"], {"early_termination": {"min_reward": None}})
     render = cfg.get("render") or {}
     eval_env = ImitationEnv(cfg["motion"]["file"], env=eval_cfg, render_mode="rgb_array",
