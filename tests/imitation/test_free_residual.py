@@ -188,6 +188,13 @@ def _composed(experiment: str, *overrides: str) -> dict:
         return OmegaConf.to_container(composed, resolve=False)
 
 
+def _drop_run_sections(cfg: dict) -> None:
+    """Hydra's sections that name the run (its overrides, job and runtime): what two overlays that compose
+    the same experiment still differ in."""
+    for section in ("runtime", "overrides", "job"):
+        cfg["hydra"].pop(section)
+
+
 def test_signs_free_residual_composes_with_the_values_its_comments_claim():
     cfg = _composed("signs_free_residual")
     env, ppo, report = cfg["env"], cfg["ppo"], cfg["report"]["residual"]
@@ -213,7 +220,7 @@ def test_the_root_variant_changes_only_what_its_name_says():
     assert variant["ppo"]["log_std_init"] == -1.75 and base["ppo"]["log_std_init"] == -1.0
     for cfg in (base, variant):
         cfg["env"].pop("observe_reference_root"), cfg["ppo"].pop("log_std_init")
-        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+        _drop_run_sections(cfg)
     assert variant == base  # same body, controller, reward, budget, report, sweep and callbacks
 
 
@@ -224,7 +231,7 @@ def test_the_anneal_variant_adds_only_its_two_schedules():
     assert (root["ppo"]["log_std_final"], root["ppo"]["learning_rate_final"]) == (None, None)
     for cfg in (root, anneal):
         cfg["ppo"].pop("log_std_final"), cfg["ppo"].pop("learning_rate_final")
-        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+        _drop_run_sections(cfg)
     assert anneal == root
 
 
@@ -236,7 +243,7 @@ def test_the_kl_variant_adds_only_a_trust_region_and_twice_the_budget():
     for cfg in (anneal, kl):
         for key in ("target_kl", "total_steps", "max_minutes"):
             cfg["ppo"].pop(key)
-        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+        _drop_run_sections(cfg)
     assert kl == anneal
 
 
@@ -250,7 +257,7 @@ def test_the_batch_variant_changes_only_the_samples_per_update_at_twice_the_budg
     for cfg in (anneal, batch):
         for key in keys:
             cfg["ppo"].pop(key)
-        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+        _drop_run_sections(cfg)
     assert batch == anneal
 
 
@@ -262,7 +269,7 @@ def test_the_quiet_variant_is_the_probe_s_overrides_of_the_anneal_variant():
     quiet = _composed("signs_free_residual_anneal_quiet")
     assert (quiet["ppo"]["log_std_init"], quiet["ppo"]["log_std_final"]) == (-1.75, -4.0)
     for cfg in (probe, quiet):
-        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+        _drop_run_sections(cfg)
     assert quiet == probe
 
 
@@ -274,7 +281,7 @@ def test_the_red_noise_variant_changes_only_the_colour_of_the_quiet_variant_s_no
     assert red["ppo"]["noise_horizon"] == red["env"]["episode_steps"] == 300
     for cfg in (quiet, red):
         cfg["ppo"].pop("noise_beta")
-        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+        _drop_run_sections(cfg)
     assert red == quiet
 
 
@@ -319,7 +326,7 @@ def test_the_heading_variant_changes_only_the_training_reward_of_the_quiet_varia
     assert quiet["env"]["offset_shaping"] == heading["env"]["offset_shaping"] == 0.0
     for cfg in (quiet, heading):
         cfg["env"].pop("heading_shaping")
-        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+        _drop_run_sections(cfg)
     assert heading == quiet
 
 
@@ -378,7 +385,7 @@ def test_the_drift_variant_adds_only_the_offset_charge_to_the_heading_variant():
     assert drift["env"]["heading_shaping"] == 10.0
     for cfg in (heading, drift):
         cfg["env"].pop("offset_shaping")
-        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+        _drop_run_sections(cfg)
     assert drift == heading
 
 
@@ -389,5 +396,5 @@ def test_the_328k_variant_is_the_probe_s_overrides_of_the_quiet_variant():
     longer = _composed("signs_free_residual_anneal_quiet_328k")
     assert (longer["ppo"]["log_std_final"], longer["ppo"]["learning_rate_final"]) == (-4.0, 0.0)
     for cfg in (probe, longer):
-        cfg["hydra"].pop("runtime"), cfg["hydra"].pop("overrides"), cfg["hydra"].pop("job")
+        _drop_run_sections(cfg)
     assert longer == probe
