@@ -398,3 +398,98 @@ def test_the_328k_variant_is_the_probe_s_overrides_of_the_quiet_variant():
     for cfg in (probe, longer):
         _drop_run_sections(cfg)
     assert longer == probe
+
+
+def _upper_body_residual_env(data_root, **env_overrides):
+    from aslexp.jobs._common import to_dict
+    from aslexp.jobs.imitate import build_envs
+    from hydra import compose, initialize_config_dir
+
+    from aslexp.envs.config import CONF_DIR
+
+    overrides = [f"env.{k}={v}" for k, v in env_overrides.items()]
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = to_dict(compose(config_name="imitate", overrides=[
+            "experiment=signs_free_residual_anneal_quiet", "motion='69546'", *overrides]))
+    _, eval_env = build_envs(cfg, data_root)
+    return cfg, eval_env
+
+
+def test_a_smoothed_base_with_no_correction_is_the_smoothed_reference_baseline(data_root):
+    """env.residual_base_smoothing: the correction is added to the low-pass filtered reference, so a
+    zero correction drives exactly what smoothed_reference_policy drives on the reference's own base,
+    and reference_action still drives the reference itself (the in-run baselines do not move)."""
+    groups = ("chest", "neck", "shoulder", "elbow")
+    _, plain = _upper_body_residual_env(data_root)
+    _, smoothed = _upper_body_residual_env(data_root, residual_base_smoothing=0.6,
+                                           residual_base_smoothing_groups="[chest,neck,shoulder,elbow]")
+    zero = np.zeros(smoothed.action_space.shape, np.float32)
+    on_base = evaluate(smoothed, lambda obs, env: zero, 45, phase=0.25)
+    baseline = evaluate(plain, smoothed_reference_policy(0.6, groups), 45, phase=0.25)
+    # The same targets; the baseline's pass through a float32 policy action (1e-8 rad apart).
+    assert on_base.mean_reward == pytest.approx(baseline.mean_reward, abs=1e-6)
+    assert on_base.terms == pytest.approx(baseline.terms, abs=1e-6)
+    controller = evaluate(plain, reference_policy(1), 45, phase=0.25)
+    assert abs(on_base.mean_reward - controller.mean_reward) > 1e-3  # the filter changes the targets
+    same = evaluate(smoothed, reference_policy(1), 45, phase=0.25)
+    assert same.mean_reward == pytest.approx(controller.mean_reward, abs=1e-6)  # float32 actions again
+    # Only the chosen groups lag: after a few steps the base differs from the reference there alone.
+    smoothed.reset(options={"phase": 0.25})
+    for _ in range(5):
+        smoothed.step(zero)
+    lag = np.abs(smoothed.residual_base() - smoothed.reference_targets(1)) > 1e-9
+    chosen = smoothed.joint_value_indices(groups)
+    assert lag[chosen].any() and not lag[np.setdiff1d(np.arange(lag.size), chosen)].any()
+    plain.close(), smoothed.close()
+
+
+@pytest.mark.parametrize("values,message", [
+    ({"action_mode": "residual", "residual_base_smoothing": 1.0}, r"residual_base_smoothing must be a number in \[0, 1\)"),
+    ({"action_mode": "residual", "residual_base_smoothing": "0.5"}, r"must be a number in \[0, 1\)"),
+    ({"action_mode": "absolute", "residual_base_smoothing": 0.5}, "needs action_mode residual"),
+])
+def test_residual_base_smoothing_fails_clearly(values, message):
+    from aslexp.envs.imitation import EnvSpec
+
+    with pytest.raises(ValueError, match=message):
+        EnvSpec.from_dict(values)
+
+
+def test_residual_base_smoothing_groups_must_name_joints(motion_a):
+    with pytest.raises(ValueError, match=r"env residual_base_smoothing_groups: no joint in groups \['toes'\]"):
+        ImitationEnv(motion_a, env={**FIXED, "action_mode": "residual", "residual_base_smoothing": 0.5,
+                                    "residual_base_smoothing_groups": ["toes"]})
+
+
+def test_the_residual_baselines_ignore_a_smoothed_base(data_root, tmp_path):
+    """The report's rows (controller, smoothed references, chance) are measured on the reference's own
+    base for a smoothed-base variant too: the same rows, and the same cache entry."""
+    from aslexp.rl.residual_report import residual_baselines
+
+    small = {"eval_steps": 15, "eval_episodes": 2}
+    settings = {"smoothing": [0.6], "smoothing_groups": ["chest", "neck", "shoulder", "elbow"],
+                "random_corrections": {"count": 1, "rms": 0.04, "seed": 0}}
+    rows = []
+    for extra in ({}, {"residual_base_smoothing": 0.6,
+                       "residual_base_smoothing_groups": "[chest,neck,shoulder,elbow]"}):
+        cfg, env = _upper_body_residual_env(data_root, **extra)
+        env.close()
+        cfg["ppo"].update(small)
+        cfg["report"]["residual"] = settings
+        rows.append(residual_baselines(cfg, tmp_path / "baselines.json"))
+        if not extra:
+            written = (tmp_path / "baselines.json").stat().st_mtime_ns
+    assert rows[0] == rows[1]
+    assert (tmp_path / "baselines.json").stat().st_mtime_ns == written  # a cache hit: nothing measured again
+
+
+def test_the_smoothed_base_variant_changes_only_the_residual_s_base():
+    quiet = _composed("signs_free_residual_anneal_quiet")
+    smoothed = _composed("signs_free_residual_anneal_quiet_smoothed_base")
+    assert (quiet["env"]["residual_base_smoothing"], smoothed["env"]["residual_base_smoothing"]) == (0.0, 0.6)
+    assert smoothed["env"]["residual_base_smoothing_groups"] == smoothed["report"]["residual"]["smoothing_groups"]
+    assert 0.6 in smoothed["report"]["residual"]["smoothing"]  # its zero correction is a row of the table
+    for cfg in (quiet, smoothed):
+        cfg["env"].pop("residual_base_smoothing"), cfg["env"].pop("residual_base_smoothing_groups")
+        _drop_run_sections(cfg)
+    assert smoothed == quiet

@@ -55,6 +55,9 @@ from aslexp.sim.world import Character, PhysicsConfig, World
 OBSERVATIONS = ("aslexp", "deepmimic")
 # Env keys that shape the training reward alone (ImitationEnv shape_reward): no score depends on them.
 TRAINING_ONLY_KEYS = ("heading_shaping", "offset_shaping")
+# Env keys that move the base a residual policy corrects: the no-learning baselines ("the controller"
+# = the reference one step ahead) are defined without them, so a variant cannot move its own bar.
+RESIDUAL_BASE_KEYS = ("residual_base_smoothing", "residual_base_smoothing_groups")
 UP_AXIS = 1  # the motions and worlds are y-up (gravity -9.8 y)
 
 # Rendering camera (TinyRenderer) looking at the mean link position: the hand's view.
@@ -93,6 +96,13 @@ class EnvSpec:
     heading_shaping: float = 0.0
     offset_shaping: float = 0.0
     residual_velocity_range: float = 0.0  # rad/s; > 0 appends velocity-target corrections to the action
+    # Residual only: the base the correction is added to, low-pass filtered,
+    # base_t = alpha * base_(t-1) + (1 - alpha) * reference_(t + lookahead), on the joints of
+    # residual_base_smoothing_groups (None: all); restarted every episode. 0: the reference itself.
+    # With alpha > 0 a zero correction is the smoothed-reference baseline (aslexp.rl.evaluate), the
+    # strongest no-learning one on the standing upper body: gentler targets, less slip.
+    residual_base_smoothing: float = 0.0
+    residual_base_smoothing_groups: tuple[str, ...] | None = None
     # The policy's action is [-1, 1] per value, mapped affinely onto the box above (absolute: each
     # joint's range, e.g. [-1, 1] -> [0, 2] rad; residual: +-residual_range, +-residual_velocity_range).
     normalize_actions: bool = False
@@ -116,6 +126,8 @@ class EnvSpec:
         values["observe_future"] = tuple(int(k) for k in values.get("observe_future") or ())
         if values.get("observe_links") is not None:
             values["observe_links"] = tuple(str(p) for p in values["observe_links"])
+        if values.get("residual_base_smoothing_groups") is not None:
+            values["residual_base_smoothing_groups"] = tuple(str(g) for g in values["residual_base_smoothing_groups"])
         spec = cls(**values)
         if spec.observation not in OBSERVATIONS:
             raise ValueError(f"env config: observation must be one of {OBSERVATIONS}, got {spec.observation!r}")
@@ -132,6 +144,13 @@ class EnvSpec:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
                 raise ValueError(f"env config: {name} must be a number >= 0 (a scale of the training reward's "
                                  f"factor exp(-heading_shaping yaw^2 - offset_shaping |d|^2); 0 off), got {value!r}")
+        alpha = spec.residual_base_smoothing
+        if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0.0 <= alpha < 1.0:
+            raise ValueError(f"env config: residual_base_smoothing must be a number in [0, 1) (the low-pass "
+                             f"filter's alpha on the residual's base; 0 off), got {alpha!r}")
+        if alpha > 0 and spec.action_mode != "residual":
+            raise ValueError(f"env config: residual_base_smoothing {alpha} needs action_mode residual "
+                             f"(it filters the base a correction is added to), got {spec.action_mode!r}")
         if spec.action_range not in ("joint", "motion"):
             raise ValueError(f"env config: action_range must be joint or motion, got {spec.action_range!r}")
         if spec.action_range == "motion" and (spec.action_mode != "absolute" or spec.action_range_margin < 0):
@@ -250,7 +269,16 @@ class ImitationEnv(gym.Env):
             raise ValueError(f"controller {self.controller_spec.name}: target_rate physics re-samples the "
                              f"reference under the policy's correction and needs env action_mode residual, "
                              f"got {self.spec_env.action_mode!r}")
+        if self.controller_spec.target_rate == "physics" and self.spec_env.residual_base_smoothing > 0:
+            raise ValueError(f"controller {self.controller_spec.name}: target_rate physics re-samples the "
+                             f"reference itself every physics step; env residual_base_smoothing needs "
+                             f"target_rate control")
         self._thesis_pd = False  # set by thesis_pd(): the baselines use the thesis' controller
+        # The residual's filtered base: the joint values filtered, and the last base (None: restart).
+        self._smoothed_values = (self.joint_value_indices(self.spec_env.residual_base_smoothing_groups,
+                                                          "env residual_base_smoothing_groups")
+                                 if self.spec_env.residual_base_smoothing > 0 else None)
+        self._filter_state: np.ndarray | None = None
         self._default_controller: PDController | None = None
         self.reward_fn = ImitationReward(self.reward_spec, self.layout)
 
@@ -347,11 +375,42 @@ class ImitationEnv(gym.Env):
         """Reference joint positions ``lookahead`` control steps after the current time."""
         return self.reference.joints(self.time + lookahead * self.control_dt)
 
+    def joint_value_indices(self, groups: tuple[str, ...] | list[str] | None, what: str = "groups") -> np.ndarray:
+        """Indices into a joint-value vector (1 per revolute joint, 4 per spherical) of the joints
+        of ``groups`` (None: every joint); ``what`` names the setting in the error."""
+        chosen = [i for i, j in enumerate(self.layout.joints) if groups is None or j.group in groups]
+        if not chosen:
+            raise ValueError(f"{what}: no joint in groups {list(groups or [])}; the body's groups "
+                             f"are {sorted({j.group for j in self.layout.joints})}")
+        starts = np.cumsum([0] + [j.dof for j in self.layout.joints])
+        return np.concatenate([np.arange(starts[i], starts[i + 1]) for i in chosen])
+
+    def residual_base(self) -> np.ndarray:
+        """The targets a residual correction is added to at the next control step: the reference
+        ``reference_lookahead`` steps ahead, or with ``residual_base_smoothing`` its low-pass filter
+        (the filter's state advances in step(), not here)."""
+        return self._residual_base()[1]
+
+    def _residual_base(self) -> tuple[np.ndarray | None, np.ndarray]:
+        """(the filter's new state, the base). The base is the filtered reference held within the
+        action box of the reference, as smoothed_reference_policy's clipped action holds it: a zero
+        correction then drives exactly that baseline."""
+        reference = self.reference_targets(self.spec_env.reference_lookahead)
+        if self._smoothed_values is None:
+            return None, reference
+        filtered = reference.copy()
+        if self.steps > 0 and self._filter_state is not None:
+            alpha, index = self.spec_env.residual_base_smoothing, self._smoothed_values
+            filtered[index] = alpha * self._filter_state[index] + (1.0 - alpha) * reference[index]
+        size = self.layout.action_size
+        box = self.physical_action_space
+        return filtered, reference + np.clip(filtered - reference, box.low[:size], box.high[:size])
+
     def reference_action(self, lookahead: int = 0) -> np.ndarray:
         """The action that drives the PD targets with the reference (the no-learning baseline)."""
         target = self.reference_targets(lookahead)
         if self.spec_env.action_mode == "residual":
-            target = target - self.reference_targets(self.spec_env.reference_lookahead)
+            target = target - self.residual_base()
         if self.spec_env.residual_velocity_range > 0:
             target = np.concatenate([target, np.zeros(self.velocity_size)])
         return self.normalize_action(target).astype(np.float32)
@@ -416,7 +475,8 @@ class ImitationEnv(gym.Env):
             return
         target_time = self.time + self.spec_env.reference_lookahead * self.control_dt
         if self.spec_env.action_mode == "residual":
-            targets = self.reference.joints(target_time) + action
+            self._filter_state, base = self._residual_base()
+            targets = base + action
         else:
             targets = action
         targets = np.clip(targets, self.joint_lower, self.joint_upper)

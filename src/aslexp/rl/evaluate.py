@@ -154,13 +154,8 @@ def smoothed_reference_policy(alpha: float, groups: tuple[str, ...] | None = Non
 
     def policy(obs: np.ndarray, env: ImitationEnv) -> np.ndarray:
         if state["index"] is None:
-            chosen = [i for i, j in enumerate(env.layout.joints) if groups is None or j.group in groups]
-            if not chosen:
-                raise ValueError(f"smoothing: no joint in groups {list(groups or [])}; the body's groups "
-                                 f"are {sorted({j.group for j in env.layout.joints})}")
-            starts = np.cumsum([0] + [j.dof for j in env.layout.joints])
-            state["index"] = np.concatenate([np.arange(starts[i], starts[i + 1]) for i in chosen])
-        base = env.reference_targets(env.spec_env.reference_lookahead)
+            state["index"] = env.joint_value_indices(groups, "smoothing")
+        base = env.residual_base() if env.spec_env.action_mode == "residual" else None
         ahead = env.reference_targets(1)
         if env.steps == 0 or state["previous"] is None:
             state["previous"] = ahead.copy()
@@ -168,7 +163,7 @@ def smoothed_reference_policy(alpha: float, groups: tuple[str, ...] | None = Non
         index = state["index"]
         target[index] = alpha * state["previous"][index] + (1.0 - alpha) * ahead[index]
         state["previous"] = target
-        action = target - base if env.spec_env.action_mode == "residual" else target
+        action = target - base if base is not None else target
         if env.spec_env.residual_velocity_range > 0:  # no velocity-target correction
             action = np.concatenate([action, np.zeros(env.velocity_size)])
         # Within the action box, as a policy's would be (a residual's +-residual_range).

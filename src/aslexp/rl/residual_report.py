@@ -4,7 +4,9 @@ physical reason, against that controller and the simple baselines (``experiment=
 Per sign, every number under the runs' reward AND the policy's evaluation protocol (``ppo.eval_steps``
 control steps from each of ``ppo.phases``; deterministic):
 
-* ``controller``: the run's controller with no correction (the residual policy's zero action);
+* ``controller``: the run's controller with no correction on the reference one step ahead (the
+  residual policy's zero action; a variant that filters its base, ``env.residual_base_smoothing``,
+  is measured against this same bar, and its zero action is a ``smoothed reference`` row);
 * ``same controller, pinned``: the same with the body's base pinned (``report.residual.compare``):
   what tracking scores when nothing can slip or tip. ``loss`` = pinned - controller is what the
   physical cause costs; the issue's rule asks for a learned gain only where it exceeds
@@ -67,14 +69,16 @@ def root_drift(env, policy, steps: int) -> dict[str, float]:
 
 def residual_baselines(cfg: dict[str, Any], cache: Path) -> dict[str, Any]:
     """The comparison rows for one motion (deterministic: computed once, cached in ``cache``)."""
-    from aslexp.envs.imitation import TRAINING_ONLY_KEYS, ImitationEnv
+    from aslexp.envs.imitation import RESIDUAL_BASE_KEYS, TRAINING_ONLY_KEYS, ImitationEnv
     from aslexp.rl.evaluate import (constant_correction_policy, evaluate_phases, reference_policy,
                                     smoothed_reference_policy)
     from aslexp.rl.ppo import PPOConfig
 
     settings = (cfg.get("report") or {}).get("residual") or {}
     ppo = PPOConfig.from_dict(cfg["ppo"])
-    scored_env = {k: v for k, v in cfg["env"].items() if k not in TRAINING_ONLY_KEYS}  # shaping scores nothing
+    # Shaping scores nothing, and every row is measured on the reference's own base (the controller
+    # is the reference one step ahead): a variant that filters its base is compared with the same bar.
+    scored_env = {k: v for k, v in cfg["env"].items() if k not in TRAINING_ONLY_KEYS + RESIDUAL_BASE_KEYS}
     key = {"settings": settings, "body": cfg["body"], "controller": cfg["controller"], "reward": cfg["reward"],
            "env": scored_env, "motion": cfg["motion"], "protocol": ppo.eval_protocol}
     key = json.loads(json.dumps(key))
@@ -83,7 +87,7 @@ def residual_baselines(cfg: dict[str, Any], cache: Path) -> dict[str, Any]:
         if stored.get("key") == key:
             return stored["rows"]
     def make(body_overrides: dict[str, Any]) -> ImitationEnv:  # evaluations score whole episodes
-        return run_env(cfg, {"early_termination": {"min_reward": None}}, body_overrides)
+        return run_env({**cfg, "env": scored_env}, {"early_termination": {"min_reward": None}}, body_overrides)
 
     chance = settings.get("random_corrections") or {}
     if set(chance) - {"count", "rms", "seed"} or (chance and "rms" not in chance):
