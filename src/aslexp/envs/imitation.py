@@ -279,6 +279,7 @@ class ImitationEnv(gym.Env):
                                                           "env residual_base_smoothing_groups")
                                  if self.spec_env.residual_base_smoothing > 0 else None)
         self._filter_state: np.ndarray | None = None
+        self._plain_base = False  # set by thesis_pd(): the base is the reference itself
         self._default_controller: PDController | None = None
         self.reward_fn = ImitationReward(self.reward_spec, self.layout)
 
@@ -396,7 +397,7 @@ class ImitationEnv(gym.Env):
         action box of the reference, as smoothed_reference_policy's clipped action holds it: a zero
         correction then drives exactly that baseline."""
         reference = self.reference_targets(self.spec_env.reference_lookahead)
-        if self._smoothed_values is None:
+        if self._smoothed_values is None or self._plain_base:
             return None, reference
         filtered = reference.copy()
         if self.steps > 0 and self._filter_state is not None:
@@ -435,7 +436,18 @@ class ImitationEnv(gym.Env):
         """Within the block a controller with target options (reference velocity, physics rate)
         is replaced by the body's default controller (``GROUP_DEFAULTS``: the thesis gains, held
         positions, zero velocity targets): the reference-driven baselines are defined with it,
-        so a tuned controller cannot lower the bar it is compared with. A plain controller stays."""
+        so a tuned controller cannot lower the bar it is compared with. A plain controller stays.
+        A residual's filtered base (``residual_base_smoothing``) is the reference itself within the
+        block, for the same reason: a zero correction there is exactly the controller."""
+        plain_base, self._plain_base = self._plain_base, True
+        try:
+            with self._thesis_controller():
+                yield self
+        finally:
+            self._plain_base = plain_base
+
+    @contextmanager
+    def _thesis_controller(self):
         if self.controller_spec.is_thesis_pd:
             yield self
             return
