@@ -188,6 +188,20 @@ def _composed(experiment: str, *overrides: str) -> dict:
         return OmegaConf.to_container(composed, resolve=False)
 
 
+def _job_envs(data_root, experiment: str, *overrides: str):
+    """(the resolved job config, the training-env factory, the evaluation env) that aslexp imitate
+    builds for an experiment overlay and overrides."""
+    from aslexp.jobs._common import to_dict
+    from aslexp.jobs.imitate import build_envs
+    from hydra import compose, initialize_config_dir
+
+    from aslexp.envs.config import CONF_DIR
+
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        cfg = to_dict(compose(config_name="imitate", overrides=[f"experiment={experiment}", *overrides]))
+    return (cfg, *build_envs(cfg, data_root))
+
+
 def _drop_run_sections(cfg: dict) -> None:
     """Hydra's sections that name the run (its overrides, job and runtime): what two overlays that compose
     the same experiment still differ in."""
@@ -287,16 +301,9 @@ def test_the_red_noise_variant_changes_only_the_colour_of_the_quiet_variant_s_no
 
 def test_observe_reference_root_shows_the_turn_the_heading_frame_hides(data_root):
     from aslexp import quaternion
-    from aslexp.jobs._common import to_dict
-    from aslexp.jobs.imitate import build_envs
-    from hydra import compose, initialize_config_dir
 
-    from aslexp.envs.config import CONF_DIR
-
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = to_dict(compose(config_name="imitate", overrides=[
-            "experiment=signs_free_residual", "motion='00433'", "env.observe_reference_root=true"]))
-    make_train_env, eval_env = build_envs(cfg, data_root)
+    _, make_train_env, eval_env = _job_envs(data_root, "signs_free_residual", "motion='00433'",
+                                            "env.observe_reference_root=true")
     eval_env.close()
     env = make_train_env()
     plain_size = 2 + 13 * len(env.observed_links) + env.layout.action_size
@@ -335,16 +342,9 @@ def test_drift_shaping_charges_the_turn_and_offset_in_training_envs_only(data_ro
     exp(-heading_shaping yaw^2 - offset_shaping |d|^2), yaw and d the simulated root's turn and horizontal
     offset against the reference's; the evaluation env scores the reward alone."""
     from aslexp import quaternion
-    from aslexp.jobs._common import to_dict
-    from aslexp.jobs.imitate import build_envs
-    from hydra import compose, initialize_config_dir
 
-    from aslexp.envs.config import CONF_DIR
-
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = to_dict(compose(config_name="imitate", overrides=[
-            "experiment=signs_free_residual_anneal_quiet_heading", "motion='00433'", "env.offset_shaping=100"]))
-    make_train_env, eval_env = build_envs(cfg, data_root)
+    _, make_train_env, eval_env = _job_envs(data_root, "signs_free_residual_anneal_quiet_heading",
+                                            "motion='00433'", "env.offset_shaping=100")
     train_env = make_train_env()
     action = np.zeros(train_env.action_space.shape, np.float32)
     turn = np.radians(15.0)
@@ -401,17 +401,8 @@ def test_the_328k_variant_is_the_probe_s_overrides_of_the_quiet_variant():
 
 
 def _upper_body_residual_env(data_root, **env_overrides):
-    from aslexp.jobs._common import to_dict
-    from aslexp.jobs.imitate import build_envs
-    from hydra import compose, initialize_config_dir
-
-    from aslexp.envs.config import CONF_DIR
-
-    overrides = [f"env.{k}={v}" for k, v in env_overrides.items()]
-    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
-        cfg = to_dict(compose(config_name="imitate", overrides=[
-            "experiment=signs_free_residual_anneal_quiet", "motion='69546'", *overrides]))
-    _, eval_env = build_envs(cfg, data_root)
+    cfg, _, eval_env = _job_envs(data_root, "signs_free_residual_anneal_quiet", "motion='69546'",
+                                 *(f"env.{k}={v}" for k, v in env_overrides.items()))
     return cfg, eval_env
 
 
