@@ -19,7 +19,7 @@ pip install -q -e ".[dev,wandb]" 2>&1 | grep -v "is ignored" || true
 # hydra-optuna-sweeper 1.3.0: that one pins optuna<3 and cannot resume to a total budget, prune or
 # run asynchronous workers. Nothing here installs it (if present, our plugin hides its configs).
 python - <<'PY'
-import torch, optuna, hydra, pybullet, torchrl, tensorboard, pose_format, wandb  # noqa: F401
+import torch, optuna, hydra, pybullet, mujoco, torchrl, tensorboard, pose_format, wandb  # noqa: F401
 assert torch.__version__.startswith("2.13.0"), torch.__version__
 print(f"aslexp environment ready: torch {torch.__version__}, optuna {optuna.__version__}, hydra {hydra.__version__}")
 PY

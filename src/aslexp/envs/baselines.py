@@ -41,7 +41,8 @@ class Baseline:
 
 
 def no_learning_baselines(motion, body: dict, reward: dict, env: dict, rows: list[Baseline],
-                          seconds: float = 10.0, data_root: str | os.PathLike | None = None) -> list[dict[str, Any]]:
+                          seconds: float = 10.0, data_root: str | os.PathLike | None = None,
+                          engine: str | dict | None = None) -> list[dict[str, Any]]:
     """Mean reward per step of every row x lookahead over ``seconds`` of simulated time from phase 0
     (an early end, e.g. a fall, scores 0 for the rest), under ``reward``; ``body`` and ``env`` are
     complete group dicts (the run's), each row's overrides merged over them."""
@@ -54,7 +55,7 @@ def no_learning_baselines(motion, body: dict, reward: dict, env: dict, rows: lis
                                        "early_termination": {"min_reward": None},
                                        **({"action_mode": "residual"} if options else {})})
         instance = ImitationEnv(motion, body=deep_merge(body, row.body), controller=controller, reward=reward,
-                                env=env_cfg, data_root=data_root, complete_configs=True)
+                                env=env_cfg, data_root=data_root, complete_configs=True, engine=engine)
         try:
             steps = max(1, int(round(seconds * instance.spec_env.control_hz)))
             lookaheads = (instance.spec_env.reference_lookahead,) if options else row.lookahead

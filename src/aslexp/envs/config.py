@@ -17,7 +17,7 @@ import yaml
 PROJECT_ROOT = Path(__file__).resolve().parents[3]
 CONF_DIR = PROJECT_ROOT / "conf"
 
-DEFAULTS = {"body": "hand15", "controller": "thesis", "reward": "deepmimic", "env": "default",
+DEFAULTS = {"body": "hand15", "controller": "thesis", "reward": "deepmimic", "env": "default", "engine": "pybullet",
             "ppo": "base"}
 
 

@@ -45,6 +45,7 @@ import numpy as np
 from aslexp.envs.config import resolve_group
 from aslexp.envs.reward import TERMS, ImitationReward, PoseSnapshot, RewardSpec
 from aslexp.sim.body import BodySpec, load_layout
+from aslexp.sim.engine import EngineSpec
 from aslexp.sim.motion import Motion, load_motion
 from aslexp.sim.pd import ControllerSpec, PDController
 from aslexp.sim.reference import ReferenceMotion
@@ -201,10 +202,12 @@ class ImitationEnv(gym.Env):
         render_size: tuple[int, int] = (320, 320),
         complete_configs: bool = False,
         shape_reward: bool = False,
+        engine: str | dict | None = None,
     ) -> None:
         """Group values are names, partial dicts merged over the group default, or None; with
         ``complete_configs`` dicts are taken as they are (the jobs pass Hydra-composed groups,
         which merged over another body's default file would gain its keys and reward terms).
+        ``engine``: ``conf/engine`` (a name or a dict; None: PyBullet, the thesis' engine).
         ``shape_reward``: a training env, whose returned reward carries the env's training-only
         shaping (``heading_shaping``, ``offset_shaping``); every other env returns the reward config's reward."""
         super().__init__()
@@ -229,6 +232,8 @@ class ImitationEnv(gym.Env):
         self.controller_spec = ControllerSpec.from_dict(group("controller", controller))
         self.reward_spec = RewardSpec.from_dict(group("reward", reward))
         self.spec_env = EnvSpec.from_dict(group("env", env))
+        self.engine_spec = EngineSpec.from_dict(resolve_group("engine", engine, "pybullet")
+                                                if not isinstance(engine, dict) else engine)
         self.urdf, self.layout = load_layout(self.body_spec, self.data_root)
 
         if isinstance(motion, Motion):
@@ -249,18 +254,29 @@ class ImitationEnv(gym.Env):
         physics = PhysicsConfig(self.spec_env.physics_hz, self.spec_env.gravity, self.spec_env.solver_iterations,
                                 self.spec_env.non_contact_inner_iterations)
         root_pos, root_rot, _, _ = self.reference.root(0.0)
-        self.sim_world = World(physics)
-        self.ref_world = World(physics)
-        self.sim = Character(self.sim_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot)
+        if self.engine_spec.name == "mujoco":
+            from aslexp.sim.mujoco_engine import MujocoCharacter, MujocoWorld
+
+            self.sim_world = MujocoWorld(physics, self.engine_spec)
+            self.sim = MujocoCharacter(self.sim_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot)
+            self.ref_world = self.sim_world  # the reference is kinematics on the same model, never stepped
+            self.ref = MujocoCharacter(self.sim_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot,
+                                       kinematic=True, body=self.sim.body)
+        else:
+            self.sim_world = World(physics)
+            self.ref_world = World(physics)
+            self.sim = Character(self.sim_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot)
+        self._views: tuple | None = None  # MuJoCo: PyBullet pose holders that render()'s TinyRenderer draws
         self.ground = self.sim_world.add_ground() if self.body_spec.base == "free" else None
         unknown = [n for n in self.body_spec.ground_contacts if n not in self.sim.link_names]
         if unknown:
             raise ValueError(f"body {self.body_spec.name}: ground_contacts {unknown} are not links; "
                              f"links: {self.sim.link_names}")
         self._allowed_contacts = {self.sim.link_names.index(n) for n in self.body_spec.ground_contacts}
-        self.ref = Character(self.ref_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot,
-                             kinematic=True)
-        if render_mode == "rgb_array":
+        if self.engine_spec.name == "pybullet":
+            self.ref = Character(self.ref_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot,
+                                 kinematic=True)
+        if render_mode == "rgb_array" and self.engine_spec.name == "pybullet":
             _colour(self.ref, (0.25, 0.45, 0.85))  # reference: blue
             _colour(self.sim, (0.95, 0.55, 0.15))  # simulation: orange
         self.controller = PDController(self.controller_spec, self.layout)
@@ -511,32 +527,9 @@ class ImitationEnv(gym.Env):
         root_pos, root_rot, _, _ = self.sim.base_state()
         if len(self.observed_links) != len(links):
             links = links[self.observed_links]
-        deepmimic = self.spec_env.observation == "deepmimic"
-        frame = heading_rotation(root_rot) if deepmimic else root_rot  # the frame links are seen in
-        to_frame = quaternion.to_matrix(frame).T
-        local = np.empty_like(links)
-        local[:, 0:3] = (links[:, 0:3] - root_pos) @ to_frame.T
-        rot = quaternion.multiply(quaternion.conjugate(frame), links[:, 3:7])
-        local[:, 3:7] = np.where(rot[:, :1] < 0, -rot, rot)  # one sign per rotation
-        local[:, 7:10] = links[:, 7:10] @ to_frame.T
-        local[:, 10:13] = links[:, 10:13] @ to_frame.T
-        if deepmimic:  # phase, root height, then all poses, then all velocities (DeepMimic's order)
-            parts = [np.asarray([self.reference.phase(self.time), root_pos[UP_AXIS]]),
-                     local[:, 0:7].ravel(), local[:, 7:13].ravel()]
-        else:
-            parts = [np.asarray([self.reference.phase(self.time)]), local.ravel()]
-        for k in self.spec_env.observe_future:
-            parts.append(self.reference.joints(self.time + k * self.control_dt))
-        if self.spec_env.observe_future_velocities:
-            for k in self.spec_env.observe_future:
-                parts.append(self.reference.joint_velocities(self.time + k * self.control_dt))
-        if self.spec_env.observe_joints:
-            parts.extend(self.sim.joint_state())
-        if self.spec_env.observe_reference_root:
-            ref_pos, ref_rot, _, _ = self.reference.root(self.time)
-            ref_local = quaternion.multiply(quaternion.conjugate(frame), ref_rot)
-            parts += [(ref_pos - root_pos) @ to_frame.T, ref_local if ref_local[0] >= 0 else -ref_local]
-        return np.concatenate(parts).astype(np.float32)
+        joints = [a[None] for a in self.sim.joint_state()] if self.spec_env.observe_joints else None
+        return observe(self.spec_env, self.reference, np.asarray([self.time]), links[None], root_pos[None],
+                       root_rot[None], joints)[0]
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Start an episode at ``options["time"]`` (seconds), ``options["phase"]``, a random phase
@@ -634,20 +627,83 @@ class ImitationEnv(gym.Env):
         if self.render_mode != "rgb_array":
             return None
         camera = {**DEFAULT_CAMERA, **(self.spec_env.camera or {})}
+        if self.engine_spec.name == "mujoco":  # MuJoCo's renderer needs OpenGL: PyBullet draws the poses
+            return self._render_views(camera)
         return np.concatenate([_snapshot(self.ref_world, self.ref, self.render_size, camera),
                                _snapshot(self.sim_world, self.sim, self.render_size, camera)], axis=1)
 
+    def _render_views(self, camera: dict[str, float]) -> np.ndarray:
+        if self._views is None:
+            physics = PhysicsConfig(self.spec_env.physics_hz, self.spec_env.gravity)
+            views = []
+            for rgb in ((0.25, 0.45, 0.85), (0.95, 0.55, 0.15)):  # reference blue, simulation orange
+                world = World(physics)
+                holder = Character(world, self.urdf, self.body_spec, self.layout, kinematic=True)
+                _colour(holder, rgb)
+                views.append((world, holder))
+            self._views = tuple(views)
+        images = []
+        for (world, holder), source in zip(self._views, (self.ref, self.sim)):
+            holder.set_state(*source.joint_state())
+            position, rotation, _, _ = source.base_state()
+            holder.set_base(position, rotation)
+            images.append(_snapshot(world, holder, self.render_size, camera))
+        return np.concatenate(images, axis=1)
+
     def close(self) -> None:
         self.sim_world.close()
-        self.ref_world.close()
+        if self.ref_world is not self.sim_world:
+            self.ref_world.close()
+        for world, _ in self._views or ():
+            world.close()
+        self._views = None
 
 
 def heading_rotation(root_rot: np.ndarray) -> np.ndarray:
     """The root's rotation about the up axis alone (its heading), as DeepMimic's state frame: the
-    root's x axis projected on the ground plane gives the heading angle."""
+    root's x axis projected on the ground plane gives the heading angle. (..., 4) -> (..., 4)."""
     forward = quaternion.rotate(root_rot, np.array([1.0, 0.0, 0.0]))
-    heading = np.arctan2(-forward[2], forward[0])  # about +y (y up)
-    return np.array([np.cos(heading / 2), 0.0, np.sin(heading / 2), 0.0])
+    heading = np.arctan2(-forward[..., 2], forward[..., 0])  # about +y (y up)
+    zero = np.zeros_like(heading)
+    return np.stack([np.cos(heading / 2), zero, np.sin(heading / 2), zero], axis=-1)
+
+
+def observe(spec: EnvSpec, reference: ReferenceMotion, times: np.ndarray, links: np.ndarray, root_pos: np.ndarray,
+            root_rot: np.ndarray, joints: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """The observations (N, size) of N bodies (module docstring): ``times`` (N,), the observed links'
+    world states (N, L, 13), the roots' positions (N, 3) and rotations (N, 4), with
+    ``observe_joints`` the joint positions and velocities (N, ...). One implementation for the
+    single environment (a batch of one) and the batched one."""
+    n = len(times)
+    deepmimic = spec.observation == "deepmimic"
+    frame = heading_rotation(root_rot) if deepmimic else root_rot  # the frame links are seen in
+    inverse = quaternion.conjugate(frame)[:, None, :]
+    local = np.empty_like(links)
+    local[..., 0:3] = quaternion.rotate(inverse, links[..., 0:3] - root_pos[:, None, :])
+    rot = quaternion.multiply(inverse, links[..., 3:7])
+    local[..., 3:7] = np.where(rot[..., :1] < 0, -rot, rot)  # one sign per rotation
+    local[..., 7:10] = quaternion.rotate(inverse, links[..., 7:10])
+    local[..., 10:13] = quaternion.rotate(inverse, links[..., 10:13])
+    phase = reference.motion.phase_many(times)[:, None]
+    if deepmimic:  # phase, root height, then all poses, then all velocities (DeepMimic's order)
+        parts = [phase, root_pos[:, UP_AXIS:UP_AXIS + 1], local[..., 0:7].reshape(n, -1),
+                 local[..., 7:13].reshape(n, -1)]
+    else:
+        parts = [phase, local.reshape(n, -1)]
+    control_dt = 1.0 / spec.control_hz
+    for k in spec.observe_future:
+        parts.append(reference.joints_many(times + k * control_dt))
+    if spec.observe_future_velocities:
+        for k in spec.observe_future:
+            parts.append(reference.joint_velocities_many(times + k * control_dt))
+    if spec.observe_joints:
+        parts.extend(joints)
+    if spec.observe_reference_root:
+        ref_pos, ref_rot, _, _ = reference.root_many(times)
+        ref_local = quaternion.multiply(quaternion.conjugate(frame), ref_rot)
+        parts += [quaternion.rotate(quaternion.conjugate(frame), ref_pos - root_pos),
+                  np.where(ref_local[:, :1] < 0, -ref_local, ref_local)]
+    return np.concatenate(parts, axis=1).astype(np.float32)
 
 
 def _colour(character: Character, rgb: tuple[float, float, float]) -> None:

@@ -152,31 +152,34 @@ class ImitationReward:
         return weights / weights.sum()
 
     def joint_errors(self, sim: PoseSnapshot, ref: PoseSnapshot) -> tuple[np.ndarray, np.ndarray]:
-        """Squared pose and velocity error per joint (revolute joints first, then spherical)."""
-        dq = sim.q[self._revolute_q] - ref.q[self._revolute_q]
-        dv = sim.qd[self._revolute_v] - ref.qd[self._revolute_v]
+        """Squared pose and velocity error per joint (revolute joints first, then spherical); the
+        snapshots' arrays may carry a leading batch axis (then so do the errors)."""
+        dq = sim.q[..., self._revolute_q] - ref.q[..., self._revolute_q]
+        dv = sim.qd[..., self._revolute_v] - ref.qd[..., self._revolute_v]
         if len(self._spherical_q) == 0:
             return dq * dq, dv * dv
-        angle = quat_angle(sim.q[self._spherical_q], ref.q[self._spherical_q])
-        sdv = sim.qd[self._spherical_v] - ref.qd[self._spherical_v]
-        return (np.concatenate([dq * dq, angle * angle]),
-                np.concatenate([dv * dv, np.sum(sdv * sdv, axis=1)]))
+        angle = quat_angle(sim.q[..., self._spherical_q], ref.q[..., self._spherical_q])
+        sdv = sim.qd[..., self._spherical_v] - ref.qd[..., self._spherical_v]
+        return (np.concatenate([dq * dq, angle * angle], axis=-1),
+                np.concatenate([dv * dv, np.sum(sdv * sdv, axis=-1)], axis=-1))
 
-    def errors(self, sim: PoseSnapshot, ref: PoseSnapshot) -> dict[str, float]:
-        """The four error terms (see the module docstring), and those of group-restricted terms."""
+    def errors_many(self, sim: PoseSnapshot, ref: PoseSnapshot) -> dict[str, np.ndarray]:
+        """The error terms (see the module docstring) of N states at once: snapshots of (N, ...)
+        arrays in, (N,) arrays out. The one implementation: :meth:`errors` is a batch of one."""
         pose_j, vel_j = self.joint_errors(sim, ref)
-        pose = float(self._ordered_weights @ pose_j)
-        vel = float(self._ordered_weights @ vel_j)
-        if len(sim.end_effectors):
-            end = float(np.mean(np.sum((sim.end_effectors - ref.end_effectors) ** 2, axis=1)))
+        pose = pose_j @ self._ordered_weights
+        vel = vel_j @ self._ordered_weights
+        n = pose.shape[0]
+        if sim.end_effectors.shape[-2]:
+            end = np.mean(np.sum((sim.end_effectors - ref.end_effectors) ** 2, axis=-1), axis=-1)
         else:
-            end = 0.0
+            end = np.zeros(n)
         c = self.spec.root_error
-        root_angle = float(quat_angle(sim.root_rot, ref.root_rot))
-        root_ang_err = float(np.sum((sim.root_ang_vel - ref.root_ang_vel) ** 2))
-        root = (c["position"] * float(np.sum((sim.root_pos - ref.root_pos) ** 2))
+        root_angle = quat_angle(sim.root_rot, ref.root_rot)
+        root_ang_err = np.sum((sim.root_ang_vel - ref.root_ang_vel) ** 2, axis=-1)
+        root = (c["position"] * np.sum((sim.root_pos - ref.root_pos) ** 2, axis=-1)
                 + c["rotation"] * root_angle * root_angle
-                + c["velocity"] * float(np.sum((sim.root_vel - ref.root_vel) ** 2))
+                + c["velocity"] * np.sum((sim.root_vel - ref.root_vel) ** 2, axis=-1)
                 + c["angular_velocity"] * root_ang_err)
         root_as_joint = {"pose": root_angle * root_angle, "velocity": root_ang_err}
         out = {"pose": pose, "velocity": vel, "end_effector": end, "root": root}
@@ -184,22 +187,47 @@ class ImitationReward:
             kind = term.kind(name)
             if name in self._term_weights:
                 per_joint = pose_j if kind == "pose" else vel_j
-                out[name] = float(self._term_weights[name] @ per_joint)
+                out[name] = per_joint @ self._term_weights[name]
             if term.root:
                 out[name] = out.get(name, out[kind]) + root_as_joint[kind]
         return out
 
-    def combine(self, errors: dict[str, float]) -> tuple[float, dict[str, float]]:
-        """Total reward and the per-term rewards exp(-k e) (before weighting)."""
-        terms = {name: math.exp(-t.scale * errors[name if name in errors else t.kind(name)])
+    def combine_many(self, errors: dict[str, np.ndarray]) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Total reward (N,) and the per-term rewards exp(-k e) (before weighting) of N states."""
+        terms = {name: np.exp(-t.scale * errors[name if name in errors else t.kind(name)])
                  for name, t in self.spec.terms.items()}
         if self.spec.combine == "sum":
             total = sum(self.spec.terms[name].weight * r for name, r in terms.items())
         else:
             total = math.prod(r ** self.spec.terms[name].weight for name, r in terms.items())
-        return float(total), terms
+        if not terms:
+            total = np.zeros_like(next(iter(errors.values())))
+        return np.asarray(total, dtype=np.float64), terms
+
+    def many(self, sim: PoseSnapshot, ref: PoseSnapshot) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """Reward, per-term rewards and errors of N states ((N, ...) snapshots)."""
+        errors = self.errors_many(sim, ref)
+        total, terms = self.combine_many(errors)
+        return total, terms, errors
+
+    def errors(self, sim: PoseSnapshot, ref: PoseSnapshot) -> dict[str, float]:
+        """The error terms of one state (a batch of one through :meth:`errors_many`)."""
+        return {k: float(v[0]) for k, v in self.errors_many(_one(sim), _one(ref)).items()}
+
+    def combine(self, errors: dict[str, float]) -> tuple[float, dict[str, float]]:
+        """Total reward and the per-term rewards exp(-k e) (before weighting) of one state."""
+        total, terms = self.combine_many({k: np.asarray([v], dtype=np.float64) for k, v in errors.items()})
+        return float(total[0]), {k: float(v[0]) for k, v in terms.items()}
 
     def __call__(self, sim: PoseSnapshot, ref: PoseSnapshot) -> tuple[float, dict[str, float], dict[str, float]]:
-        errors = self.errors(sim, ref)
-        total, terms = self.combine(errors)
-        return total, terms, errors
+        total, terms, errors = self.many(_one(sim), _one(ref))
+        return (float(total[0]), {k: float(v[0]) for k, v in terms.items()},
+                {k: float(v[0]) for k, v in errors.items()})
+
+
+def _one(snapshot: PoseSnapshot) -> PoseSnapshot:
+    """A snapshot as a batch of one."""
+    return PoseSnapshot(*(np.asarray(getattr(snapshot, f), dtype=np.float64)[None] for f in _SNAPSHOT_FIELDS))
+
+
+_SNAPSHOT_FIELDS = tuple(f.name for f in dataclasses.fields(PoseSnapshot))

@@ -19,6 +19,7 @@ imitation.mp4 (H.264, where an encoder is installed).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from pathlib import Path
@@ -37,23 +38,38 @@ from aslexp.tuning.context import trial_reporter
 log = logging.getLogger("aslexp.imitate")
 
 
-def build_envs(cfg: dict[str, Any], data_root: Path):
+def build_envs(cfg: dict[str, Any], data_root: Path, vector_env: str = "auto"):
     """A factory of training envs (picklable: PPO may build them in worker processes) and the
-    evaluation env (no early termination: evaluations score whole episodes)."""
+    evaluation env (no early termination: evaluations score whole episodes). With
+    ``vector_env: batched`` (engine=mujoco) the factory takes the number of environments and
+    builds one :class:`~aslexp.envs.batched.BatchedImitationEnv` of them."""
     import functools
 
     from aslexp.envs.config import deep_merge
     from aslexp.envs.imitation import ImitationEnv
 
     common = dict(body=cfg["body"], controller=cfg["controller"], reward=cfg["reward"], data_root=data_root,
-                  complete_configs=True)  # Hydra composed every group: no merge over the hand's files
-    make_train_env = functools.partial(ImitationEnv, cfg["motion"]["file"], env=cfg["env"], shape_reward=True,
-                                       **common)  # env.heading_shaping / offset_shaping apply here only
+                  engine=cfg.get("engine"), complete_configs=True)  # Hydra composed every group
+    if vector_env == "batched":
+        from aslexp.envs.batched import BatchedImitationEnv
+
+        make_train_env = functools.partial(BatchedImitationEnv, motion=cfg["motion"]["file"], env=cfg["env"],
+                                           shape_reward=True, **common)
+    else:
+        make_train_env = functools.partial(ImitationEnv, cfg["motion"]["file"], env=cfg["env"], shape_reward=True,
+                                           **common)  # env.heading_shaping / offset_shaping apply here only
     eval_cfg = deep_merge(cfg["env"], {"early_termination": {"min_reward": None}})
     render = cfg.get("render") or {}
     eval_env = ImitationEnv(cfg["motion"]["file"], env=eval_cfg, render_mode="rgb_array",
                             render_size=tuple(render.get("size", (240, 240))), **common)
     return make_train_env, eval_env
+
+
+def engine_vector_env(cfg: dict[str, Any], vector_env: str) -> str:
+    """``auto`` with engine=mujoco is ``batched`` (every environment in one MuJoCo batch); any
+    other choice stays."""
+    engine = (cfg.get("engine") or {}).get("name", "pybullet")
+    return "batched" if vector_env == "auto" and engine == "mujoco" else vector_env
 
 
 def _resume_path(resume: str | None, cfg: dict[str, Any]) -> Path | None:
@@ -89,8 +105,9 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
 
     data_root = resolve_data_root(cfg.get("data_root"))
     ppo = PPOConfig.from_dict(cfg["ppo"])
+    ppo = dataclasses.replace(ppo, vector_env=engine_vector_env(cfg, ppo.vector_env))
     resume = _resume_path(cfg.get("resume"), cfg)  # a wrong run folder stops here, before any work
-    make_train_env, eval_env = build_envs(cfg, data_root)
+    make_train_env, eval_env = build_envs(cfg, data_root, ppo.vector_env)
     base = baselines(eval_env, ppo.eval_steps, ppo.phases)  # the policy's evaluation protocol
     log.info("motion %s: baselines %s", cfg["motion"]["name"], {k: round(v, 4) for k, v in base.items()})
 

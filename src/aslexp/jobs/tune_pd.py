@@ -72,7 +72,7 @@ def tune_pd(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
                                       "action_mode": "absolute" if plain else "residual",
                                       "residual_velocity_range": 0.0, "reference_state_init": False})
     env = ImitationEnv(motion, body=cfg["body"], controller=controller, reward=cfg["reward"], env=env_cfg,
-                       data_root=data_root, complete_configs=True)  # Hydra composed every group
+                       data_root=data_root, complete_configs=True, engine=cfg.get("engine"))  # Hydra composed every group
     lookahead = int(tuning.get("lookahead", 1)) if plain else env.spec_env.reference_lookahead
     result = pd_tracking_error(env, tuning.get("steps"), lookahead, tuning.get("objective", "mean_abs"))
     env.close()

@@ -105,7 +105,10 @@ class PPOConfig:
     # controller (residual actions) is otherwise moved by advantages that are mostly critic error.
     critic_warmup_steps: int = 0
     num_envs: int = 1
-    vector_env: str = "auto"  # auto (sync for 1 env, workers for more) | sync | async | workers
+    vector_env: str = "auto"  # auto (sync for 1 env, workers for more) | sync | async | workers | batched
+    # vector_env batched: worker processes, each stepping num_envs / batched_workers environments with
+    # its own copy of the policy (one round trip per rollout); 0: every environment in this process.
+    batched_workers: int = 0
     device: str = "auto"  # the learner's: auto (cuda if available) | cpu | cuda | cuda:N
     rollout_device: str = "cpu"  # policy inference while collecting: cpu | learner
     torch_threads: int = 1
@@ -127,6 +130,9 @@ class PPOConfig:
             if not ok:
                 raise ValueError(f"ppo config: {key} must be {expected}, got {getattr(self, key)!r}")
         resolve_mode(self.vector_env, self.num_envs, self.rollout_device)
+        if self.batched_workers and (self.batched_workers < 0 or self.num_envs % self.batched_workers):
+            raise ValueError(f"ppo config: batched_workers must be 0 or a divisor of num_envs ({self.num_envs}), "
+                             f"got {self.batched_workers!r}")
         resolve_device(self.device)  # an unknown or absent device fails here, before any work
 
     @classmethod
@@ -296,7 +302,14 @@ class PPOTrainer:
             cores = cpu_cores()
             log.info("starting %d environment worker process(es)%s", config.num_envs,
                      f" on {cores} cores: they will share them" if config.num_envs > cores else "")
-        if self.mode == "workers":
+        if self.mode == "batched" and config.batched_workers:
+            self.mode = "workers"  # the workers' collection, each worker a batch on one thread
+            log.info("starting %d rollout worker process(es), %d environments each", config.batched_workers,
+                     config.num_envs // config.batched_workers)
+            self.envs = PolicyWorkers(functools.partial(env, threads=1), config.num_envs,
+                                      functools.partial(agent_for_spaces, config.model),
+                                      envs_per_worker=config.num_envs // config.batched_workers)
+        elif self.mode == "workers":
             if isinstance(env, gym.Env) or not callable(env):
                 raise ValueError("ppo config: vector_env workers needs an environment factory (a picklable "
                                  "callable such as functools.partial(ImitationEnv, ...)), got an environment instance")

@@ -164,7 +164,7 @@ def run_env(cfg: dict[str, Any], env_overrides: dict[str, Any] | None = None,
     return ImitationEnv(resolve_motion_path(cfg["motion"]["file"], data_root),
                         body=deep_merge(cfg["body"], body_overrides or {}), controller=cfg["controller"],
                         reward=cfg["reward"], env=deep_merge(cfg["env"], env_overrides or {}), data_root=data_root,
-                        complete_configs=True)
+                        complete_configs=True, engine=cfg.get("engine"))
 
 
 def best_so_far(trained: list[dict[str, Any]]) -> str:

@@ -81,6 +81,8 @@ def residual_baselines(cfg: dict[str, Any], cache: Path) -> dict[str, Any]:
     scored_env = {k: v for k, v in cfg["env"].items() if k not in TRAINING_ONLY_KEYS + RESIDUAL_BASE_KEYS}
     key = {"settings": settings, "body": cfg["body"], "controller": cfg["controller"], "reward": cfg["reward"],
            "env": scored_env, "motion": cfg["motion"], "protocol": ppo.eval_protocol}
+    if (cfg.get("engine") or {}).get("name", "pybullet") != "pybullet":  # PyBullet caches stay valid
+        key["engine"] = cfg["engine"]
     key = json.loads(json.dumps(key))
     if cache.is_file():
         stored = json.loads(cache.read_text())

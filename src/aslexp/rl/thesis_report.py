@@ -47,6 +47,8 @@ def motion_baselines(cfg: dict[str, Any], cache: Path) -> list[dict[str, Any]]:
     report = cfg.get("report") or {}
     key = {"report": report, "body": cfg["body"], "reward": cfg["reward"], "env": cfg["env"],
            "motion": cfg["motion"]}
+    if (cfg.get("engine") or {}).get("name", "pybullet") != "pybullet":  # PyBullet caches stay valid
+        key["engine"] = cfg["engine"]
     if cache.is_file():
         stored = json.loads(cache.read_text())
         if stored.get("key") == json.loads(json.dumps(key)):
@@ -58,7 +60,7 @@ def motion_baselines(cfg: dict[str, Any], cache: Path) -> list[dict[str, Any]]:
     data_root = resolve_data_root(cfg.get("data_root"))
     rows = no_learning_baselines(resolve_motion_path(cfg["motion"]["file"], data_root), cfg["body"], cfg["reward"],
                                  cfg["env"], [Baseline.from_dict(b) for b in report.get("baselines", [])],
-                                 float(report.get("baseline_seconds", 10.0)), data_root)
+                                 float(report.get("baseline_seconds", 10.0)), data_root, engine=cfg.get("engine"))
     cache.parent.mkdir(parents=True, exist_ok=True)
     cache.write_text(json.dumps({"key": key, "rows": rows}, indent=1))
     return rows

@@ -59,7 +59,9 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv, VectorEnv
 
-MODES = ("auto", "sync", "async", "workers")  # workers: aslexp.rl.workers (the policy in each worker)
+# workers: aslexp.rl.workers (the policy in each worker); batched: one vector environment that steps
+# every environment together (aslexp.envs.batched, engine=mujoco; the imitate job's auto picks it there)
+MODES = ("auto", "sync", "async", "workers", "batched")
 START_METHOD = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
 
 
@@ -126,6 +128,15 @@ def make_vector_env(env: gym.Env | Callable[[], gym.Env], num_envs: int = 1, mod
     if num_envs < 1:
         raise ValueError(f"ppo config: num_envs must be at least 1, got {num_envs}")
     mode = resolve_mode(mode, num_envs)
+    if mode == "batched":
+        if isinstance(env, gym.Env) or not callable(env):
+            raise ValueError("ppo config: vector_env batched needs a factory of batched environments "
+                             "(functools.partial(BatchedImitationEnv, motion=...)), got an environment instance")
+        envs = env(num_envs)
+        if not isinstance(envs, VectorEnv) or envs.num_envs != num_envs:
+            raise ValueError(f"ppo config: vector_env batched: the factory gave {type(envs).__name__}, "
+                             f"expected a vector environment of {num_envs}")
+        return envs
     if isinstance(env, gym.Env):
         if num_envs != 1 or mode != "sync":
             raise ValueError(f"ppo config: num_envs={num_envs} (vector_env {mode}) needs an environment factory "

@@ -77,8 +77,34 @@ def rollout_segment(env: gym.Env, agent: Agent, noise: ActionNoise, obs: np.ndar
     return out, obs
 
 
-def _serve(pipe, make_env: Callable[[], gym.Env], make_agent: Callable[[gym.Space, gym.Space], Agent]) -> None:
-    """A worker's loop: commands from the learner until ``close``."""
+def rollout_batch_segment(envs, agent: Agent, noises: list[ActionNoise], obs: np.ndarray,
+                          steps: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """:func:`rollout_segment` for a batched vector environment of ``k`` environments (one noise
+    generator each): arrays shaped ``(steps, k, ...)``, the policy batched over the k."""
+    k, obs_size, act_size = len(noises), obs.shape[1], agent.action_center.shape[0]
+    out = {"obs": np.empty((steps, k, obs_size), np.float32), "next_obs": np.empty((steps, k, obs_size), np.float32),
+           "action": np.empty((steps, k, act_size), np.float32), "reward": np.empty((steps, k), np.float32),
+           "terminated": np.empty((steps, k), bool), "truncated": np.empty((steps, k), bool)}
+    with torch.no_grad():
+        for t in range(steps):
+            out["obs"][t] = obs
+            loc, scale = agent.head(agent.normalizer(torch.from_numpy(out["obs"][t])))
+            a = loc + scale * torch.stack([noise.sample() for noise in noises])
+            out["action"][t] = a.numpy()
+            next_obs, reward, terminated, truncated, info = envs.step(agent.to_env_action(a).numpy())
+            out["next_obs"][t] = next_obs
+            for i in np.flatnonzero(terminated | truncated):  # same-step autoreset
+                out["next_obs"][t, i] = info["final_obs"][i]
+                noises[i].restart()
+            out["reward"][t], out["terminated"][t], out["truncated"][t] = reward, terminated, truncated
+            obs = np.asarray(next_obs, np.float32)
+    return out, obs
+
+
+def _serve(pipe, make_env: Callable[..., gym.Env], make_agent: Callable[[gym.Space, gym.Space], Agent],
+           envs_per_worker: int = 0) -> None:
+    """A worker's loop: commands from the learner until ``close``. With ``envs_per_worker`` > 0 the
+    worker's environment is ``make_env(envs_per_worker)``, a batched vector environment."""
     torch.set_num_threads(1)
     env = agent = noise = obs = None
     while True:
@@ -90,22 +116,27 @@ def _serve(pipe, make_env: Callable[[], gym.Env], make_agent: Callable[[gym.Spac
                 pipe.send(("ok", None))
                 return
             if env is None:
-                env = DropInfo(make_env())
-                agent = make_agent(env.observation_space, env.action_space)
+                env = make_env(envs_per_worker) if envs_per_worker else DropInfo(make_env())
+                spaces = ((env.single_observation_space, env.single_action_space) if envs_per_worker
+                          else (env.observation_space, env.action_space))
+                agent = make_agent(*spaces)
             if command == "spaces":
-                result = (env.observation_space, env.action_space)
+                result = spaces
             elif command == "reset":
                 reset_seed, noise_seed, beta, horizon = data
                 obs, _ = env.reset(seed=reset_seed)
                 obs = np.asarray(obs, np.float32)
-                noise = ActionNoise(env.action_space.shape[0], noise_seed, beta, horizon)
+                size = spaces[1].shape[0]
+                noise = ([ActionNoise(size, s, beta, horizon) for s in noise_seed] if envs_per_worker
+                         else ActionNoise(size, noise_seed, beta, horizon))
                 result = None
             elif command == "rollout":
                 weights, steps = data
                 agent.load_state_dict({k: torch.from_numpy(v) for k, v in weights.items()}, strict=False)
-                result, obs = rollout_segment(env, agent, noise, obs, steps)
+                rollout = rollout_batch_segment if envs_per_worker else rollout_segment
+                result, obs = rollout(env, agent, noise, obs, steps)
             elif command == "call":
-                result = getattr(env, data)()
+                result = env.call(data)[0] if envs_per_worker else getattr(env, data)()
             else:
                 raise ValueError(f"unknown command {command!r}")
             pipe.send(("ok", result))
@@ -118,20 +149,28 @@ class WorkerError(RuntimeError):
 
 
 class PolicyWorkers:
-    """``num_envs`` worker processes, each an environment and a copy of the policy.
+    """``num_envs`` worker processes, each an environment and a copy of the policy; or, with
+    ``envs_per_worker`` > 0, ``num_envs / envs_per_worker`` processes each stepping a batch of
+    ``envs_per_worker`` environments (``make_env(k)``: :class:`~aslexp.envs.batched.BatchedImitationEnv`)
+    with its policy copy batched over them: many cores, each with a MuJoCo batch.
 
     ``make_env`` must be picklable (e.g. ``functools.partial(ImitationEnv, ...)``), as must
     ``make_agent`` (observation space, action space -> an :class:`Agent` of the learner's
     architecture, e.g. ``functools.partial(agent_for_spaces, config.model)``)."""
 
-    def __init__(self, make_env: Callable[[], gym.Env], num_envs: int,
-                 make_agent: Callable[[gym.Space, gym.Space], Agent]) -> None:
+    def __init__(self, make_env: Callable[..., gym.Env], num_envs: int,
+                 make_agent: Callable[[gym.Space, gym.Space], Agent], envs_per_worker: int = 0) -> None:
         context = multiprocessing.get_context(START_METHOD)
+        if envs_per_worker and num_envs % envs_per_worker:
+            raise ValueError(f"ppo config: num_envs ({num_envs}) must be a multiple of the environments per "
+                             f"worker ({envs_per_worker})")
         self.num_envs = num_envs
+        self.envs_per_worker = envs_per_worker
+        self.num_workers = num_envs // envs_per_worker if envs_per_worker else num_envs
         self._pipes, self._processes = [], []
-        for index in range(num_envs):
+        for index in range(self.num_workers):
             parent, child = context.Pipe()
-            process = context.Process(target=_serve, args=(child, make_env, make_agent),
+            process = context.Process(target=_serve, args=(child, make_env, make_agent, envs_per_worker),
                                       name=f"aslexp-rollout-{index}", daemon=True)
             process.start()
             child.close()
@@ -156,21 +195,27 @@ class PolicyWorkers:
     def _ask_all(self, command: str, per_worker: list[Any]) -> list[Any]:
         for pipe, data in zip(self._pipes, per_worker):  # all start before any answer is awaited
             pipe.send((command, data))
-        return [self._answer(i) for i in range(self.num_envs)]
+        return [self._answer(i) for i in range(self.num_workers)]
 
     def reset(self, reset_seeds: list[int], noise_seeds_: list[int], noise_beta: float = 0.0,
               noise_horizon: int = 300) -> None:
-        """New episodes from these seeds; action noise of colour ``noise_beta`` (0: white)."""
+        """New episodes from these seeds (one per environment); action noise of colour
+        ``noise_beta`` (0: white)."""
+        if self.envs_per_worker:
+            k = self.envs_per_worker
+            reset_seeds = [list(reset_seeds[i:i + k]) for i in range(0, self.num_envs, k)]
+            noise_seeds_ = [list(noise_seeds_[i:i + k]) for i in range(0, self.num_envs, k)]
         self._ask_all("reset", [(r, n, noise_beta, noise_horizon) for r, n in zip(reset_seeds, noise_seeds_)])
 
     def rollout(self, weights: dict[str, np.ndarray], steps: int) -> dict[str, np.ndarray]:
-        """``steps`` steps of every worker; arrays shaped ``(steps, num_envs, ...)``."""
-        segments = self._ask_all("rollout", [(weights, steps)] * self.num_envs)
-        return {key: np.stack([s[key] for s in segments], axis=1) for key in segments[0]}
+        """``steps`` steps of every environment; arrays shaped ``(steps, num_envs, ...)``."""
+        segments = self._ask_all("rollout", [(weights, steps)] * self.num_workers)
+        join = np.concatenate if self.envs_per_worker else np.stack
+        return {key: join([s[key] for s in segments], axis=1) for key in segments[0]}
 
     def call(self, name: str) -> list[Any]:
         """``name()`` of every worker's (info-dropping) environment wrapper, as the vector envs' ``call``."""
-        return self._ask_all("call", [name] * self.num_envs)
+        return self._ask_all("call", [name] * self.num_workers)
 
     def close(self) -> None:
         if self._closed:

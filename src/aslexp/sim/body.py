@@ -40,6 +40,9 @@ class BodySpec:
     ground_contacts: tuple[str, ...] = ()
     self_collision: bool = True
     global_scaling: float = 1.0
+    # False (PyBullet's default, the thesis'): each link's inertia comes from its collision shapes and
+    # URDF mass; True: the URDF's <inertia> (PyBullet's URDF_USE_INERTIA_FROM_FILE).
+    inertia_from_file: bool = False
     # Group name -> list of joint-name patterns (fnmatch); every actuated joint needs one group.
     joint_groups: dict[str, list[str]] = field(default_factory=lambda: {"all": ["*"]})
     end_effectors: list[str] = field(default_factory=list)

@@ -122,6 +122,40 @@ class Motion:
         frac = (t - self.times[i]) / self.dt[i]
         return i, float(min(max(frac, 0.0), 1.0))
 
+    def locate_many(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_locate` for an array of times: frame indices and fractions."""
+        t = np.asarray(t, dtype=np.float64)
+        if self.num_frames == 1 or self.duration <= 0:
+            return np.zeros(t.shape, dtype=int), np.zeros(t.shape)
+        if self.loop == "wrap":
+            t = np.fmod(t, self.duration)
+            t = np.where(t < 0, t + self.duration, t)
+        else:
+            t = np.clip(t, 0.0, self.duration)
+        i = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, self.num_frames - 2)
+        return i, np.clip((t - self.times[i]) / self.dt[i], 0.0, 1.0)
+
+    def sample_many(self, t: np.ndarray) -> np.ndarray:
+        """:meth:`sample` for an array of times, (len(t), D)."""
+        i, frac = self.locate_many(t)
+        if self.num_frames == 1:
+            return np.repeat(self.frames[:1], len(i), axis=0)
+        a, b = self.frames[i], self.frames[i + 1]
+        out = a + frac[:, None] * (b - a)
+        for q in self.quaternions:
+            qa, qb = a[:, q:q + 4], b[:, q:q + 4]
+            qb = np.where(np.sum(qa * qb, axis=1, keepdims=True) < 0, -qb, qb)  # shortest arc
+            blend = qa + frac[:, None] * (qb - qa)
+            out[:, q:q + 4] = blend / np.maximum(np.linalg.norm(blend, axis=1, keepdims=True), 1e-12)
+        return out
+
+    def phase_many(self, t: np.ndarray) -> np.ndarray:
+        """:meth:`phase` for an array of times."""
+        t = np.asarray(t, dtype=np.float64)
+        if self.duration <= 0:
+            return np.zeros(t.shape)
+        return (t / self.duration) % 1.0 if self.loop == "wrap" else np.clip(t / self.duration, 0.0, 1.0)
+
     def phase(self, t: float) -> float:
         """Position in the cycle, in [0, 1)."""
         if self.duration <= 0:

@@ -53,6 +53,9 @@ class ControllerSpec:
     target_velocity: str = "zero"  # zero (thesis) | reference: reference joint velocity as target
     velocity_scale: float = 1.0  # multiplies the reference velocity target
     target_rate: str = "control"  # control (thesis) | physics: reference re-sampled every substep
+    # engine=mujoco: physical gains (N m/rad, N m s/rad) replacing `groups` there (None: `groups`,
+    # physical for stable_pd, translated from PyBullet's motor for position: sim/mujoco_engine.py)
+    mujoco_groups: dict[str, Gains] | None = None
 
     @property
     def is_thesis_pd(self) -> bool:
@@ -61,7 +64,8 @@ class ControllerSpec:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "ControllerSpec":
-        unknown = set(values) - {"name", "mode", "groups", "target_velocity", "velocity_scale", "target_rate"}
+        unknown = set(values) - {"name", "mode", "groups", "target_velocity", "velocity_scale", "target_rate",
+                                 "mujoco_groups"}
         if unknown:
             raise ValueError(f"controller config: unknown keys {sorted(unknown)}")
         mode = values.get("mode", "position")
@@ -77,8 +81,12 @@ class ControllerSpec:
         target_rate = values.get("target_rate", "control")
         if target_rate not in TARGET_RATES:
             raise ValueError(f"controller config: target_rate must be one of {TARGET_RATES}, got {target_rate!r}")
+        mujoco_groups = values.get("mujoco_groups")
+        if mujoco_groups is not None:
+            mujoco_groups = {name: Gains(**gains) for name, gains in mujoco_groups.items()}
         return cls(name=values.get("name", "custom"), mode=mode, groups=groups, target_velocity=target_velocity,
-                   velocity_scale=float(values.get("velocity_scale", 1.0)), target_rate=target_rate)
+                   velocity_scale=float(values.get("velocity_scale", 1.0)), target_rate=target_rate,
+                   mujoco_groups=mujoco_groups or None)
 
 
 class PDController:
@@ -107,6 +115,8 @@ class PDController:
 
     def check_body(self, character: Character) -> None:
         """Refuse stable PD on a fixed-base body (PyBullet 3.2.7 misreads its joint states)."""
+        if getattr(character, "engine", "pybullet") == "mujoco":
+            return  # MuJoCo reads every base right
         if self.spec.mode == "stable_pd" and character.base == "fixed":
             raise ValueError(
                 f"controller {self.spec.name}: stable PD needs a free base (body.base=pinned or free); "
@@ -115,8 +125,8 @@ class PDController:
     def drive(self, character: Character, targets: np.ndarray, target_velocities: np.ndarray | None,
               substeps: int) -> None:
         """Hold ``targets`` for ``substeps`` physics steps: a position motor is set once, a stable-PD
-        command is re-sent before every step."""
-        if not self.resend_every_substep:
+        command is re-sent before every step (a MuJoCo actuator holds its input: set once)."""
+        if not self.resend_every_substep or getattr(character, "engine", "pybullet") == "mujoco":
             self.apply(character, targets, target_velocities)
             character.world.step(substeps)
             return
@@ -127,8 +137,11 @@ class PDController:
     def apply(self, character: Character, targets: np.ndarray,
               target_velocities: np.ndarray | None = None) -> None:
         """Drive ``character`` towards ``targets`` (motion-layout joint vector) until the next call."""
-        pb = character.world.client
         self.commands_sent += 1
+        if getattr(character, "engine", "pybullet") == "mujoco":
+            character.set_targets(self, np.asarray(targets, dtype=np.float64), target_velocities)
+            return
+        pb = character.world.client
         mode = pb.POSITION_CONTROL if self.spec.mode == "position" else pb.STABLE_PD_CONTROL
         if self.layout.all_revolute and mode == pb.POSITION_CONTROL:
             velocities = [0.0] * len(targets) if target_velocities is None else list(target_velocities)

@@ -52,6 +52,24 @@ class ReferenceMotion:
         i, _ = self.motion._locate(t)
         return self._joint_velocity[i].copy()
 
+    # -- many times at once (the batched environments) -----------------------------------------------
+    def joints_many(self, t: np.ndarray) -> np.ndarray:
+        """(len(t), layout) joint positions at the times ``t``."""
+        return self.motion.sample_many(t)[:, self._q_columns]
+
+    def joint_velocities_many(self, t: np.ndarray) -> np.ndarray:
+        """(len(t), velocity layout) joint velocities at the times ``t``."""
+        i, _ = self.motion.locate_many(t)
+        return self._joint_velocity[i]
+
+    def root_many(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`root` at the times ``t``: (len(t), 3), (len(t), 4), (len(t), 3), (len(t), 3)."""
+        frame = self.motion.sample_many(t)
+        i, _ = self.motion.locate_many(t)
+        vel = self._column_velocity[i]
+        omega = 2.0 * quaternion.multiply(vel[:, 3:7], quaternion.conjugate(frame[:, 3:7]))[:, 1:4]
+        return frame[:, 0:3], frame[:, 3:7], vel[:, 0:3], omega
+
     def _joint_velocity_table(self) -> np.ndarray:
         motion, layout = self.motion, self.layout
         table = []

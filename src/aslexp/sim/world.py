@@ -91,6 +91,8 @@ class World:
 class Character:
     """A body in a world: load it, set its pose, read joints and links in motion-layout terms."""
 
+    engine = "pybullet"
+
     def __init__(self, world: World, urdf: str | os.PathLike, spec: BodySpec, layout: BodyLayout,
                  base_position=(0.0, 0.0, 0.0), base_orientation_wxyz=(1.0, 0.0, 0.0, 0.0),
                  kinematic: bool = False) -> None:
@@ -99,6 +101,8 @@ class Character:
         self.layout = layout
         pb = world.client
         flags = pb.URDF_MAINTAIN_LINK_ORDER
+        if spec.inertia_from_file:
+            flags |= pb.URDF_USE_INERTIA_FROM_FILE
         if spec.self_collision and not kinematic:
             flags |= pb.URDF_USE_SELF_COLLISION | pb.URDF_USE_SELF_COLLISION_EXCLUDE_ALL_PARENTS
         path = Path(urdf)

@@ -1,0 +1,254 @@
+"""N imitation environments of one MuJoCo body, stepped together: a gymnasium vector environment.
+
+``BatchedImitationEnv(num_envs, motion, ..., engine="mujoco")`` is what ``N`` copies of
+:class:`~aslexp.envs.imitation.ImitationEnv` with ``engine=mujoco`` would be, with no Python per
+environment in a step: the physics of all N advances in one ``mujoco.rollout`` call (C threads),
+the link states of the N bodies and of their N references come back from one more (the probe,
+:mod:`aslexp.sim.mujoco_engine`), and the reference, the targets, the observation
+(:func:`~aslexp.envs.imitation.observe`) and the reward (``ImitationReward.many``) are computed on
+arrays of N by the same functions the single environment calls with a batch of one. Same seeds
+and actions give the same transitions as N single environments (tested step for step).
+
+Vector-environment conventions as :mod:`aslexp.rl.vector`'s: same-step autoreset (an episode's
+last observation in ``info["final_obs"]``, the returned one starts the next), reset seeds per
+environment, and the running statistics PPO reads (``call("term_means")``,
+``call("counter_values")``). The training options of the upper body's free-base residual work
+(``residual_base_smoothing``, drift shaping, falls, velocity corrections, physics-rate targets) are
+the single environment's: they are refused here with the key that needs them.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import defaultdict
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from aslexp.envs.imitation import ImitationEnv, observe
+from aslexp.envs.reward import PoseSnapshot
+
+
+class BatchedImitationEnv(VectorEnv):
+    """``num_envs`` imitation environments of one motion and body on the MuJoCo engine."""
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
+
+    def __init__(self, num_envs: int, motion, body=None, controller=None, reward=None, env=None,
+                 engine: str | dict | None = "mujoco", data_root: str | os.PathLike | None = None,
+                 complete_configs: bool = False, shape_reward: bool = False,
+                 env_class: type[ImitationEnv] = ImitationEnv, threads: int | None = None) -> None:
+        """The arguments of :class:`ImitationEnv` (``env_class``: its subclass whose group defaults
+        apply, e.g. the upper body's), for ``num_envs`` environments; ``threads`` overrides
+        ``engine.threads`` (rollout workers step their batch on one thread each)."""
+        if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
+            raise ValueError(f"ppo config: num_envs must be an integer >= 1, got {num_envs!r}")
+        # One single environment holds the configuration (specs, spaces, reference, reward, model).
+        self.template = env_class(motion, body=body, controller=controller, reward=reward, env=env,
+                                     data_root=data_root, complete_configs=complete_configs,
+                                     shape_reward=shape_reward, engine=engine)
+        t = self.template
+        if t.engine_spec.name != "mujoco":
+            raise ValueError(f"ppo config: vector_env batched steps MuJoCo bodies; the engine is "
+                             f"{t.engine_spec.name!r} (engine=mujoco, or vector_env auto/sync/async/workers)")
+        _refuse_unbatched(t, shape_reward)
+        self.num_envs = int(num_envs)
+        self.spec_env, self.reference, self.layout = t.spec_env, t.reference, t.layout
+        self.body = t.sim.body
+        if threads is not None:
+            import dataclasses
+
+            self.body.engine = dataclasses.replace(self.body.engine, threads=int(threads))
+        self.body.set_gains(t.controller)
+        self.reward_fn = t.reward_fn
+        self.single_observation_space = t.observation_space
+        self.single_action_space = t.action_space
+        self.observation_space = batch_space(t.observation_space, self.num_envs)
+        self.action_space = batch_space(t.action_space, self.num_envs)
+        self.control_dt = t.control_dt
+        self.substeps = self.spec_env.substeps
+        self.observed = t.observed_links
+        n = self.num_envs
+        self.states = self.body.new_states(n)
+        self.ref_states = self.body.new_states(n)
+        self.time = np.zeros(n)
+        self.steps = np.zeros(n, dtype=np.int64)
+        self._below = np.zeros(n, dtype=np.int64)
+        self._rngs = [np.random.default_rng() for _ in range(n)]
+        # The reference's end effectors are read with its root where the single environment's
+        # kinematic reference stands: the motion's first root pose.
+        self._ref_root = tuple(np.broadcast_to(v, (n, len(v))) for v in self.reference.root(0.0)[:2])
+        self._obs: np.ndarray | None = None
+        self.counters: dict[str, int] = defaultdict(int)
+        self._term_sums: dict[str, float] = defaultdict(float)
+
+    # -- episodes -------------------------------------------------------------------------------------
+    def reset(self, *, seed: int | list[int] | None = None, options: dict[str, Any] | None = None):
+        """Start every environment's episode (``seed``: one per environment, or one for the first
+        and the next integers for the others, as gymnasium's vector environments; options as
+        :meth:`ImitationEnv.reset`)."""
+        if seed is not None:
+            seeds = list(seed) if isinstance(seed, (list, tuple, np.ndarray)) else [seed + i for i in range(self.num_envs)]
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"reset: {len(seeds)} seeds for {self.num_envs} environments")
+            self._rngs = [gym.utils.seeding.np_random(int(s))[0] for s in seeds]
+        self._start(np.arange(self.num_envs), options or {})
+        self._obs = self._observe(np.arange(self.num_envs), self._read(np.arange(self.num_envs))[0])
+        return self._obs.copy(), {}
+
+    def _start(self, rows: np.ndarray, options: dict[str, Any]) -> None:
+        """Start new episodes in the environments ``rows`` (reference state initialisation)."""
+        if "time" in options:
+            times = np.full(len(rows), float(options["time"]))
+        elif "phase" in options:
+            times = np.full(len(rows), float(options["phase"]) * self.reference.duration)
+        elif self.spec_env.reference_state_init:
+            times = np.asarray([float(self._rngs[i].uniform(0.0, self.reference.duration)) for i in rows])
+        else:
+            times = np.zeros(len(rows))
+        self.time[rows], self.steps[rows], self._below[rows] = times, 0, 0
+        q, qd = self.reference.joints_many(times), self.reference.joint_velocities_many(times)
+        fresh = self.body.new_states(len(rows))
+        self.body.write(fresh, slice(None), q, qd, *self.reference.root_many(times))
+        self.states[rows] = fresh
+        self.counters["episodes"] += len(rows)
+
+    # -- one step of every environment ----------------------------------------------------------------
+    def step(self, actions):
+        actions = np.asarray(actions, dtype=np.float64).reshape(self.num_envs, -1)
+        size = self.single_action_space.shape[0]
+        if actions.shape[1] != size:
+            raise ValueError(f"actions have {actions.shape[1]} values per environment, expected {size}")
+        n, all_rows = self.num_envs, np.arange(self.num_envs)
+        finite = np.all(np.isfinite(actions), axis=1)
+        nan_rows = np.flatnonzero(~finite)
+        nan_obs = self._observe(nan_rows, self._read(nan_rows)[0]) if len(nan_rows) else None
+        physical = self.template.physical_action(np.where(finite[:, None], actions, 0.0))
+        targets, velocities = self._targets(physical)
+        self.body.step(self.states, self.body.controls(targets, velocities), self.substeps)
+        self.time += self.control_dt
+        self.steps += 1
+
+        sim_frames, ref_frames, sim_tips, ref_tips = self._read(all_rows, reference=True)
+        q, qd = self.body.joints(self.states)
+        diverged = (~np.all(np.isfinite(sim_frames.reshape(n, -1)), axis=1) | ~np.all(np.isfinite(qd), axis=1)
+                    | (np.max(np.abs(np.nan_to_num(qd, nan=np.inf)), axis=1) > self.spec_env.max_joint_velocity))
+        diverged &= finite
+        root = sim_frames[:, 0]
+        sim = PoseSnapshot(q, qd, sim_tips, root[:, 0:3], root[:, 3:7], root[:, 7:10], root[:, 10:13])
+        ref_q, ref_qd = self.body.joints(self.ref_states)
+        ref_root_pos, ref_root_rot, ref_root_vel, ref_root_ang = self.reference.root_many(self.time)
+        ref = PoseSnapshot(ref_q, self.reference.joint_velocities_many(self.time), ref_tips, ref_root_pos,
+                           ref_root_rot, ref_root_vel, ref_root_ang)
+        reward, terms, _ = self.reward_fn.many(sim, ref)
+        scored = finite & ~diverged
+        for name, values in terms.items():
+            self._term_sums[name] += float(values[scored].sum())
+        self._term_sums["reward"] += float(reward[scored].sum())
+        self._term_sums["steps"] += int(scored.sum())
+        ending = self.spec_env.early_termination or {}
+        min_reward = ending.get("min_reward")
+        low = (reward < float(min_reward)) if min_reward is not None else np.zeros(n, bool)
+        self._below = np.where(low, self._below + 1, 0)
+        early = scored & (self._below >= int(ending.get("patience", 1)))
+        reward = np.where(scored, reward, 0.0)
+        terminated = early | ~finite | diverged
+        truncated = scored & ~early & (self.steps >= self.spec_env.episode_steps)
+        self.counters["nan_actions"] += int((~finite).sum())
+        self.counters["diverged"] += int(diverged.sum())
+        self.counters["early_terminations"] += int(early.sum())
+
+        obs = self._observe(all_rows, sim_frames, q, qd)
+        if len(nan_rows):
+            obs[nan_rows] = nan_obs
+        obs[diverged] = np.nan_to_num(obs[diverged], nan=0.0, posinf=0.0, neginf=0.0)
+        info: dict[str, Any] = {}
+        ended = np.flatnonzero(terminated | truncated)
+        if len(ended):  # same-step autoreset
+            final = np.zeros_like(obs)
+            final[ended] = obs[ended]
+            info = {"final_obs": final, "_final_obs": np.isin(all_rows, ended)}
+            self._start(ended, {})
+            obs[ended] = self._observe(ended, self._read(ended)[0])
+        self._obs = obs
+        return obs.copy(), reward.astype(np.float64), terminated, truncated, info
+
+    def _targets(self, physical: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """PD targets (N, layout) and target velocities (None: zero) of the physical actions."""
+        t, spec = self.template, self.template.controller_spec
+        target_time = self.time + self.spec_env.reference_lookahead * self.control_dt
+        if self.spec_env.action_mode == "residual":
+            targets = self.reference.joints_many(target_time) + physical[:, :self.layout.action_size]
+        else:
+            targets = physical[:, :self.layout.action_size]
+        targets = np.clip(targets, t.joint_lower, t.joint_upper)
+        velocities = None
+        if spec.target_velocity == "reference" and not spec.is_thesis_pd:
+            velocities = spec.velocity_scale * self.reference.joint_velocities_many(target_time)
+        return targets, velocities
+
+    def _read(self, rows: np.ndarray, reference: bool = False):
+        """Frames (root, links) and end-effector tips of the environments ``rows``; with
+        ``reference`` also their references' at the current times, in the same probe call."""
+        states = self.states[rows]
+        if reference:
+            q = self.reference.joints_many(self.time[rows])
+            self.body.write(self.ref_states, rows, q, None, self._ref_root[0][rows], self._ref_root[1][rows])
+            states = np.concatenate([states, self.ref_states[rows]])
+        sensors = self.body.read(states)
+        frames, tips = self.body.frames(sensors), self.body.tips(sensors)
+        if not reference:
+            return frames, tips
+        k = len(rows)
+        return frames[:k], frames[k:], tips[:k], tips[k:]
+
+    def _observe(self, rows: np.ndarray, frames: np.ndarray, q: np.ndarray | None = None,
+                 qd: np.ndarray | None = None) -> np.ndarray:
+        links = frames[:, 1:][:, self.observed]
+        joints = None
+        if self.spec_env.observe_joints:
+            if q is None:
+                q, qd = self.body.joints(self.states[rows])
+            joints = (q, qd)
+        return observe(self.spec_env, self.reference, self.time[rows], links, frames[:, 0, 0:3],
+                       frames[:, 0, 3:7], joints)
+
+    # -- what PPO reads ---------------------------------------------------------------------------------
+    def pop_term_means(self) -> dict[str, float]:
+        """Mean reward and per-term rewards over every environment's steps since the last call."""
+        steps = self._term_sums.pop("steps", 0)
+        out = {k: v / steps for k, v in self._term_sums.items()} if steps else {}
+        self._term_sums.clear()
+        return out
+
+    def call(self, name: str, *args, **kwargs) -> tuple:
+        """``call("term_means")`` and ``call("counter_values")`` as :mod:`aslexp.rl.vector` reads
+        them (one entry: the batch's), else the attribute of the batch."""
+        if name == "term_means":
+            return (self.pop_term_means(),)
+        if name == "counter_values":
+            return (dict(self.counters),)
+        value = getattr(self, name)
+        return (value(*args, **kwargs) if callable(value) else value,)
+
+    def close_extras(self, **kwargs) -> None:
+        self.template.close()
+
+
+def _refuse_unbatched(env: ImitationEnv, shape_reward: bool) -> None:
+    """One line naming the first option only the single environment has."""
+    spec, controller = env.spec_env, env.controller_spec
+    checks = [
+        (spec.residual_base_smoothing > 0, "env.residual_base_smoothing"),
+        (spec.residual_velocity_range > 0, "env.residual_velocity_range"),
+        (shape_reward and (spec.heading_shaping > 0 or spec.offset_shaping > 0), "env.heading_shaping/offset_shaping"),
+        (bool((spec.early_termination or {}).get("fall")) and env.body_spec.base == "free", "env.early_termination.fall"),
+        (controller.target_rate == "physics", "controller.target_rate=physics"),
+    ]
+    for refused, key in checks:
+        if refused:
+            raise ValueError(f"ppo config: vector_env batched does not support {key} (the single environment "
+                             f"does: vector_env sync, async or workers)")

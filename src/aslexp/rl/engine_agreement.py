@@ -1,0 +1,94 @@
+"""How far the engines agree: the no-learning baselines in PyBullet and in MuJoCo, side by side.
+
+    python -m aslexp.rl.engine_agreement [--letters A,B,C,D,E] [--signs 00433,52861,69318,69546]
+                                         [--seconds 10] [--out outputs/engine_agreement]
+
+For each letter (the hand, the thesis reward ``hand_thesis``) and each sign (the upper body,
+``upper_body_thesis``), every controller is driven by the reference (lookahead 0: the reference as
+the PD target; 1: one control step ahead) for ``seconds`` of simulated time from phase 0, in both
+engines, scored by the same reward code. Writes ``agreement.json`` and ``agreement.md`` (the table
+docs/engines.md shows) with the difference MuJoCo - PyBullet per row.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from aslexp.data.root import resolve_data_root
+from aslexp.envs.baselines import Baseline, no_learning_baselines
+from aslexp.envs.config import resolve_group
+
+# (body, reward, env, rows): the settings whose baselines the thesis and aslexp report.
+HAND_ROWS = [
+    ("thesis controller (position, kp 0.22, kd 0.87), 240 Hz", "thesis", {}, "hand_thesis"),
+    ("thesis controller, 30 Hz", "thesis", {}, "default"),
+    ("reference-velocity PD (tuned), 30 Hz", "reference_velocity_tuned", {}, "default"),
+]
+UPPER_ROWS = [
+    ("authors' stable PD, pinned base, 240 Hz", "upper_body_thesis", {"base": "pinned"}, "upper_body_thesis"),
+    ("authors' stable PD, standing (free base), 240 Hz", "upper_body_thesis", {"base": "free"}, "upper_body_thesis"),
+    ("position control (kp 0.22, kd 0.87), fixed base, 30 Hz", "upper_body", {"base": "fixed"}, "upper_body"),
+]
+
+
+def measure(kind: str, name: str, seconds: float, data_root: Path) -> list[dict[str, Any]]:
+    """Both engines' baselines of one letter (``kind`` hand) or sign (upper_body)."""
+    if kind == "hand":
+        body, reward, rows = resolve_group("body", "hand15"), resolve_group("reward", "hand_thesis"), HAND_ROWS
+        motion = data_root / "motions" / "hand" / f"{name}.txt"
+    else:
+        body, reward = resolve_group("body", "upper_body_thesis"), resolve_group("reward", "upper_body_thesis")
+        rows, motion = UPPER_ROWS, data_root / "motions" / "upper_body" / f"{name}.txt"
+    out = []
+    for label, controller, body_overrides, env_name in rows:
+        env = resolve_group("env", env_name)
+        row = Baseline.from_dict({"label": label, "controller": controller, "body": body_overrides})
+        measured = {}
+        for engine in ("pybullet", "mujoco"):
+            measured[engine] = no_learning_baselines(motion, body, reward, env, [row], seconds, data_root,
+                                                     engine=engine)
+        for pb, mj in zip(measured["pybullet"], measured["mujoco"]):
+            out.append({"body": kind, "motion": name, "label": label, "lookahead": pb["lookahead"],
+                        "pybullet": pb["reward"], "mujoco": mj["reward"], "difference": mj["reward"] - pb["reward"],
+                        "pybullet_fell": pb["fell"], "mujoco_fell": mj["fell"]})
+    return out
+
+
+def table(rows: list[dict[str, Any]]) -> str:
+    lines = ["| body | motion | controller | lookahead | PyBullet | MuJoCo | MuJoCo - PyBullet |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        fell = lambda engine: " (fell)" if r[f"{engine}_fell"] else ""  # noqa: E731
+        lines.append(f"| {r['body']} | {r['motion']} | {r['label']} | {r['lookahead']} | "
+                     f"{r['pybullet']:.3f}{fell('pybullet')} | {r['mujoco']:.3f}{fell('mujoco')} | {r['difference']:+.3f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m aslexp.rl.engine_agreement", description=__doc__.split("\n")[0])
+    parser.add_argument("--letters", default="A,B,C,D,E")
+    parser.add_argument("--signs", default="00433,52861,69318,69546", help="'' for none")
+    parser.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per baseline")
+    parser.add_argument("--out", default="outputs/engine_agreement")
+    parser.add_argument("--data-root", default=None)
+    args = parser.parse_args(argv)
+    data_root = resolve_data_root(args.data_root)
+    rows = []
+    jobs = [("hand", m) for m in args.letters.split(",") if m] + [("upper_body", m) for m in args.signs.split(",") if m]
+    for k, (kind, name) in enumerate(jobs, 1):
+        rows += measure(kind, name, args.seconds, data_root)
+        print(f"[{k}/{len(jobs)}] {kind} {name}", file=sys.stderr, flush=True)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "agreement.json").write_text(json.dumps(rows, indent=1))
+    (out / "agreement.md").write_text(table(rows))
+    print(table(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
