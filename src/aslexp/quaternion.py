@@ -76,6 +76,17 @@ def to_matrix(q: np.ndarray) -> np.ndarray:
     return Rotation.from_quat(q.reshape(-1, 4), scalar_first=True).as_matrix().reshape(*q.shape[:-1], 3, 3)
 
 
+def matrices(q: np.ndarray) -> np.ndarray:
+    """(..., 4) unit quaternions -> (..., 3, 3) rotation matrices, written out (no scipy round trip:
+    the batched observation turns N frames at every step)."""
+    q = np.asarray(q, dtype=np.float64)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    xx, yy, zz, xy, xz, yz, wx, wy, wz = x * x, y * y, z * z, x * y, x * z, y * z, w * x, w * y, w * z
+    return np.stack([1 - 2 * (yy + zz), 2 * (xy - wz), 2 * (xz + wy),
+                     2 * (xy + wz), 1 - 2 * (xx + zz), 2 * (yz - wx),
+                     2 * (xz - wy), 2 * (yz + wx), 1 - 2 * (xx + yy)], axis=-1).reshape(*q.shape[:-1], 3, 3)
+
+
 def from_matrix(m: np.ndarray) -> np.ndarray:
     """(..., 3, 3) rotations -> (..., 4) quaternions with w >= 0."""
     m = np.asarray(m, dtype=np.float64)

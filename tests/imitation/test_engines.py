@@ -260,3 +260,37 @@ def test_a_diverging_mujoco_simulation_is_counted_and_ended_not_silently_reset(d
         assert np.all(reward[terminated] == 0.0)
     assert batch.counters["diverged"] == ended > 0
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+
+
+@pytest.mark.skipif(not __import__("torch").cuda.is_available(), reason="needs a CUDA GPU (torch finds none)")
+def test_the_learner_and_the_batch_policy_on_a_gpu(data_root, tmp_path):
+    from aslexp.rl.ppo import PPOConfig, PPOTrainer
+
+    motion = data_root / "motions/hand/B.txt"
+    make = functools.partial(BatchedImitationEnv, motion=motion, engine="mujoco", reward="hand_thesis", env="residual")
+    config = PPOConfig.from_dict(dict(hidden_sizes=[64, 64], steps_per_rollout=1024, minibatch_size=256, epochs=2,
+                                      total_steps=2048, eval_interval=2048, eval_steps=30, eval_episodes=1,
+                                      num_envs=64, vector_env="batched", device="cuda", rollout_device="learner"))
+    trainer = PPOTrainer(make, ImitationEnv(motion, engine="mujoco", reward="hand_thesis", env="residual"),
+                         config, tmp_path / "run", seed=0)
+    try:
+        result = trainer.train()
+        assert trainer.steps == 2048 and np.isfinite(result.last_eval)
+        assert trainer.device.type == "cuda" and trainer.rollout_agent is trainer.agent
+    finally:
+        trainer.close()
+
+
+def test_a_mujoco_env_renders_what_pybullet_renders_for_the_same_pose(data_root):
+    pb, mj = pair(ImitationEnv, data_root / "motions/hand/A.txt", render_mode="rgb_array", render_size=(96, 96), **HAND)
+    try:
+        for env in (pb, mj):
+            env.reset(options={"time": 0.5})
+        images = [env.render() for env in (pb, mj)]
+        assert images[0].shape == images[1].shape == (96, 192, 3)
+        differs = np.any(images[0].astype(int) != images[1].astype(int), axis=2)
+        assert differs.mean() < 0.01  # reference | simulation, drawn by PyBullet from MuJoCo's state
+        assert (images[1] < 200).any(axis=2).mean() > 0.02  # and there is a hand in the picture
+    finally:
+        pb.close()
+        mj.close()

@@ -126,23 +126,22 @@ class BatchedImitationEnv(VectorEnv):
         finite = np.all(np.isfinite(actions), axis=1)
         nan_rows = np.flatnonzero(~finite)
         nan_obs = self._observe(nan_rows, self._read(nan_rows)[0]) if len(nan_rows) else None
-        physical = self.template.physical_action(np.where(finite[:, None], actions, 0.0))
+        physical = self.template.physical_action(actions if len(nan_rows) == 0 else np.where(finite[:, None], actions, 0.0))
         targets, velocities = self._targets(physical)
         self.body.step(self.states, self.body.controls(targets, velocities), self.substeps)
         self.time += self.control_dt
         self.steps += 1
 
-        sim_frames, ref_frames, sim_tips, ref_tips = self._read(all_rows, reference=True)
+        ref_q, ref_qd, *ref_root = self.reference.state_many(self.time)
+        sim_frames, sim_tips, ref_tips = self._read(slice(None), reference=ref_q)
         q, qd = self.body.joints(self.states)
-        diverged = (~np.all(np.isfinite(sim_frames.reshape(n, -1)), axis=1) | ~np.all(np.isfinite(qd), axis=1)
-                    | (np.max(np.abs(np.nan_to_num(qd, nan=np.inf)), axis=1) > self.spec_env.max_joint_velocity))
+        # not finite, or a joint faster than max_joint_velocity (NaN compares False: caught by the first)
+        diverged = ~np.isfinite(sim_frames.reshape(n, -1).sum(axis=1) + qd.sum(axis=1))
+        diverged |= np.max(np.abs(qd), axis=1) > self.spec_env.max_joint_velocity
         diverged &= finite
         root = sim_frames[:, 0]
         sim = PoseSnapshot(q, qd, sim_tips, root[:, 0:3], root[:, 3:7], root[:, 7:10], root[:, 10:13])
-        ref_q, ref_qd = self.body.joints(self.ref_states)
-        ref_root_pos, ref_root_rot, ref_root_vel, ref_root_ang = self.reference.root_many(self.time)
-        ref = PoseSnapshot(ref_q, self.reference.joint_velocities_many(self.time), ref_tips, ref_root_pos,
-                           ref_root_rot, ref_root_vel, ref_root_ang)
+        ref = PoseSnapshot(ref_q, ref_qd, ref_tips, *ref_root)
         reward, terms, _ = self.reward_fn.many(sim, ref)
         scored = finite & ~diverged
         for name, values in terms.items():
@@ -161,10 +160,11 @@ class BatchedImitationEnv(VectorEnv):
         self.counters["diverged"] += int(diverged.sum())
         self.counters["early_terminations"] += int(early.sum())
 
-        obs = self._observe(all_rows, sim_frames, q, qd)
+        obs = self._observe(slice(None), sim_frames, q, qd)
         if len(nan_rows):
             obs[nan_rows] = nan_obs
-        obs[diverged] = np.nan_to_num(obs[diverged], nan=0.0, posinf=0.0, neginf=0.0)
+        if diverged.any():
+            obs[diverged] = np.nan_to_num(obs[diverged], nan=0.0, posinf=0.0, neginf=0.0)
         info: dict[str, Any] = {}
         ended = np.flatnonzero(terminated | truncated)
         if len(ended):  # same-step autoreset
@@ -190,20 +190,15 @@ class BatchedImitationEnv(VectorEnv):
             velocities = spec.velocity_scale * self.reference.joint_velocities_many(target_time)
         return targets, velocities
 
-    def _read(self, rows: np.ndarray, reference: bool = False):
-        """Frames (root, links) and end-effector tips of the environments ``rows``; with
-        ``reference`` also their references' at the current times, in the same probe call."""
-        states = self.states[rows]
-        if reference:
-            q = self.reference.joints_many(self.time[rows])
-            self.body.write(self.ref_states, rows, q, None, self._ref_root[0][rows], self._ref_root[1][rows])
-            states = np.concatenate([states, self.ref_states[rows]])
-        sensors = self.body.read(states)
+    def _read(self, rows: np.ndarray, reference: np.ndarray | None = None):
+        """Frames (root, links) and end-effector tips of the environments ``rows``; given the
+        references' joint values ``reference`` (one row per environment of ``rows``), also their tips."""
+        sensors = self.body.read(self.states[rows])
         frames, tips = self.body.frames(sensors), self.body.tips(sensors)
-        if not reference:
+        if reference is None:
             return frames, tips
-        k = len(rows)
-        return frames[:k], frames[k:], tips[:k], tips[k:]
+        self.body.write(self.ref_states, rows, reference, None, self._ref_root[0][rows], self._ref_root[1][rows])
+        return frames, tips, self.body.tips(self.body.read(self.ref_states[rows], tips_only=True))
 
     def _observe(self, rows: np.ndarray, frames: np.ndarray, q: np.ndarray | None = None,
                  qd: np.ndarray | None = None) -> np.ndarray:

@@ -679,11 +679,15 @@ def observe(spec: EnvSpec, reference: ReferenceMotion, times: np.ndarray, links:
     frame = heading_rotation(root_rot) if deepmimic else root_rot  # the frame links are seen in
     inverse = quaternion.conjugate(frame)[:, None, :]
     local = np.empty_like(links)
-    local[..., 0:3] = quaternion.rotate(inverse, links[..., 0:3] - root_pos[:, None, :])
+    count = links.shape[1]
+    # positions (from the root), linear and angular velocities into the frame: one batched product
+    # of row vectors with each body's rotation matrix (v R = (R^T v)^T)
+    vectors = np.concatenate([links[..., 0:3] - root_pos[:, None, :], links[..., 7:10], links[..., 10:13]], axis=1)
+    turned = np.matmul(vectors, quaternion.matrices(frame))
+    local[..., 0:3], local[..., 7:10], local[..., 10:13] = (turned[:, :count], turned[:, count:2 * count],
+                                                              turned[:, 2 * count:])
     rot = quaternion.multiply(inverse, links[..., 3:7])
     local[..., 3:7] = np.where(rot[..., :1] < 0, -rot, rot)  # one sign per rotation
-    local[..., 7:10] = quaternion.rotate(inverse, links[..., 7:10])
-    local[..., 10:13] = quaternion.rotate(inverse, links[..., 10:13])
     phase = reference.motion.phase_many(times)[:, None]
     if deepmimic:  # phase, root height, then all poses, then all velocities (DeepMimic's order)
         parts = [phase, root_pos[:, UP_AXIS:UP_AXIS + 1], local[..., 0:7].reshape(n, -1),

@@ -135,9 +135,10 @@ class Motion:
         i = np.clip(np.searchsorted(self.times, t, side="right") - 1, 0, self.num_frames - 2)
         return i, np.clip((t - self.times[i]) / self.dt[i], 0.0, 1.0)
 
-    def sample_many(self, t: np.ndarray) -> np.ndarray:
-        """:meth:`sample` for an array of times, (len(t), D)."""
-        i, frac = self.locate_many(t)
+    def sample_many(self, t: np.ndarray, located: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """:meth:`sample` for an array of times, (len(t), D) (``located``: :meth:`locate_many`'s
+        answer for ``t``, when the caller has it)."""
+        i, frac = located if located is not None else self.locate_many(t)
         if self.num_frames == 1:
             return np.repeat(self.frames[:1], len(i), axis=0)
         a, b = self.frames[i], self.frames[i + 1]

@@ -18,7 +18,9 @@ the physics rate, a site at each end effector's tip, and one PD actuator per joi
   gains with I the diagonal of the joint-space inertia at the model's zero pose, its stiffness times
   ``engine.motor_gain_scale`` (2: the implicit damping slows the response a per-step match would
   restore with 2 + kd, which diverges on the coupled finger chains at 240 Hz; 2 was chosen among
-  1, 2 and 2.87 by the reference baselines' agreement on letters A-E, docs/engines.md).
+  1, 2 and 2.87 by the reference baselines' agreement on letters A-E, docs/engines.md), and no
+  force limit (``max_force`` caps PyBullet's constraint impulse, not this torque: capped, the upper
+  body's stand-in motors stall).
 * ``mujoco_groups`` in a controller file replaces ``groups`` in MuJoCo with physical gains given as
   such (e.g. found by ``aslexp tune_pd engine=mujoco``).
 
@@ -151,23 +153,27 @@ class MujocoBody:
         # A diverging state stays diverged (MuJoCo would silently reset it): the env counts and ends it.
         mspec.option.disableflags = int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
         self.model = mspec.compile()  # the physics: no sensors to evaluate at every step
-        # The probe reads what the observation and reward need, as sensors: every link's and the root's frame (world
-        # position, orientation, linear and angular velocity) and the end-effector tips.
+        # Probes read what the observation and reward need, as sensors: the end-effector tips (the
+        # reference's probe), then every link's and the root's frame (world position, orientation,
+        # linear and angular velocity; the simulated body's probe). A probe is the model without
+        # contacts, constraints or actuators: mj_step evaluates sensors before it integrates, so one
+        # probe step from a state reads that state's sensors (and its integration is thrown away).
+        for k in range(len(spec.end_effectors)):
+            mspec.add_sensor(type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=f"tip_{k}")
+        self.tip_probe = mspec.compile()
         for name in [root.name, *self.link_names]:
             for kind in ("FRAMEPOS", "FRAMEQUAT", "FRAMELINVEL", "FRAMEANGVEL"):
                 mspec.add_sensor(type=getattr(mujoco.mjtSensor, f"mjSENS_{kind}"), objtype=mujoco.mjtObj.mjOBJ_XBODY,
                                  objname=name)
-        for k in range(len(spec.end_effectors)):
-            mspec.add_sensor(type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=f"tip_{k}")
-        # The probe is the same model without contacts, constraints or actuators; mj_step evaluates
-        # sensors before it integrates, so one probe step from a state reads that state's sensors.
         self.probe = mspec.compile()
         m = self.model
         off = mujoco.mjtDisableBit
-        self.probe.opt.disableflags = int(off.mjDSBL_CONSTRAINT | off.mjDSBL_CONTACT | off.mjDSBL_ACTUATION
-                                          | off.mjDSBL_GRAVITY | off.mjDSBL_SPRING | off.mjDSBL_DAMPER
-                                          | off.mjDSBL_WARMSTART | off.mjDSBL_ISLAND | off.mjDSBL_AUTORESET)
-        self.probe.opt.integrator = mujoco.mjtIntegrator.mjINT_EULER  # its step is thrown away
+        for probe in (self.probe, self.tip_probe):
+            probe.opt.disableflags = int(off.mjDSBL_CONSTRAINT | off.mjDSBL_CONTACT | off.mjDSBL_ACTUATION
+                                         | off.mjDSBL_GRAVITY | off.mjDSBL_SPRING | off.mjDSBL_DAMPER
+                                         | off.mjDSBL_WARMSTART | off.mjDSBL_ISLAND | off.mjDSBL_AUTORESET)
+            probe.opt.integrator = mujoco.mjtIntegrator.mjINT_EULER
+        self._tip_values = 3 * len(spec.end_effectors)
         self.slices = _state_slices(mujoco, m)
         self.state_size = self.slices["mocap_quat"].stop
         self.physics_size = self.slices["physics"].stop
@@ -220,7 +226,10 @@ class MujocoBody:
                         mass = inertia[i]
                         kv[i], kv_target[i] = (1.0 + gains.kd) * mass / dt, gains.kd * mass / dt
                         kp[i] = self.engine.motor_gain_scale * gains.kp * mass / (dt * dt)
-                    limit[i] = gains.max_force
+                    # PyBullet caps its motor's constraint impulse; the stand-in's PD torque also fights
+                    # the coupled chain and gravity that the constraint absorbs, and capped at the same
+                    # value it stalls the upper body (docs/engines.md): only physical gains keep the cap.
+                    limit[i] = gains.max_force if physical else np.inf
                     i += 1
         m.actuator_gainprm[:, 0] = kp
         m.actuator_biasprm[:, 0:3] = np.stack([np.zeros(nu), -kp, -kv], axis=1)
@@ -310,19 +319,21 @@ class MujocoBody:
         return (states[:, self.slices["qpos"]][:, self.qpos_index],
                 states[:, self.slices["qvel"]][:, self.qvel_index])
 
-    def read(self, states: np.ndarray) -> np.ndarray:
-        """(N, sensors) of ``states``: per frame (the root, then PyBullet's links) world position,
-        orientation (w x y z), linear velocity of its origin and angular velocity (13 values), then
-        the end-effector tips' positions (3 each). See :meth:`frames` and :meth:`tips`."""
-        return self._rollout(self.probe, states, np.zeros((len(states), self.model.nu)), 1, sensors=True)
+    def read(self, states: np.ndarray, tips_only: bool = False) -> np.ndarray:
+        """(N, sensors) of ``states``: the end-effector tips' positions (3 each), then (unless
+        ``tips_only``) per frame (the root, then PyBullet's links) world position, orientation
+        (w x y z), linear velocity of its origin and angular velocity (13 values). See
+        :meth:`frames` and :meth:`tips`."""
+        return self._rollout(self.tip_probe if tips_only else self.probe, states,
+                             np.zeros((len(states), self.model.nu)), 1, sensors=True)
 
     def frames(self, sensors: np.ndarray) -> np.ndarray:
         """(N, 1 + num_links, 13) frame rows of :meth:`read`'s values: the root, then the links."""
-        return sensors[:, :13 * (1 + self.num_links)].reshape(len(sensors), 1 + self.num_links, 13)
+        return sensors[:, self._tip_values:].reshape(len(sensors), 1 + self.num_links, 13)
 
     def tips(self, sensors: np.ndarray) -> np.ndarray:
         """(N, end effectors, 3) world positions of the end-effector tips."""
-        return sensors[:, 13 * (1 + self.num_links):].reshape(len(sensors), -1, 3)
+        return sensors[:, :self._tip_values].reshape(len(sensors), -1, 3)
 
     def step(self, states: np.ndarray, ctrl: np.ndarray, nstep: int) -> np.ndarray:
         """Advance (N, state) ``states`` by ``nstep`` physics steps under held controls (N, nu), in
@@ -340,7 +351,8 @@ class MujocoBody:
             # A pool for batches; one environment steps in this thread (a hand-off costs more than its step).
             self._runner = rollout.Rollout(nthread=self._threads if self._threads > 1 else 0)
             self._single = rollout.Rollout(nthread=0) if self._threads > 1 else self._runner
-            self._datas = {id(m): [self.mujoco.MjData(m) for _ in range(self._threads)] for m in (self.model, self.probe)}
+            self._datas = {id(m): [self.mujoco.MjData(m) for _ in range(self._threads)]
+                           for m in (self.model, self.probe, self.tip_probe)}
             self._buffers: dict[tuple, tuple] = {}
         n = len(states)
         key = (id(model), n, nstep)
@@ -532,6 +544,8 @@ class MujocoCharacter:
         return out
 
     def end_effector_positions(self, links: np.ndarray | None = None) -> np.ndarray:
+        if self.kinematic and self._bodies is None:  # the reference's question: its tips alone
+            return self.body.tips(self.body.read(self.state, tips_only=True))[0].copy()
         return self.body.tips(self._sensors())[0].copy()
 
     def ground_contacts(self, ground: int) -> set[int]:

@@ -70,6 +70,16 @@ class ReferenceMotion:
         omega = 2.0 * quaternion.multiply(vel[:, 3:7], quaternion.conjugate(frame[:, 3:7]))[:, 1:4]
         return frame[:, 0:3], frame[:, 3:7], vel[:, 0:3], omega
 
+    def state_many(self, t: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Joint positions and velocities and the root (position, rotation, linear and angular
+        velocity) at the times ``t``, from one interpolation: what a batched step compares with."""
+        located = self.motion.locate_many(t)
+        frame = self.motion.sample_many(t, located)
+        i = located[0]
+        vel = self._column_velocity[i]
+        omega = 2.0 * quaternion.multiply(vel[:, 3:7], quaternion.conjugate(frame[:, 3:7]))[:, 1:4]
+        return (frame[:, self._q_columns], self._joint_velocity[i], frame[:, 0:3], frame[:, 3:7], vel[:, 0:3], omega)
+
     def _joint_velocity_table(self) -> np.ndarray:
         motion, layout = self.motion, self.layout
         table = []

@@ -1,0 +1,52 @@
+"""Every command of docs/engines.md runs, as written, on tiny budgets (read from its ```bash block,
+so a command that stops working, or a new one, is caught here)."""
+
+from __future__ import annotations
+
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+PROJECT_ROOT = Path(__file__).resolve().parents[2]
+DOC = PROJECT_ROOT / "docs" / "engines.md"
+VENV_BIN = Path(sys.executable).parent
+
+# Documented command prefix -> what it gains to run in seconds (budgets, sizes, output folders).
+TINY = {
+    "aslexp imitate -m": ["motion=A", "ppo.total_steps=512", "ppo.steps_per_rollout=256", "ppo.eval_interval=512",
+                          "ppo.eval_episodes=1", "ppo.eval_steps=30", "render.gif=false", "plots=false",
+                          "hydra.sweep.dir={tmp}/sweep"],
+    "aslexp imitate": ["ppo.total_steps=512", "ppo.steps_per_rollout=256", "ppo.eval_interval=512",
+                       "ppo.eval_steps=30", "ppo.hidden_sizes=[32,32]", "render.gif=false", "plots=false",
+                       "hydra.run.dir={tmp}/run"],
+    "aslexp tune_pd": ["tuning.random.seconds=1.0", "hydra.run.dir={tmp}/tune"],
+    "python -m aslexp.rl.engine_agreement": ["--letters", "A", "--signs", "", "--seconds", "0.3"],
+    "python bench/engine.py": ["--seconds", "0.2", "--sizes", "4", "--bodies", "hand 30 Hz",
+                               "--ppo-steps-per-rollout", "256"],
+}
+
+
+def commands() -> list[str]:
+    block = re.search(r"```bash\n(.*?)```", DOC.read_text(encoding="utf-8"), re.S).group(1)
+    return [line.split("#")[0].strip() for line in block.splitlines() if line.split("#")[0].strip()]
+
+
+def tiny(command: str, tmp: Path) -> list[str]:
+    prefix = next(p for p in TINY if command.startswith(p))
+    words = shlex.split(command)
+    if words[0] == "aslexp":
+        words[0] = str(VENV_BIN / "aslexp")
+    elif words[0] == "python":
+        words[0] = sys.executable
+    words = [w.replace("outputs/", f"{tmp}/") for w in words]
+    return words + [w.format(tmp=tmp) for w in TINY[prefix]]
+
+
+@pytest.mark.parametrize("command", commands())
+def test_every_engines_doc_command_runs(command, tmp_path):
+    proc = subprocess.run(tiny(command, tmp_path), cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=900)
+    assert proc.returncode == 0, f"{command}\n{proc.stderr[-3000:]}"
