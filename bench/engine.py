@@ -198,6 +198,7 @@ def main() -> None:
             print(f"  {key:44s} {value:12,.2f}")
     print(f"\nload average at the end {os.getloadavg()[0]:.2f}")
     if args.json:
+        os.makedirs(os.path.dirname(os.path.abspath(args.json)), exist_ok=True)
         with open(args.json, "w", encoding="utf-8") as fh:
             json.dump(results, fh, indent=2)
 

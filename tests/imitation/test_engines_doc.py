@@ -1,4 +1,4 @@
-"""Every command of docs/engines.md runs, as written, on tiny budgets (read from its ```bash block,
+"""Every command of docs/engines.md runs, as written, on tiny budgets (read from its ```bash blocks,
 so a command that stops working, or a new one, is caught here)."""
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ TINY = {
 
 
 def commands() -> list[str]:
-    block = re.search(r"```bash\n(.*?)```", DOC.read_text(encoding="utf-8"), re.S).group(1)
-    return [line.split("#")[0].strip() for line in block.splitlines() if line.split("#")[0].strip()]
+    blocks = re.findall(r"```bash\n(.*?)```", DOC.read_text(encoding="utf-8"), re.S)
+    return [line.split("#")[0].strip() for block in blocks for line in block.splitlines() if line.split("#")[0].strip()]
 
 
 def tiny(command: str, tmp: Path) -> list[str]:
@@ -43,7 +43,8 @@ def tiny(command: str, tmp: Path) -> list[str]:
     elif words[0] == "python":
         words[0] = sys.executable
     words = [w.replace("outputs/", f"{tmp}/") for w in words]
-    return words + [w.format(tmp=tmp) for w in TINY[prefix]]
+    given = {w.split("=")[0] for w in words if "=" in w}
+    return words + [w.format(tmp=tmp) for w in TINY[prefix] if w.split("=")[0] not in given]
 
 
 @pytest.mark.parametrize("command", commands())

@@ -36,10 +36,11 @@ def test_cpu_numbers_are_those_before_the_device_work(gloss_dataset, tmp_path, n
     result = run_recognition(gloss_dataset, {"name": name, "params": TINY_PARAMS[name]},
                              {**GOLDEN_TRAINER, "device": "cpu"}, seeds=[0, 1], out_dir=tmp_path)  # fmt: skip
     expected = GOLDEN[name]
-    # Bit for bit on the torch the project pins; another build (the GPU machine's 2.11) has other CPU
-    # kernels, and there the numbers agree to rounding.
+    # To float32 rounding: bit for bit on the torch the project pins and the CPU that recorded them;
+    # another build (the GPU machine's 2.11) or another CPU (an AMD EPYC of this workplace, 2026-11-25:
+    # one loss off by 9e-8) has other kernels. A change of the training path moves them far more.
     exact = torch.__version__.split("+")[0] == PINNED_TORCH
-    tol = {"rtol": 0.0, "atol": 0.0} if exact else {"rtol": 1e-6, "atol": 1e-6}
+    tol = {"rtol": 1e-6, "atol": 1e-7} if exact else {"rtol": 1e-6, "atol": 1e-6}
     assert [v["best_epoch"] for v in result["val"]] == [epoch for _, epoch in expected["val"]]
     np.testing.assert_allclose([v["mcc"] for v in result["val"]], [mcc for mcc, _ in expected["val"]], **tol)
     np.testing.assert_allclose([m["mcc"] for m in result["test_per_seed"]], expected["test_mcc"], **tol)
