@@ -56,8 +56,21 @@ def _mujoco():
     except ImportError as exc:  # pragma: no cover - a dependency in pyproject
         raise ImportError("engine=mujoco needs the mujoco package (pip install mujoco)") from exc
     if mujoco.get_mju_user_warning() is None:  # MuJoCo's warnings to the log, not MUJOCO_LOG.TXT in the cwd
-        mujoco.set_mju_user_warning(lambda text: log.warning("MuJoCo: %s", text.strip()))
+        mujoco.set_mju_user_warning(_warn)
     return mujoco
+
+
+_WARNINGS = {"count": 0}
+
+
+def _warn(text: str) -> None:
+    """MuJoCo's warnings, the first few in full: a diverging batch warns at every step of every
+    environment, and the environments count and end those episodes themselves (``diverged``)."""
+    _WARNINGS["count"] += 1
+    count = _WARNINGS["count"]
+    if count <= 5 or count in (10, 100, 1000) or count % 10000 == 0:
+        log.warning("MuJoCo (warning %d%s): %s", count, "; later ones at 10, 100, 1000, every 10,000" if count == 5
+                    else "", text.strip())
 
 
 def _state_slices(mujoco, model) -> dict[str, slice]:
@@ -197,6 +210,7 @@ class MujocoBody:
         self.root_free_qvel = (int(m.jnt_dofadr[m.body_jntadr[self.root_body]]) if spec.base == "free" else None)
         self.tip_bodies = np.asarray([m.site_bodyid[k] for k in range(len(spec.end_effectors))], dtype=int)
         self.ground_geom = (mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "ground") if spec.base == "free" else -1)
+
         self._data = mujoco.MjData(m)
         self.set_gains(controller)
         self._runner = None
