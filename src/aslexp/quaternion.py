@@ -104,6 +104,17 @@ def relative_rotvec(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return rel.as_rotvec().reshape(*shape, 3)
 
 
+def z_to(direction) -> list[float]:
+    """The rotation (w x y z) turning +z onto the unit vector ``direction`` (a ground plane's normal)."""
+    direction = np.asarray(direction, dtype=np.float64)
+    axis, cos = np.cross([0.0, 0.0, 1.0], direction), float(direction[2])
+    if np.linalg.norm(axis) < 1e-9:
+        return [1.0, 0.0, 0.0, 0.0] if cos > 0 else [0.0, 1.0, 0.0, 0.0]
+    half = np.arccos(np.clip(cos, -1.0, 1.0)) / 2
+    axis = axis / np.linalg.norm(axis) * np.sin(half)
+    return [float(np.cos(half)), *axis.tolist()]
+
+
 def wxyz_to_xyzw(q) -> list[float]:
     """PyBullet's order (x, y, z, w) of one quaternion."""
     return [float(q[1]), float(q[2]), float(q[3]), float(q[0])]

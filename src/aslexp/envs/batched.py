@@ -81,7 +81,6 @@ class BatchedImitationEnv(VectorEnv):
         # The reference's end effectors are read with its root where the single environment's
         # kinematic reference stands: the motion's first root pose.
         self._ref_root = tuple(np.broadcast_to(v, (n, len(v))) for v in self.reference.root(0.0)[:2])
-        self._obs: np.ndarray | None = None
         self.counters: dict[str, int] = defaultdict(int)
         self._term_sums: dict[str, float] = defaultdict(float)
 
@@ -96,8 +95,7 @@ class BatchedImitationEnv(VectorEnv):
                 raise ValueError(f"reset: {len(seeds)} seeds for {self.num_envs} environments")
             self._rngs = [gym.utils.seeding.np_random(int(s))[0] for s in seeds]
         self._start(np.arange(self.num_envs), options or {})
-        self._obs = self._observe(np.arange(self.num_envs), self._read(np.arange(self.num_envs))[0])
-        return self._obs.copy(), {}
+        return self._observe(slice(None), self._read(slice(None))[0]), {}
 
     def _start(self, rows: np.ndarray, options: dict[str, Any]) -> None:
         """Start new episodes in the environments ``rows`` (reference state initialisation)."""
@@ -173,8 +171,7 @@ class BatchedImitationEnv(VectorEnv):
             info = {"final_obs": final, "_final_obs": np.isin(all_rows, ended)}
             self._start(ended, {})
             obs[ended] = self._observe(ended, self._read(ended)[0])
-        self._obs = obs
-        return obs.copy(), reward.astype(np.float64), terminated, truncated, info
+        return obs, reward.astype(np.float64), terminated, truncated, info
 
     def _targets(self, physical: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """PD targets (N, layout) and target velocities (None: zero) of the physical actions."""
@@ -212,12 +209,8 @@ class BatchedImitationEnv(VectorEnv):
                        frames[:, 0, 3:7], joints)
 
     # -- what PPO reads ---------------------------------------------------------------------------------
-    def pop_term_means(self) -> dict[str, float]:
-        """Mean reward and per-term rewards over every environment's steps since the last call."""
-        steps = self._term_sums.pop("steps", 0)
-        out = {k: v / steps for k, v in self._term_sums.items()} if steps else {}
-        self._term_sums.clear()
-        return out
+    # Mean reward and per-term rewards over every environment's steps since the last call.
+    pop_term_means = ImitationEnv.pop_term_means
 
     def call(self, name: str, *args, **kwargs) -> tuple:
         """``call("term_means")`` and ``call("counter_values")`` as :mod:`aslexp.rl.vector` reads

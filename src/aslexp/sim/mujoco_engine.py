@@ -27,20 +27,19 @@ the physics rate, a site at each end effector's tip, and one PD actuator per joi
 Stepping goes through ``mujoco.rollout`` (C, threads, no Python per physics step) from full physics
 states, for one environment (:class:`MujocoCharacter`, the gymnasium env) and for a batch
 (:mod:`aslexp.envs.batched`) alike: one code path, so a batch equals its environments stepped one
-by one (tested). Link states come from :class:`~aslexp.sim.kinematics.TreeKinematics` on the
-returned joint states.
+by one (tested). Link states and end-effector tips come from a probe: one step of the same model
+without contacts or actuators, whose sensors MuJoCo evaluates before it integrates.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import os
 from pathlib import Path
 
 import numpy as np
 
-from aslexp.quaternion import relative_rotvec, rotate
+from aslexp.quaternion import relative_rotvec, rotate, z_to
 from aslexp.sim.body import BodyLayout, BodySpec
 from aslexp.sim.engine import EngineSpec
 from aslexp.sim.urdf import read_joints
@@ -144,7 +143,7 @@ class MujocoBody:
             up = -np.asarray(physics.gravity, dtype=np.float64)
             up /= max(np.linalg.norm(up), 1e-12)
             ground = mspec.worldbody.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1])
-            ground.quat = _quat_z_to(up)
+            ground.quat = z_to(up)
             ground.contype, ground.conaffinity = 1, 3
         for k, name in enumerate(spec.end_effectors):
             if name not in bodies:
@@ -416,16 +415,6 @@ class MujocoBody:
 
 def _conjugate(q: np.ndarray) -> np.ndarray:
     return np.asarray(q, dtype=np.float64) * np.array([1.0, -1.0, -1.0, -1.0])
-
-
-def _quat_z_to(up: np.ndarray) -> list[float]:
-    """The rotation (w x y z) turning +z onto ``up``."""
-    axis, cos = np.cross([0.0, 0.0, 1.0], up), float(up[2])
-    if np.linalg.norm(axis) < 1e-9:
-        return [1.0, 0.0, 0.0, 0.0] if cos > 0 else [0.0, 1.0, 0.0, 0.0]
-    half = math.acos(max(-1.0, min(1.0, cos))) / 2
-    axis = axis / np.linalg.norm(axis) * math.sin(half)
-    return [math.cos(half), *axis.tolist()]
 
 
 def _inertia_from_shapes(mujoco, mspec) -> None:

@@ -64,11 +64,7 @@ class ReferenceMotion:
 
     def root_many(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`root` at the times ``t``: (len(t), 3), (len(t), 4), (len(t), 3), (len(t), 3)."""
-        frame = self.motion.sample_many(t)
-        i, _ = self.motion.locate_many(t)
-        vel = self._column_velocity[i]
-        omega = 2.0 * quaternion.multiply(vel[:, 3:7], quaternion.conjugate(frame[:, 3:7]))[:, 1:4]
-        return frame[:, 0:3], frame[:, 3:7], vel[:, 0:3], omega
+        return self.state_many(t)[2:]
 
     def state_many(self, t: np.ndarray) -> tuple[np.ndarray, ...]:
         """Joint positions and velocities and the root (position, rotation, linear and angular

@@ -17,7 +17,7 @@ import numpy as np
 from aslexp.sim._pybullet import c_output_quieted, pybullet  # noqa: I001 - first: silences its import banner
 from pybullet_utils import bullet_client
 
-from aslexp.quaternion import rotate, wxyz_to_xyzw
+from aslexp.quaternion import rotate, wxyz_to_xyzw, z_to
 from aslexp.sim.body import BodyLayout, BodySpec
 
 
@@ -58,14 +58,7 @@ class World:
 
         up = np.asarray(self.physics.gravity, dtype=np.float64)
         up = -up / max(np.linalg.norm(up), 1e-12)
-        # plane_implicit.urdf faces +z; turn +z onto `up`.
-        axis, cos = np.cross([0.0, 0.0, 1.0], up), float(up[2])
-        if np.linalg.norm(axis) < 1e-9:
-            xyzw = [0.0, 0.0, 0.0, 1.0] if cos > 0 else [1.0, 0.0, 0.0, 0.0]
-        else:
-            half = np.arccos(np.clip(cos, -1.0, 1.0)) / 2
-            axis = axis / np.linalg.norm(axis) * np.sin(half)
-            xyzw = [*axis.tolist(), float(np.cos(half))]
+        xyzw = wxyz_to_xyzw(z_to(up))  # plane_implicit.urdf faces +z; turn +z onto `up`
         return self.client.loadURDF(str(Path(pybullet_data.getDataPath()) / "plane_implicit.urdf"),
                                     [0.0, 0.0, 0.0], xyzw, useMaximalCoordinates=True)
 
