@@ -26,24 +26,26 @@ import sys
 from pathlib import Path
 
 import aslexp.jobs
+from aslexp.paths import CONF_DIR, SWEEPS_DIR
 
 _TOOLS = {
     "data": ("aslexp.tools.data", "data_main", "fetch or verify the data root"),
-    "report": ("aslexp.tools.report", "report_main", "collect recognition runs into tables"),
+    "report": ("aslexp.tools.report", "report_main", "runs into tables (recognition: intervals, comparisons)"),
     "runs": ("aslexp.runs.cli", "runs_main", "list and diff run directories"),
     "sweep": ("aslexp.runs.cli", "sweep_main", "status, best trial, plots, dashboard of a sweep"),
     "extract": ("aslexp.pose.extract_cli", "extract_main", "videos -> keypoints (MediaPipe)"),
 }
 # Jobs that run but are not listed: the test objective of the sweep machinery.
 _UNLISTED_JOBS = {"quadratic"}
-_PROJECT_ROOT = Path(__file__).resolve().parents[2]
-_CONF = _PROJECT_ROOT / "conf"
-_SWEEPS = _PROJECT_ROOT / "sweeps"
+_CONF = CONF_DIR
+_SWEEPS = SWEEPS_DIR
 
 
 def _jobs() -> list[str]:
+    """The job modules: those with a config of their name in conf/."""
     return sorted(
-        m.name for m in pkgutil.iter_modules(aslexp.jobs.__path__) if not m.name.startswith("_")
+        m.name for m in pkgutil.iter_modules(aslexp.jobs.__path__)
+        if not m.name.startswith("_") and (_CONF / f"{m.name}.yaml").is_file()
     )
 
 
@@ -89,16 +91,49 @@ def _options(group: str) -> list[str]:
     return sorted(p.stem for p in folder.glob("*.yaml")) if folder.is_dir() else []
 
 
-def _referenced(config: dict) -> set[str]:
-    """Groups and top-level keys an overlay touches (``override /env: x`` -> env)."""
+def _referenced(config: dict, group: str = "experiment", _seen: frozenset = frozenset()) -> set[str]:
+    """Groups and top-level keys an overlay touches: its keys, its ``override /env: x`` (-> env),
+    the keys its sweeper sweeps, and those of the overlays of ``group`` it builds on."""
     keys = {k for k in config if k not in ("defaults", "hydra")}
+    params = ((config.get("hydra") or {}).get("sweeper") or {}).get("params") or {}
+    keys |= {str(k).lstrip("+~").split(".")[0] for k in params}
     for entry in config.get("defaults") or []:
         if isinstance(entry, dict):
             for key in entry:
                 name = str(key).replace("override", "").strip().lstrip("/")
                 if name and not name.startswith("hydra"):
                     keys.add(name.split("/")[0])
+        elif isinstance(entry, str) and entry != "_self_" and entry not in _seen:
+            keys |= _referenced(_yaml(_CONF / group / f"{entry}.yaml"), group, _seen | {entry})
     return keys
+
+
+def _job_keys(job: str) -> set[str]:
+    """A job's config groups and top-level keys."""
+    config = _yaml(_CONF / f"{job}.yaml")
+    keys = {k for k in config if k not in ("defaults", "hydra")}
+    for entry in config.get("defaults") or []:
+        if isinstance(entry, dict):
+            keys |= {str(k) for k in entry if not str(k).startswith(("override", "hydra"))}
+    return keys
+
+
+def experiments_of(job: str) -> list[str]:
+    """The overlays of ``conf/experiment`` written for ``job``: every group or key they touch
+    that some job knows is one of this job's, and one at least is this job's alone (``seed``
+    or ``logger`` alone says nothing). Keys no job has (an overlay's own ``report:``) are its
+    additions and do not count."""
+    jobs = {j: _job_keys(j) for j in _jobs() if j not in _UNLISTED_JOBS}
+    known = set().union(*jobs.values())
+    shared = set.intersection(*jobs.values())
+    if job not in jobs or "experiment" not in jobs[job]:
+        return []
+    mine = []
+    for name in _options("experiment"):
+        touched = _referenced(_yaml(_CONF / "experiment" / f"{name}.yaml")) & known
+        if touched <= jobs[job] and touched - shared:
+            mine.append(name)
+    return mine
 
 
 def _sweeps_of(job: str, job_keys: set[str]) -> list[str]:
@@ -133,7 +168,7 @@ def job_help(job: str) -> str:
     for group, default in groups.items():
         options = _options(group)
         if group == "experiment":
-            options = [o for o in options if _referenced(_yaml(_CONF / group / f"{o}.yaml")) <= keys]
+            options = experiments_of(job)
         rest = [o for o in options if o != default]
         head = default if default is not None else "(none)"
         lines.append(f"  {group:<{width}}  {head}" + (f" | {', '.join(rest)}" if rest else ""))

@@ -5,3 +5,8 @@ from __future__ import annotations
 
 class DataError(ValueError):
     """Bad or inconsistent input data; the message names the file, the field and what was expected."""
+
+
+class ConfigError(ValueError):
+    """A configuration value of the wrong type or out of range: bad input (exit 2). The message
+    names the key, the value given and what is expected: ``ppo.total_steps=abc: expected ...``."""

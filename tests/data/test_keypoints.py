@@ -1,5 +1,4 @@
 import json
-import pickle
 
 import numpy as np
 import pytest
@@ -73,7 +72,7 @@ def test_directory_source_roundtrip(tmp_path, mediapipe):
         DirectoryKeypointSource(tmp_path)
 
 
-@pytest.mark.parametrize("ids_format", ["txt", "json", "pkl"])
+@pytest.mark.parametrize("ids_format", ["txt", "json", "slgcn_json", "csv"])
 def test_published_importer_roundtrip(tmp_path, mediapipe, ids_format):
     ids = sorted(mediapipe.available())[:6]
     clips = [mediapipe.load(i)[:, :27, :3] for i in ids]  # 27 nodes x 3 channels, like HRNet
@@ -84,8 +83,11 @@ def test_published_importer_roundtrip(tmp_path, mediapipe, ids_format):
         ids_path = tmp_path / "file_list.txt"
     elif ids_format == "json":
         ids_path.write_text(json.dumps(ids))
+    elif ids_format == "slgcn_json":  # SL-GCN's (sample_names, labels), as JSON
+        ids_path = tmp_path / "labels.json"
+        ids_path.write_text(json.dumps([[f"{i}.mp4" for i in ids], list(range(len(ids)))]))
     else:
-        ids_path.write_bytes(pickle.dumps((ids, list(range(len(ids))))))  # SL-GCN label pickle
+        ids_path.write_text("video_id,label\n" + "".join(f"{i},{n}\n" for n, i in enumerate(ids)))
     source = PublishedArraySource(array, ids_path)
     assert source.layout is SIGN27 and source.available() == set(ids)
     for video_id, clip in zip(ids, clips):

@@ -165,8 +165,14 @@ def test_command_line(extracted_copy, videos, capsys):
     assert "0 extracted, 1 already done (cached), 0 failed" in printed
     assert (out / "motions" / "hand" / f"{CLIP}.txt").is_file()
     assert (out / "motions" / "upper_body" / f"{CLIP}.txt").is_file()
+    # A partial batch is no error: the rest is written, the failure listed with its reason (exit 0).
+    rc = extract_main([str(videos / f"{CLIP}.mp4"), str(out / "nothing-here.mp4"), "--out", str(out), "--quiet"])
+    printed = capsys.readouterr().out
+    assert rc == 0 and "FAILED nothing-here" in printed and "done with 1 problem(s) in 2 input(s)" in printed
+    # Nothing succeeded: exit 1; bad arguments: exit 2 (as every aslexp command).
     rc = extract_main([str(out / "nothing-here.mp4"), "--out", str(out), "--quiet"])
-    assert rc == 2 and "FAILED nothing-here" in capsys.readouterr().out
+    assert rc == 1 and "FAILED nothing-here" in capsys.readouterr().out
+    assert extract_main(["--workers", "0", str(videos), "--out", str(out)]) == 2
 
 
 def test_imitation_env_loads_the_upper_body_motion(extracted, data_root, tmp_path):
@@ -188,3 +194,15 @@ def test_imitation_env_loads_the_upper_body_motion(extracted, data_root, tmp_pat
         assert np.isfinite(reward) and not terminated
     finally:
         env.close()
+
+
+def test_an_mp4_overlay_is_h264_as_browsers_play_it(extracted, tmp_path):
+    import subprocess
+
+    from aslexp.viz.video import ffmpeg_executable
+
+    out, _, _ = extracted
+    result = render_overlays([CLIP], out, tmp_path, fmt="mp4", cpus=1)[CLIP]
+    assert result["status"] == "ok" and result["codec"] == "h264"
+    probe = subprocess.run([ffmpeg_executable(), "-i", result["overlay"]], capture_output=True, text=True)
+    assert "Video: h264" in probe.stderr and "yuv420p" in probe.stderr

@@ -155,5 +155,5 @@ def test_command_line_retargets_pose_files(pose_dir, tmp_path, capsys):
     assert rc == 0, printed
     assert "hand ok: 1" in printed and "upper_body ok: 1" in printed
     assert (tmp_path / "motions" / "hand" / f"{CLIP}.txt").is_file()
-    assert extract_main([str(pose_dir / f"{CLIP}.pose"), "--out", str(tmp_path)]) == 1
+    assert extract_main([str(pose_dir / f"{CLIP}.pose"), "--out", str(tmp_path)]) == 2  # bad input
     assert "with --motions" in capsys.readouterr().err

@@ -36,8 +36,8 @@ def test_wlasl_route_cuts_each_clip_and_two_workers_share_the_queue(wlasl6):
 def test_wlasl_alone_is_a_clear_message(data_root, capsys):
     rc = extract_main(["--wlasl", str(data_root / "wlasl" / "WLASL_v0.3.json"), "--out", "unused"])
     err = capsys.readouterr().err
-    assert rc == 1 and "needs the videos: add --videos DIR" in err and "Traceback" not in err
-    assert extract_main(["--out", "unused"]) == 1
+    assert rc == 2 and "needs the videos: add --videos DIR" in err and "Traceback" not in err
+    assert extract_main(["--out", "unused"]) == 2  # bad input
     assert "nothing to extract" in capsys.readouterr().err
 
 
@@ -85,4 +85,4 @@ def test_shards_share_one_output_folder_and_resume(wlasl6, videos, tmp_path, cap
     assert extract_main([*common, "--shard", "0/2"]) == 0
     assert "0 extracted, 2 already done (cached)" in capsys.readouterr().out
     assert read_status(out, "70266")["frame_range"] == [0, 4]
-    assert extract_main([*common, "--shard", "2/2"]) == 1
+    assert extract_main([*common, "--shard", "2/2"]) == 2  # bad input

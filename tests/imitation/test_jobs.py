@@ -49,7 +49,7 @@ def test_imitate_trains_writes_figures_and_resumes(tmp_path):
     bad.write_bytes(b"\x00garbage")
     proc = run_job("imitate", "motion=B", *SMALL, f"+resume={bad}", f"hydra.run.dir={tmp_path / 'run3'}",
                    check=False)
-    assert proc.returncode != 0 and "corrupt" in proc.stderr
+    assert proc.returncode == 2 and "corrupt" in proc.stderr  # bad input
     assert (out / "checkpoints" / "last.pt").stat().st_size > 1000
 
 
@@ -84,7 +84,7 @@ def test_a_sweep_re_evaluated_by_job_number_reports_what_training_under_that_pro
     # A misnumbered run folder is refused before any work, in one line; the sweep is never rewritten.
     proc = run_job("imitate", "motion=B", *SMALL, "ppo.total_steps=256", "seed=1", f"resume={sweep}/0",
                    f"hydra.run.dir={tmp_path / 'wrong'}", check=False)
-    assert proc.returncode == 1 and "seed is 0, expected this run's 1" in proc.stderr, proc.stderr[-2000:]
+    assert proc.returncode == 2 and "seed is 0, expected this run's 1" in proc.stderr, proc.stderr[-2000:]
     assert len(proc.stderr.strip().splitlines()) == 1 and not (tmp_path / "wrong" / "metrics.json").exists()
     assert {p: p.read_bytes() for p in sweep.rglob("*") if p.is_file()} == finished
 

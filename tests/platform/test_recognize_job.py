@@ -114,3 +114,18 @@ def test_optuna_sweep_keeps_its_study_and_trial_directories(aslexp, tmp_path):
     assert all(-1.0 <= t.value <= 1.0 for t in finished)
     assert {"classifier.params.C", "classifier.params.pooling"} <= set(finished[0].params)
     assert {t.params["classifier.params.pooling"] for t in finished} <= {"mean_std", "summary"}
+
+    # `aslexp report` on the sweep folder (issue 26.7): one table row per model, property and
+    # split, the trial with the best validation objective, named in a log line.
+    best = max(finished, key=lambda t: t.value)
+    out = aslexp("report", str(sweep_dir), "--out", str(tmp_path / "report"))
+    assert "| phoneme | logreg |" in out.stdout and "1 runs (the best by validation of 3)" in out.stdout
+    best_dir = next(p.parent for p in sweep_dir.rglob("run.json")
+                    if json.loads(p.read_text())["main_metric"]["value"] == best.value)
+    assert f"3 runs (e.g. a sweep's trials); the tables show the best by validation val_mcc: {best_dir}" in out.stderr
+    # ... and with one trial's metrics.json emptied: named in one warning line, the others reported.
+    emptied = next(p.parent for p in sweep_dir.rglob("run.json") if p.parent != best_dir) / "metrics.json"
+    emptied.write_text("")
+    out = aslexp("report", str(sweep_dir), "--out", str(tmp_path / "report2"))
+    assert [ln for ln in out.stderr.splitlines() if str(emptied) in ln] == [f"warning: {emptied}: empty file; run skipped"]
+    assert "1 runs (the best by validation of 2)" in out.stdout and "Traceback" not in out.stderr

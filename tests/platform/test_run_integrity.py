@@ -83,7 +83,7 @@ def test_errors_are_one_line_and_tracebacks_come_on_request(tmp_path, override, 
 def test_a_bad_data_root_is_one_line(aslexp, tmp_path):
     proc = aslexp("recognize", "experiment=debug", "classifier=logreg",
                   f"data.root={tmp_path / 'nowhere'}", f"hydra.run.dir={tmp_path / 'r'}", check=False)
-    assert proc.returncode == 1
+    assert proc.returncode == 2  # bad input
     lines = error_lines(proc.stderr)
     assert len(lines) == 1 and "nowhere" in lines[0] and "data root" in lines[0]
     assert json.loads((tmp_path / "r" / "run.json").read_text())["status"] == "failed"

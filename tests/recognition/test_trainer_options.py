@@ -114,6 +114,6 @@ def test_drop_last_and_the_lone_last_batch():
 def test_unknown_choices_are_rejected():
     for key, value in (("optimizer", "rmsprop"), ("lr_schedule", "cosine"), ("selection_metric", "auc"),
                        ("retrain_epochs", "last")):  # fmt: skip
-        with pytest.raises(ValueError, match=f"trainer: {key}="):
+        with pytest.raises(ValueError, match=f"trainer.{key}={value}: expected one of "):
             TrainerConfig.from_dict({key: value})
     assert TrainerConfig.from_dict({"lr_milestones": ["120", 140]}).lr_milestones == (120, 140)

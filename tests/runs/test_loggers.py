@@ -49,7 +49,9 @@ def test_recognize_logs_every_epoch_and_the_config_to_tensorboard(tmp_path):
             "logger=tensorboard", f"hydra.run.dir={run_dir}", env={"ASLEXP_CACHE_DIR": str(tmp_path / "cache")})
     scalars, hparams = read_tensorboard(run_dir)
     metrics = json.loads((run_dir / "metrics.json").read_text())
-    assert [step for step, _ in scalars["val_mcc"]] == [1, 2, 3]
+    # Every number of every epoch, grouped as SB3 and Lightning users expect.
+    for key in ("val/mcc", "val/accuracy", "train/loss", "train/accuracy", "train/lr", "time/epoch_s"):
+        assert [step for step, _ in scalars[key]] == [1, 2, 3], key
     assert hparams["classifier/name"] == "mlp" and hparams["trainer/max_epochs"] == 3.0
     assert hparams["property/name"] == "sign_type" and hparams["seed"] == 0.0
     # The run's final numbers are the hparams' metrics.
@@ -65,11 +67,12 @@ def test_imitate_logs_every_rollout_and_evaluation(tmp_path):
         progress = list(csv.DictReader(fh))
     assert len(progress) == 4  # 512 steps in rollouts of 128
     steps = [int(row["step"]) for row in progress]
-    for tag in ("steps_per_s", "train_reward", "log_std", "seconds"):
+    # progress.csv keeps its columns; the loggers group them as SB3 users expect.
+    for tag in ("time/steps_per_s", "rollout/reward", "train/log_std", "train/learning_rate", "time/seconds"):
         assert [s for s, _ in scalars[tag]] == steps, tag
     evaluated = [int(row["step"]) for row in progress if row.get("eval_reward")]
-    assert [s for s, _ in scalars["eval_reward"]] == evaluated == [256, 512]
-    assert scalars["eval_reward"][-1][1] == pytest.approx(float(progress[-1]["eval_reward"]), abs=1e-5)
+    assert [s for s, _ in scalars["eval/reward"]] == evaluated == [256, 512]
+    assert scalars["eval/reward"][-1][1] == pytest.approx(float(progress[-1]["eval_reward"]), abs=1e-5)
     assert hparams["ppo/steps_per_rollout"] == 128.0 and hparams["motion/name"] == "B"
     metrics = json.loads((run_dir / "metrics.json").read_text())
     assert scalars["hparam/best_eval"][0][1] == pytest.approx(metrics["best_eval"], abs=1e-6)

@@ -131,3 +131,29 @@ def test_sweep_dashboard_serves_the_study_on_loopback(small_sweep: Path) -> None
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_runs_diff_does_not_rank_runs_measured_on_different_splits(tmp_path: Path) -> None:
+    """Two real recognize runs, phoneme and gloss split: their MCCs are not one scale."""
+    import os
+
+    root = Path(__file__).resolve().parents[2]
+    env = {**os.environ, "ASLEXP_CACHE_DIR": str(tmp_path / "cache")}
+    runs = {}
+    for split in ("phoneme", "gloss"):
+        runs[split] = tmp_path / split
+        subprocess.run([sys.executable, "-m", "aslexp.jobs.recognize", "experiment=debug", "classifier=logreg",
+                        f"split={split}", f"hydra.run.dir={runs[split]}"], cwd=root, env=env, check=True,
+                       capture_output=True, timeout=300)
+    d = diff_runs(runs["phoneme"], runs["gloss"])
+    assert d.metric["better"] is None and "split.name" in d.metric["not_comparable"]
+    text = run_cli("runs", "diff", str(runs["phoneme"]), str(runs["gloss"])).stdout
+    assert "(not comparable: they differ in split.name" in text and "is better" not in text
+
+
+def test_bars_of_one_run_claim_no_interval() -> None:
+    from aslexp.tools.report import interval_label
+
+    assert interval_label([1, 1]) == "one unit: no interval"
+    assert interval_label([10, 10]) == "95% CI"
+    assert interval_label([1, 10]) == "95% CI where 2+ units"

@@ -36,9 +36,10 @@ def _study(sweep: Path) -> optuna.Study:
     return optuna.load_study(study_name="quadratic", storage=open_storage(str(sweep / "optuna.journal")))
 
 
-def _runs(study: optuna.Study) -> dict[int, dict]:
-    return {t.number: json.loads((Path(t.user_attrs[ATTR_RUN_DIR]) / "run.json").read_text())
-            for t in study.trials if (Path(t.user_attrs.get(ATTR_RUN_DIR, "/none")) / "run.json").exists()}
+def _runs(study: optuna.Study, sweep: Path) -> dict[int, dict]:
+    # Trial folders are recorded relative to the sweep folder.
+    return {t.number: json.loads((sweep / t.user_attrs[ATTR_RUN_DIR] / "run.json").read_text())
+            for t in study.trials if (sweep / t.user_attrs.get(ATTR_RUN_DIR, "/none") / "run.json").exists()}
 
 
 def _overlap(rows: list[dict[str, str]]) -> bool:
@@ -54,7 +55,7 @@ def test_recipe_a_the_launcher_runs_each_trial_as_a_slurm_job_two_in_flight(tmp_
               timeout=300)
     study = _study(sweep)
     assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 4
-    runs = _runs(study)
+    runs = _runs(study, sweep)
     jobs = [runs[n]["slurm"]["job_id"] for n in sorted(runs)]
     assert len(set(jobs)) == 4  # every trial was its own Slurm job
     for t in study.trials:
@@ -83,7 +84,7 @@ def test_recipe_b_an_array_of_two_workers_shares_one_study(tmp_path):
     assert len(trials) == 6 and all(t.state == optuna.trial.TrialState.COMPLETE for t in trials)
     points = [json.dumps(t.params, sort_keys=True) for t in trials]
     assert len(set(points)) == 6, f"duplicate points: {points}"  # both tasks started together
-    tasks = {run["slurm"]["array_task_id"] for run in _runs(study).values()}
+    tasks = {run["slurm"]["array_task_id"] for run in _runs(study, sweep).values()}
     assert tasks == {"0", "1"}  # both array tasks ran trials
 
 
@@ -150,3 +151,35 @@ def test_extraction_as_an_array_job_one_shard_per_task_resumable(tmp_path):
     wait_for_jobs([again], timeout=600)
     assert {r["State"] for r in accounting([again], array_tasks=(0, 1)).values()} == {"COMPLETED"}
     assert {p: p.stat().st_mtime_ns for p in arrays} == stamps  # resumed: nothing recomputed
+
+
+def test_recipe_a_a_trial_whose_sweep_was_killed_is_waited_for_and_adopted(tmp_path):
+    """SIGKILL of the sweep process (recipe A: it waits for its trial's Slurm job) leaves the job
+    running; the same command resumes, waits for the job and adopts the result its run.json
+    records: no replacement, and study, run.json and `sweep status` agree (issue 26)."""
+    sweep = tmp_path / "sweep"
+    command = ["hydra.sweeper.n_trials=1", "sleep=10", *SLURM]
+    with open(tmp_path / "sweep.err", "w") as err:  # a file: the job does not inherit it
+        proc = subprocess.Popen(sweep_command(sweep, *command), cwd=tmp_path,
+                                stdout=subprocess.DEVNULL, stderr=err)
+    target = sweep / "0" / "run.json"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if target.exists() and json.loads(target.read_text())["status"] == "running":
+            break
+        time.sleep(0.2)
+    job = json.loads(target.read_text())["slurm"]["job_id"]
+    proc.kill()
+    proc.wait()
+    resumed = run_sweep(sweep, *command, timeout=240)
+    log = resumed.stdout + resumed.stderr
+    assert "waiting for trial 0 to adopt its result" in log and f"Slurm job {job}" in log
+    study = _study(sweep)
+    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE]
+    run = json.loads(target.read_text())
+    assert run["status"] == "completed" and run["main_metric"]["value"] == study.trials[0].value
+    assert "result adopted from" in study.trials[0].user_attrs["aslexp_adopted"]
+    assert sorted(p.name for p in sweep.iterdir() if p.is_dir() and not p.name.startswith(".")) == ["0"]
+    assert accounting([job])[job]["State"] == "COMPLETED"
+    status = run_cli("sweep", "status", str(sweep)).stdout
+    assert "budget 1, 1 counted, 0 to go" in status and "complete 1" in status

@@ -14,8 +14,9 @@ from typing import Any
 
 import yaml
 
-PROJECT_ROOT = Path(__file__).resolve().parents[3]
-CONF_DIR = PROJECT_ROOT / "conf"
+from aslexp import paths
+
+CONF_DIR = paths.CONF_DIR
 
 DEFAULTS = {"body": "hand15", "controller": "thesis", "reward": "deepmimic", "env": "default", "engine": "pybullet",
             "ppo": "base"}

@@ -42,11 +42,11 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from aslexp.envs.config import resolve_group
+from aslexp.envs.config import CONF_DIR, load_group_file, resolve_group
 from aslexp.envs.reward import TERMS, ImitationReward, PoseSnapshot, RewardSpec
 from aslexp.sim.body import BodySpec, load_layout
 from aslexp.sim.engine import EngineSpec
-from aslexp.sim.motion import Motion, load_motion
+from aslexp.sim.motion import Motion, MotionFormatError, load_motion
 from aslexp.sim.pd import ControllerSpec, PDController
 from aslexp.sim.reference import ReferenceMotion
 from aslexp import quaternion
@@ -171,15 +171,56 @@ class EnvSpec:
 
 
 def resolve_motion_path(motion: str | os.PathLike, data_root: str | os.PathLike | None) -> Path:
-    """A motion file given absolutely, relative to the current directory, or to the data root."""
+    """A motion file given absolutely, relative to the current directory, or to the data root; or
+    a motion's name in ``conf/motion`` (``"A"``, ``"00433"``)."""
     path = Path(motion).expanduser()
     if path.is_absolute() or path.is_file():
         return path
+    if not path.suffix and len(path.parts) == 1 and (CONF_DIR / "motion" / f"{path}.yaml").is_file():
+        path = Path(load_group_file("motion", str(path))["file"])
     if data_root is None:
         from aslexp.data.root import resolve_data_root
 
         data_root = resolve_data_root(None, must_exist=False)
     return Path(data_root) / path
+
+
+ROOT_TRAVEL_WARNING_M = 0.25  # the thesis' clips hold their root still (0.0 m)
+_warned_travel: set[str] = set()
+
+
+def _warn_travelling_root(motion: Motion, base: str) -> None:
+    """Warn (once per file) when a clip's root travels but the body's root is held still: the
+    pose is then tracked from the wrong place and the reward stays near zero (a walk on a fixed
+    root scores ~0.04)."""
+    if base == "free" or motion.num_frames < 2 or (motion.source or "") in _warned_travel:
+        return
+    root = np.asarray(motion.frames)[:, :3]
+    travel = float(np.linalg.norm(root - root[0], axis=1).max())
+    if travel > ROOT_TRAVEL_WARNING_M:
+        _warned_travel.add(motion.source or "")
+        import logging
+
+        logging.getLogger(__name__).warning(
+            "%s: the root travels %.2f m over the clip, but body.base=%s holds it at its first pose: "
+            "the pose is tracked from the wrong place and the reward will be low; a free root "
+            "follows it (body.base=free)",
+            motion.source or "motion", travel, base)
+
+
+def _bodies_for(found: int | None, data_root: str | os.PathLike | None) -> str:
+    """A hint naming the bodies (``conf/body``) whose motions have ``found`` values per frame."""
+    if found is None:
+        return ""
+    fits = []
+    for path in sorted((CONF_DIR / "body").glob("*.yaml")):
+        try:
+            _, layout = load_layout(BodySpec.from_dict(resolve_group("body", path.stem)), data_root)
+        except Exception:  # noqa: BLE001 - a hint only: a body that cannot load fits nothing
+            continue
+        if layout.motion_columns == found:
+            fits.append(f"body={path.stem}")
+    return f"; {' or '.join(fits)} runs motions of that width" if fits else ""
 
 
 class ImitationEnv(gym.Env):
@@ -244,11 +285,15 @@ class ImitationEnv(gym.Env):
                 )
             self.motion = motion
         else:
-            self.motion = load_motion(resolve_motion_path(motion, self.data_root),
-                                      expected_columns=self.layout.motion_columns,
-                                      quaternions=self.layout.quaternion_columns)
+            try:
+                self.motion = load_motion(resolve_motion_path(motion, self.data_root),
+                                          expected_columns=self.layout.motion_columns,
+                                          quaternions=self.layout.quaternion_columns)
+            except MotionFormatError as err:
+                raise MotionFormatError(f"{err}{_bodies_for(err.found, self.data_root)}") from None
         self.reference = ReferenceMotion(self.motion, self.layout)
         self.control_dt = 1.0 / self.spec_env.control_hz
+        _warn_travelling_root(self.motion, self.body_spec.base)
 
         # -- engine: a simulated character and a kinematic reference in separate worlds ----
         physics = PhysicsConfig(self.spec_env.physics_hz, self.spec_env.gravity, self.spec_env.solver_iterations,

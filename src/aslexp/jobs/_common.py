@@ -32,13 +32,24 @@ from hydra.core.hydra_config import HydraConfig
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from aslexp.runs.logfmt import install_float_rounding
+from aslexp.errors import ConfigError, DataError
+from aslexp.files import describe_os_error
+from aslexp import paths
+from aslexp.runs.logfmt import install_float_rounding, quiet_log_write_errors
 from aslexp.runs.process import Terminated, sigterm_raises, signals_held
-from aslexp.runs.record import RUN_FILE, Run, RunExistsError, finished_run, refuse_finished_run, start_run
+from aslexp.runs.record import (
+    RUN_FILE,
+    Run,
+    RunExistsError,
+    claim_new_folder,
+    finished_run,
+    hold_run_folder,
+    refuse_finished_run,
+    start_run,
+)
 from aslexp.seeding import seed_everything  # noqa: F401  (re-exported for the jobs)
 
-PROJECT_ROOT = Path(__file__).resolve().parents[3]
-CONF_DIR = str(PROJECT_ROOT / "conf")
+CONF_DIR = str(paths.CONF_DIR)  # a clone's conf/, or the copy a wheel carries
 
 log = logging.getLogger("aslexp")
 
@@ -80,6 +91,10 @@ def one_line(error: BaseException) -> str:
     lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
     lines = [ln for ln in lines if not ln.startswith(("full_key:", "object_type=", "reference_type="))]
     text = " ".join(lines)
+    if isinstance(error, ConfigError):
+        return text  # names the key, the value given and what is expected
+    if isinstance(error, OSError):
+        return describe_os_error(error)  # the file it names; "disk full" for ENOSPC
     name = type(error).__name__
     if name in ("ConfigCompositionException", "MissingConfigException", "OverrideParseException",
                 "ConfigKeyError", "InterpolationResolutionError"):
@@ -88,7 +103,10 @@ def one_line(error: BaseException) -> str:
 
 
 def _bad_input(error: BaseException) -> bool:
-    return type(error).__module__.split(".")[0] in ("hydra", "omegaconf")
+    """Exit 2: a config value (ConfigError, Hydra's and OmegaConf's errors), an input file that
+    does not follow its format (DataError: keypoints, motions, checkpoints) or is missing."""
+    return (isinstance(error, (ConfigError, DataError, FileNotFoundError))
+            or type(error).__module__.split(".")[0] in ("hydra", "omegaconf"))
 
 
 def _debug_requested(argv: list[str]) -> bool:
@@ -118,7 +136,7 @@ def _exit_for(error: BaseException, prog: str, debug: bool) -> int:
     if debug:
         traceback.print_exception(error)
     where = f" (run folder {run_dir})" if run_dir else ""
-    hint = "" if debug or run_dir else "; --debug shows the traceback"
+    hint = "" if debug or run_dir or isinstance(error, ConfigError) else "; --debug shows the traceback"
     print(f"{prog}: {one_line(error)}{where}{hint}", file=sys.stderr, flush=True)
     return 2 if _bad_input(error) else 1
 
@@ -163,19 +181,54 @@ def _resolved(config: DictConfig, key: str) -> str | None:
     return None if value is None else str(value)
 
 
+# Keys a resume in place must share with the run it continues (Hydra rewrites the folder's
+# config before the job reads it, so this is checked here, before Hydra writes).
+RESUME_IDENTITY = ("motion.name", "body.name", "seed")
+
+
+def _timestamped(config: DictConfig, key: str) -> bool:
+    """Whether ``key`` is a default, time-stamped folder name (``${now:...}`` in it)."""
+    node, _, leaf = key.rpartition(".")
+    raw = OmegaConf.to_container(OmegaConf.select(config, node), resolve=False)
+    return isinstance(raw, dict) and "${now:" in str(raw.get(leaf, ""))
+
+
 class RunGuard(Callback):
-    """Refuse, before Hydra writes anything, to run into a folder that holds finished runs."""
+    """Claim the run folder before Hydra writes anything into it.
+
+    * A time-stamped default folder is created exclusively: a job started in the same second
+      with the same name (a Slurm array, two terminals) gets ``<name>_2``.
+    * A folder holding a finished run is refused (``overwrite=true`` replaces it).
+    * The folder's run lock is held for the whole job: a second job into it (two resumes of one
+      run, two array tasks given one ``hydra.run.dir``) is refused while the first lives.
+    * An unfinished run's checkpoint is never overwritten by a fresh start; a resume in place
+      must continue the same motion, body and seed.
+    """
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
-        if OmegaConf.select(config, "overwrite", default=False):
-            return
+        from omegaconf import open_dict, read_write
+
         run_dir = _resolved(config, "hydra.run.dir")
         if run_dir is None:
             return
+        overwrite = bool(OmegaConf.select(config, "overwrite", default=False))
         try:
-            refuse_finished_run(run_dir)
+            if _timestamped(config, "hydra.run.dir"):
+                claimed = claim_new_folder(run_dir)
+                if str(claimed) != run_dir:
+                    with read_write(config.hydra.run), open_dict(config.hydra.run):
+                        config.hydra.run.dir = str(claimed)
+                hold_run_folder(claimed)
+                return
+            if not overwrite:
+                refuse_finished_run(run_dir)
+            hold_run_folder(run_dir)
+            if not overwrite:
+                _refuse_unfinished_restart(config, Path(run_dir))
         except RunExistsError as err:
             raise JobAbort(str(err)) from None
+        except OSError as err:  # Hydra would turn an Exception here into a warning and go on
+            raise JobAbort(f"cannot claim the run folder {run_dir}: {err}", code=1) from None
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         target = str(OmegaConf.select(config, "hydra.sweeper._target_", default="") or "")
@@ -193,6 +246,35 @@ class RunGuard(Callback):
                 f"{finished[0]}); nothing was changed: choose another hydra.sweep.dir (the default "
                 "has the date and time), or add overwrite=true to run into it again"
             )
+        try:  # two plain multiruns into one folder would run job 0 twice into <dir>/0
+            hold_run_folder(sweep_dir)
+        except RunExistsError as err:
+            raise JobAbort(str(err)) from None
+
+
+def _refuse_unfinished_restart(config: DictConfig, folder: Path) -> None:
+    """Before Hydra rewrites an unfinished run's folder: a fresh start there would overwrite its
+    checkpoint; a resume in place must continue the same run (RESUME_IDENTITY)."""
+    checkpoint = folder / "checkpoints" / "last.pt"
+    resume = OmegaConf.select(config, "resume", default=None)
+    if resume:
+        target = Path(str(resume)).resolve()
+        if target not in (folder.resolve(), checkpoint.resolve()):
+            return  # resumed from another folder: the job checks that folder's config
+        saved = folder / ".hydra" / "config.yaml"
+        if not saved.is_file():
+            return
+        theirs = OmegaConf.load(saved)
+        for key in RESUME_IDENTITY:
+            mine, old = OmegaConf.select(config, key), OmegaConf.select(theirs, key)
+            if mine is not None and old is not None and str(mine) != str(old):
+                raise JobAbort(f"resume in place: {saved}: {key} is {old!r}, this command asks for "
+                               f"{mine!r}; nothing was changed: resume with the run's own {key}, or "
+                               "start the new one in another hydra.run.dir")
+        return
+    if checkpoint.is_file():
+        raise JobAbort(f"{folder} holds an unfinished run's checkpoint {checkpoint}; nothing was "
+                       f"changed: add resume={folder} to continue it, or overwrite=true to start over")
 
 
 # --------------------------------------------------------------------------- inside the job
@@ -251,6 +333,7 @@ def run_guarded(job: str, cfg: DictConfig, body: Callable[[Run], float]) -> floa
     import optuna
 
     install_float_rounding()
+    quiet_log_write_errors()
     multirun = in_multirun()
     try:
         run = begin(job, cfg)

@@ -30,7 +30,9 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig
 
 from aslexp.data.root import resolve_data_root
+from aslexp.errors import ConfigError
 from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
+from aslexp.jobs.validation import check_config
 from aslexp.runs.loggers import make_logger
 from aslexp.runs.record import Run
 from aslexp.tuning.context import trial_reporter
@@ -87,7 +89,7 @@ def _resume_path(resume: str | None, cfg: dict[str, Any]) -> Path | None:
         for key, theirs, ours in (("motion", (run.get("motion") or {}).get("name"), cfg["motion"]["name"]),
                                   ("seed", run.get("seed"), cfg.get("seed"))):
             if str(theirs) != str(ours):
-                raise ValueError(f"resume: {run_dir / '.hydra' / 'config.yaml'}: {key} is {theirs!r}, "
+                raise ConfigError(f"resume: {run_dir / '.hydra' / 'config.yaml'}: {key} is {theirs!r}, "
                                  f"expected this run's {ours!r}")
     return checkpoint
 
@@ -95,7 +97,7 @@ def _resume_path(resume: str | None, cfg: dict[str, Any]) -> Path | None:
 def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=None) -> dict[str, Any]:
     """The job without Hydra: train, evaluate, draw; returns the metrics. ``metric_logger`` (the
     `logger` group) gets every rollout's and evaluation's row of the trainer's history."""
-    from aslexp.runs.loggers import HistoryLogger, MetricLogger
+    from aslexp.runs.loggers import HistoryLogger, MetricLogger, ppo_tag
 
     import numpy as np
 
@@ -119,7 +121,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
             reporter.report(value, step, final=step >= ppo.total_steps)
 
     trainer = PPOTrainer(make_train_env, eval_env, ppo, out_dir, seed=int(cfg.get("seed") or 0), on_eval=on_eval)
-    history_logger = HistoryLogger(metric_logger or MetricLogger(), trainer.history)
+    history_logger = HistoryLogger(metric_logger or MetricLogger(), trainer.history, rename=ppo_tag)
     try:  # worker processes end with the job, also when a sweep prunes it
         if resume is not None:
             trainer.restore(resume)  # a corrupt or mismatched checkpoint stops here, before any training
@@ -198,6 +200,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
 
 
 def _imitate_run(cfg: DictConfig, run: Run) -> float:
+    check_config("imitate", cfg)  # swept values (the rest: ConfigCheck); a bad one fails this run
     import torch
 
     torch.set_num_threads(int(cfg.ppo.get("torch_threads", 1)))
@@ -218,6 +221,9 @@ def _imitate_run(cfg: DictConfig, run: Run) -> float:
 @job_main("imitate")
 def main(cfg: DictConfig) -> float:
     """Hydra entry point; returns the last evaluation reward (the sweep objective; never the best of many)."""
+    from aslexp.jobs.validation import name_motion_after_its_file
+
+    name_motion_after_its_file(cfg, list(HydraConfig.get().overrides.task))  # multirun jobs too
     return run_guarded("imitate", cfg, lambda run: _imitate_run(cfg, run))
 
 

@@ -14,6 +14,7 @@ from omegaconf import DictConfig
 
 from aslexp.data.wlasl_lex import WlaslLexParams, build_or_load
 from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
+from aslexp.jobs.validation import check_config
 from aslexp.recognition.experiment import run_recognition
 from aslexp.runs.loggers import make_logger
 from aslexp.tuning.context import trial_reporter
@@ -41,6 +42,7 @@ def dataset_params(cfg: DictConfig) -> WlaslLexParams:
 
 
 def recognize(cfg: DictConfig, run) -> float:
+    check_config("recognize", cfg)  # swept values (the rest: ConfigCheck); a bad one fails this run
     seed_everything(int(cfg.seed))
     dataset, dataset_dir = build_or_load(Path(cfg.cache_dir), dataset_params(cfg), root=cfg.data.root)
     log.info(
@@ -53,10 +55,12 @@ def recognize(cfg: DictConfig, run) -> float:
     reporter = trial_reporter(cfg)
     max_epochs = int(cfg.trainer.get("max_epochs") or 0)
 
-    def on_epoch_end(epoch: int, val_mcc: float, metrics: dict | None = None) -> None:
-        metric_logger.log({"val_mcc": val_mcc, **(metrics or {})}, step=epoch)
+    def on_epoch_record(epoch: int, record: dict) -> None:
+        metric_logger.log(grouped(record), step=epoch)
+
+    def on_epoch_end(epoch: int, val_score: float) -> None:
         # The last epoch's report is final: a pruner never discards a finished fit.
-        reporter.report(val_mcc, epoch, final=epoch >= max_epochs)
+        reporter.report(val_score, epoch, final=epoch >= max_epochs)
 
     seeds = [int(cfg.seed) + i for i in range(int(cfg.n_seeds))]
     summary: dict = {}  # the logger's run summary (and TensorBoard hparams metrics)
@@ -68,6 +72,7 @@ def recognize(cfg: DictConfig, run) -> float:
             seeds=seeds,
             out_dir=run.dir,
             on_epoch_end=on_epoch_end,
+            on_epoch_record=on_epoch_record,
             split=to_dict(cfg.split),
         )
         summary = {"val_mcc": result["val_mcc"], **{f"test_{k}": v for k, v in result.get("test", {}).items()}}
@@ -96,6 +101,20 @@ def recognize(cfg: DictConfig, run) -> float:
         test.get("mcc"), test.get("balanced_accuracy"),
     )
     return float(objective["value"])
+
+
+def grouped(record: dict) -> dict:
+    """An epoch's numbers under the groups SB3 and Lightning users know: ``train/loss``,
+    ``train/accuracy``, ``train/lr``, ``val/accuracy``, ``val/mcc`` (``val/<metric>``),
+    ``time/epoch_s``, ``time/clips_per_s``."""
+    names = {"train_loss": "train/loss", "train_accuracy": "train/accuracy", "lr": "train/lr",
+             "epoch_time": "time/epoch_s", "clips_per_s": "time/clips_per_s"}
+    out = {}
+    for key, value in record.items():
+        if key == "epoch":
+            continue
+        out[names.get(key) or (f"val/{key[4:]}" if key.startswith("val_") else key)] = value
+    return out
 
 
 @job_main("recognize")

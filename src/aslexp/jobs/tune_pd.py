@@ -30,6 +30,7 @@ from omegaconf import DictConfig
 
 from aslexp.data.root import resolve_data_root
 from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
+from aslexp.jobs.validation import check_config
 from aslexp.runs.loggers import make_logger
 from aslexp.runs.record import Run
 
@@ -84,6 +85,7 @@ def tune_pd(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
 
 
 def _tune_pd_run(cfg: DictConfig, run: Run) -> float:
+    check_config("tune_pd", cfg)  # swept values (the rest: ConfigCheck); a bad one fails this run
     seed_everything(int(cfg.seed))
     metric_logger, metrics = make_logger(to_dict(cfg.logger), run.dir, to_dict(cfg)), {}
     try:

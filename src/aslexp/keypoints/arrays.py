@@ -43,6 +43,8 @@ def load_npy(path: Path) -> np.ndarray:
         raise FileNotFoundError(f"keypoint file not found: {path}")
     try:
         return np.load(path, allow_pickle=False)
+    except EOFError:  # numpy's word for a 0-byte file (a truncated one is a ValueError)
+        raise DataError(f"{path}: empty file ({path.stat().st_size} bytes), not a .npy array") from None
     except ValueError as error:
         raise DataError(f"{path}: not a plain .npy array ({error})") from None
 

@@ -1,17 +1,19 @@
 """Importers of published keypoint arrays (the thesis' HRNet and FrankMocap arrays).
 
 The published format is SL-GCN's: one ``.npy`` of shape (N, C, T, V, M) (M = 1 person) plus the
-video ids of its rows, in a text file (one id a line, e.g. ``file_list.txt``), a JSON list, or a
-pickle (a list of ids, or SL-GCN's ``(sample_names, labels)`` label pickle). Those arrays were
+video ids of its rows, in a text file (one id a line, e.g. ``file_list.txt``), a CSV file or JSON
+(a list of ids, or SL-GCN's ``[sample_names, labels]``); a pickle is refused (unpickling runs code:
+:data:`CONVERT_PICKLE` converts a trusted SL-GCN label pickle once). Those arrays were
 padded to a fixed T with zeros and store undetected keypoints as 0, so on import a keypoint whose
 channels are all exactly 0 becomes NaN (missing), the same convention as every other source.
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import logging
-import pickle
 from pathlib import Path
 
 import numpy as np
@@ -24,22 +26,55 @@ from aslexp.keypoints.registry import register_source, resolve_layout
 log = logging.getLogger(__name__)
 
 
+ID_FORMATS = (".json (a list of ids, or SL-GCN's [sample_names, labels]), .csv (a video_id column, or the "
+              "first) or .txt (one id a line)")
+# A trusted SL-GCN label pickle, converted once (never unpickled by aslexp):
+CONVERT_PICKLE = ("python -c \"import pickle,sys; d=pickle.load(open(sys.argv[1],'rb')); d=d[0] if isinstance(d,tuple) "
+                  "else d; open(sys.argv[2],'w').write(''.join(str(i)+chr(10) for i in d))\" label.pkl file_list.txt")
+_ID_COLUMNS = ("video_id", "id", "sample_name", "name")
+
+
 def read_video_ids(path: str | Path) -> list[str]:
-    """Video ids, one per array row, from a .txt (one a line), .json (list) or .pkl file."""
+    """Video ids, one per array row, from a .json (a list, or SL-GCN's ``[sample_names, labels]``),
+    .csv (a ``video_id``/``id``/``sample_name``/``name`` column, else the first) or text file (one
+    id a line). A pickle (.pkl/.pickle, or pickle bytes under any name) is refused, never loaded:
+    unpickling a file can run any code."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"video id list not found: {path}")
-    if path.suffix == ".json":
-        ids = json.loads(path.read_text(encoding="utf-8"))
-    elif path.suffix in (".pkl", ".pickle"):
-        with path.open("rb") as handle:
-            ids = pickle.load(handle)  # a trusted, published file
-        if isinstance(ids, tuple) and len(ids) == 2:  # SL-GCN label pickle: (names, labels)
+    with path.open("rb") as handle:
+        first = handle.read(1)
+    if path.suffix.lower() in (".pkl", ".pickle") or first == b"\x80":  # a pickle (protocol 2+) starts so
+        raise DataError(f"{path}: a pickle is not read as an ids file (unpickling it could run code); give the "
+                        f"ids as {ID_FORMATS}; a trusted SL-GCN label pickle converts with: {CONVERT_PICKLE}")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise DataError(f"{path}: not a UTF-8 text file ({exc.reason}); give the ids as {ID_FORMATS}") from None
+    if path.suffix.lower() == ".json":
+        try:
+            ids = json.loads(text)
+        except ValueError as exc:
+            raise DataError(f"{path}: not valid JSON ({exc})") from None
+        if (isinstance(ids, list) and len(ids) == 2 and all(isinstance(part, list) for part in ids)
+                and len(ids[0]) == len(ids[1])):  # SL-GCN's (sample_names, labels), as JSON
             ids = ids[0]
+    elif path.suffix.lower() == ".csv":
+        rows = [row for row in csv.reader(io.StringIO(text)) if any(cell.strip() for cell in row)]
+        header = [cell.strip().lower() for cell in rows[0]] if rows else []
+        column = next((header.index(name) for name in _ID_COLUMNS if name in header), None)
+        if column is not None:
+            rows = rows[1:]
+        column = column or 0
+        short = next((n for n, row in enumerate(rows, 1) if len(row) <= column), None)
+        if short is not None:
+            raise DataError(f"{path}: row {short} has no column {column + 1} (the ids)")
+        ids = [row[column].strip() for row in rows]
     else:
-        ids = [line.strip() for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
-    if not isinstance(ids, (list, tuple)):
-        raise DataError(f"{path}: expected a list of video ids, got {type(ids).__name__}")
+        ids = [line.strip() for line in text.splitlines() if line.strip()]
+    if not isinstance(ids, list) or not all(isinstance(i, (str, int)) and not isinstance(i, bool) for i in ids):
+        got = type(ids).__name__ if not isinstance(ids, list) else "a list holding other than strings and integers"
+        raise DataError(f"{path}: expected a list of video ids, got {got}")
     return [str(Path(str(i)).stem) if str(i).endswith((".mp4", ".npy")) else str(i) for i in ids]
 
 

@@ -600,7 +600,32 @@ def render_overlays(
         _run_worker("overlay", {"options": {"cpus": cpus}, "jobs": jobs}, kdir / "worker.log", on_event)
         for job in jobs:
             results.setdefault(job["video_id"], {"status": "failed", "error": "worker crashed"})
+        if fmt == "mp4":
+            for result in results.values():
+                if result.get("status") == "ok":
+                    result["codec"] = to_h264(Path(result["overlay"]))
     return results
+
+
+def to_h264(path: Path) -> str:
+    """Re-encode an MP4 to H.264 (browsers do not play OpenCV's mp4v) with the ffmpeg the main
+    environment has (imageio-ffmpeg); returns the codec the file ends with."""
+    import subprocess
+
+    from aslexp.files import atomic_path
+    from aslexp.viz.video import ffmpeg_executable
+
+    exe = ffmpeg_executable()
+    if exe is None:
+        return "mp4v"
+    with atomic_path(path) as tmp:
+        done = subprocess.run([exe, "-y", "-loglevel", "error", "-i", str(path), "-c:v", "libx264",
+                               "-pix_fmt", "yuv420p", "-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2",
+                               "-movflags", "+faststart", "-f", "mp4", str(tmp)], capture_output=True)
+        if done.returncode != 0:
+            raise ExtractionError(f"{path}: ffmpeg could not re-encode it to H.264: "
+                                  f"{done.stderr.decode(errors='replace')[-300:]}")
+    return "h264"
 
 
 # ----------------------------------------------------------------------------- .pose files

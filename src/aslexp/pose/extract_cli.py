@@ -9,8 +9,10 @@ Examples::
     aslexp extract VIDEOS/ --out DIR --workers 8                     # 8 MediaPipe processes
     aslexp extract VIDEOS/ --out DIR --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT
 
-Exit code: 0 when every video succeeded, 2 when some failed (listed in the summary), 1 when
-nothing could start (bad arguments, no MediaPipe environment).
+Exit code (as every aslexp command): 0 when the batch ran, also when some videos, overlays or
+motions failed (a video without hands, an unreadable file: each listed with its reason, and a
+last line counting them); 1 when nothing succeeded (every video failed, or no MediaPipe
+environment); 2 for bad input (bad arguments, no videos in the inputs).
 """
 
 from __future__ import annotations
@@ -86,8 +88,9 @@ def extract_main(argv: list[str]) -> int:
         if len(pose_files) < len(args.inputs) or not args.motions:
             print("aslexp extract: .pose inputs are keypoints already: give only .pose files, with "
                   "--motions, to retarget them", file=sys.stderr)  # fmt: skip
-            return 1
-        return 2 if _write_motions(pose_files, args, from_pose=True) else 0
+            return 2
+        problems, written = _write_motions(pose_files, args, from_pose=True)
+        return _batch_end(len(pose_files), written, problems)
     skipped: Counter = Counter()
     summary_name = "summary.json"
     try:
@@ -110,12 +113,12 @@ def extract_main(argv: list[str]) -> int:
             print(f"shard {index}/{count}: {len(jobs)} of {total} videos")
     except ExtractionError as err:
         print(f"aslexp extract: {err}", file=sys.stderr)
-        return 1
+        return 2  # bad input
     if not jobs and not args.shard:
         print("aslexp extract: no videos found in the inputs "
               f"({', '.join(args.inputs or [args.wlasl])}); skipped: {dict(skipped) or 'nothing'}",
               file=sys.stderr)  # fmt: skip
-        return 1
+        return 2
     options = ExtractOptions(face=args.face, hands_model=not args.no_hands_model,
                              cpus=args.cpus or None)  # fmt: skip
     try:
@@ -126,7 +129,7 @@ def extract_main(argv: list[str]) -> int:
         return 1
     summary.skipped_inputs = dict(skipped)
     print(summary.report())
-    failed = bool(summary.failed)
+    problems = [f"  FAILED {vid}: {f.get('reason')}" for vid, f in sorted(summary.failed.items())]
     done = sorted(summary.ok)
     if args.format == "pose" and done:
         written = write_pose_files(args.out, done, force=args.force)
@@ -137,23 +140,37 @@ def extract_main(argv: list[str]) -> int:
         print(f"overlays: {len(results) - len(bad)} written to {Path(args.out) / 'overlay'}")
         for vid, r in sorted(bad.items()):
             print(f"  overlay FAILED {vid}: {r.get('error')}")
-        failed |= bool(bad)
+        problems += [f"  overlay FAILED {vid}: {r.get('error')}" for vid, r in sorted(bad.items())]
     if args.motions and done:
-        failed |= _write_motions(done, args)
+        problems += _write_motions(done, args)[0]
     summary_path = Path(args.out) / summary_name
     data = json.loads(summary_path.read_text())
     data["skipped_inputs"] = dict(skipped)
     summary_path.write_text(json.dumps(data, indent=1))
-    return 2 if failed else 0
+    return _batch_end(len(jobs), len(done), problems)
 
 
-def _write_motions(video_ids: list[str], args, from_pose: bool = False) -> bool:
-    """Motions for extracted videos (ids in --out), or for .pose files (paths) into --out/motions."""
+def _batch_end(total: int, succeeded: int, problems: list[str]) -> int:
+    """The batch's last line and exit code: 0 when anything succeeded (the failures are listed
+    above, each with its reason), 1 when nothing did."""
+    if problems:
+        print(f"done with {len(problems)} problem(s) in {total} input(s), listed above "
+              "(FAILED lines); the rest is written")
+    if total and not succeeded:
+        print(f"aslexp extract: none of the {total} input(s) succeeded", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _write_motions(video_ids: list[str], args, from_pose: bool = False) -> tuple[list[str], int]:
+    """Motions for extracted videos (ids in --out), or for .pose files (paths) into --out/motions;
+    returns the FAILED lines (printed too) and how many inputs gave at least one motion."""
     from aslexp.errors import DataError
     from aslexp.pose.retarget import retarget_video
 
     counts: Counter = Counter()
-    problems = []
+    problems: list[str] = []
+    written = 0
     for vid in video_ids:
         try:
             result = retarget_video(vid if from_pose else args.out, None if from_pose else vid,
@@ -167,10 +184,11 @@ def _write_motions(video_ids: list[str], args, from_pose: bool = False) -> bool:
             counts[f"{part} {r['status']}"] += 1
             if r["status"] != "ok":
                 problems.append(f"  motion FAILED {vid} {part}: {r['error']}")
+        written += any(result[part]["status"] == "ok" for part in ("hand", "upper_body"))
     print(f"motions in {Path(args.out) / 'motions'}: " + ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())))
     for line in problems:
         print(line)
-    return bool(problems)
+    return problems, written
 
 
 if __name__ == "__main__":

@@ -45,6 +45,7 @@ from aslexp.recognition.train import (
     ArraySplit,
     EpochCallback,
     FitResult,
+    RecordCallback,
     TrainerConfig,
     fit,
     fit_final,
@@ -159,6 +160,7 @@ def run_recognition(
     out_dir: str | Path,
     on_epoch_end: EpochCallback | None = None,
     split: Mapping[str, Any] | SplitOptions | None = None,
+    on_epoch_record: RecordCallback | None = None,
 ) -> dict[str, Any]:
     """Validate, retrain and test ``classifier`` = {"name": ..., "params": {...}} on ``dataset``.
 
@@ -245,6 +247,7 @@ def run_recognition(
                 result = fit(
                     model, ArraySplit.from_dataset(view, train_idx), ArraySplit.from_dataset(view, val_idx),
                     config, seed=seed, on_epoch_end=on_epoch_end if first else None, learning_curve=first,
+                    on_epoch_record=on_epoch_record if first else None,
                 )
                 fold_results.append(result)
                 last_model = model

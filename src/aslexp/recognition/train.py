@@ -33,6 +33,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from aslexp.config_schema import TRAINER, check_section
 from aslexp.data.dataset import RecognitionDataset
 from aslexp.recognition.augment import pad_frames, random_shift, random_temporal_crop
 from aslexp.recognition.device import autocast, check_precision, resolve_device
@@ -50,6 +51,8 @@ from aslexp.recognition.models import (
 log = logging.getLogger(__name__)
 
 EpochCallback = Callable[[int, float], None]
+# ``on_epoch_record(epoch, record)``: every number of the epoch (loss, accuracies, lr, timing).
+RecordCallback = Callable[[int, dict], None]
 CHECKPOINT_FORMAT = "aslexp.recognition.checkpoint/1"
 
 
@@ -134,31 +137,13 @@ class TrainerConfig:
         unknown = sorted(set(values) - set(accepted))
         if unknown:
             raise ValueError(f"trainer: unknown keys {unknown}; accepted: {sorted(accepted)}")
-        converted = {}
-        for key, value in values.items():
-            kind = type(accepted[key].default)
-            if kind is int and float(value) != int(float(value)):
-                raise ValueError(f"trainer: {key} must be an integer, got {value!r}")
-            if kind is tuple:
-                converted[key] = tuple(int(v) for v in (value or ()))
-            elif kind is bool:
-                converted[key] = bool(value)
-            elif kind is int:
-                converted[key] = int(float(value))
-            else:
-                converted[key] = kind(value)
+        # Types, ranges and choices: aslexp.config_schema.TRAINER (the recognize job checks the
+        # same before anything runs).
+        converted = check_section("trainer", values, TRAINER)
+        for key in ("lr_milestones", "shift_channels"):
+            if key in converted:
+                converted[key] = tuple(converted[key])
         config = cls(**converted)
-        for key in ("batch_size", "max_epochs", "lr_step_size", "num_threads", "eval_batch_size", "patience",
-                    "smoothing_window"):  # fmt: skip
-            if getattr(config, key) < 1:
-                raise ValueError(f"trainer: {key} must be >= 1, got {getattr(config, key)}")
-        choices = {"optimizer": OPTIMIZERS, "lr_schedule": LR_SCHEDULES, "selection_metric": SELECTION_METRICS,
-                   "retrain_epochs": RETRAIN_BUDGETS}  # fmt: skip
-        for key, allowed in choices.items():
-            if getattr(config, key) not in allowed:
-                raise ValueError(f"trainer: {key}={getattr(config, key)!r}; expected one of {allowed}")
-        if config.warmup_epochs < 0 or config.crop_window < 0 or config.shift < 0:
-            raise ValueError("trainer: warmup_epochs, crop_window and shift must be >= 0")
         return config
 
     def to_dict(self) -> dict[str, Any]:
@@ -167,10 +152,10 @@ class TrainerConfig:
         return values
 
 
-OPTIMIZERS = ("adam", "sgd")
-LR_SCHEDULES = ("step", "multistep", "none")
-SELECTION_METRICS = ("mcc", "f1_micro", "f1_macro", "accuracy", "balanced_accuracy")
-RETRAIN_BUDGETS = ("best", "smoothed")
+OPTIMIZERS = TRAINER["optimizer"].choices
+LR_SCHEDULES = TRAINER["lr_schedule"].choices
+SELECTION_METRICS = TRAINER["selection_metric"].choices
+RETRAIN_BUDGETS = TRAINER["retrain_epochs"].choices
 
 
 def learning_rate(config: TrainerConfig, epoch_index: int) -> float:
@@ -350,6 +335,7 @@ def _sklearn_learning_curve(classifier: SklearnClassifier, train: ArraySplit, va
 def _fit_sklearn(
     classifier: SklearnClassifier, train: ArraySplit, val: ArraySplit | None, config: TrainerConfig, seed: int,
     on_epoch_end: EpochCallback | None, learning_curve: bool = False,
+    on_epoch_record: RecordCallback | None = None,
 ) -> FitResult:
     start = time.perf_counter()
     classifier.fit(train.X, train.mask, train.y, seed=seed, class_weights=config.class_weights)
@@ -367,6 +353,8 @@ def _fit_sklearn(
                        selection_metric=config.selection_metric)  # fmt: skip
     if learning_curve and val is not None:
         result.curve = _sklearn_learning_curve(classifier, train, val, config, seed)
+    if on_epoch_record is not None:
+        on_epoch_record(1, record)
     if on_epoch_end is not None:
         on_epoch_end(1, val_eval["score"])
     return result
@@ -381,6 +369,7 @@ def _train_torch(
     epochs: int,
     early_stopping: bool,
     on_epoch_end: EpochCallback | None,
+    on_epoch_record: RecordCallback | None = None,
 ) -> FitResult:
     torch.set_num_threads(config.num_threads)
     device = resolve_device(config.device)
@@ -469,6 +458,8 @@ def _train_torch(
             lr, record["clips_per_s"], epoch_time, _format_seconds(mean_epoch_time * (epochs - epoch)),
             "  *" if improved else "",
         )
+        if on_epoch_record is not None:
+            on_epoch_record(epoch, record)
         if on_epoch_end is not None:
             on_epoch_end(epoch, score)  # may raise (e.g. optuna.TrialPruned): let it propagate
         if early_stopping and epochs_without_improvement >= config.patience:
@@ -513,6 +504,7 @@ def fit(
     seed: int = 0,
     on_epoch_end: EpochCallback | None = None,
     learning_curve: bool = False,
+    on_epoch_record: RecordCallback | None = None,
 ) -> FitResult:
     """Train ``classifier`` on ``train``, validating on ``val`` after every epoch.
 
@@ -521,6 +513,7 @@ def fit(
     with ``seed`` first (build torch classifiers after seeding, too, for reproducible initial
     weights). ``on_epoch_end(epoch, val_score)`` is called after every epoch (once for
     scikit-learn classifiers); an exception it raises ends training and propagates to the caller.
+    ``on_epoch_record(epoch, record)`` gets the epoch's numbers first (loss, accuracies, lr, timing).
     ``learning_curve`` (scikit-learn only) also fits on growing stratified subsets of ``train``
     and keeps train/validation scores per size in ``FitResult.curve``.
     """
@@ -529,9 +522,10 @@ def fit(
         raise ValueError(f"fit needs non-empty train and val splits, got {len(train)} and {len(val)} clips")
     seed_everything(seed, config.deterministic)
     if isinstance(classifier, SklearnClassifier):
-        return _fit_sklearn(classifier, train, val, config, seed, on_epoch_end, learning_curve)
+        return _fit_sklearn(classifier, train, val, config, seed, on_epoch_end, learning_curve, on_epoch_record)
     if isinstance(classifier, TorchClassifier):
-        return _train_torch(classifier, train, val, config, seed, config.max_epochs, config.early_stopping, on_epoch_end)
+        return _train_torch(classifier, train, val, config, seed, config.max_epochs, config.early_stopping, on_epoch_end,
+                            on_epoch_record)
     raise TypeError(f"cannot train {type(classifier).__name__}")
 
 

@@ -50,6 +50,7 @@ from tensordict import TensorDict
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
+from aslexp.config_schema import PPO, check_section
 from aslexp.rl.checkpoint import load_checkpoint, save_checkpoint
 from aslexp.rl.evaluate import EvaluationSummary, even_phases, evaluate_phases
 from aslexp.rl.noise import ActionNoise
@@ -140,12 +141,11 @@ class PPOConfig:
         unknown = set(values) - set(cls.__dataclass_fields__)
         if unknown:
             raise ValueError(f"ppo config: unknown keys {sorted(unknown)}")
-        values = dict(values)
-        for key in ("hidden_sizes", "actor_hidden_sizes"):
+        # Types and ranges: aslexp.config_schema.PPO (the jobs check the same before anything runs).
+        values = check_section("ppo", values, PPO)
+        for key in ("hidden_sizes", "actor_hidden_sizes", "eval_phases"):
             if values.get(key) is not None:
-                values[key] = tuple(int(h) for h in values[key])
-        if values.get("eval_phases") is not None:
-            values["eval_phases"] = tuple(float(p) for p in values["eval_phases"])
+                values[key] = tuple(values[key])
         return cls(**values)
 
     @property

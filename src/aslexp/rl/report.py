@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from aslexp.quaternion import IDENTITY as IDENTITY_WXYZ, angle as quat_angle
+from aslexp.files import naming_errors
 
 def _pyplot():
     import matplotlib
@@ -69,7 +70,8 @@ def plot_tracking(trajectory: dict[str, np.ndarray], joint_names: list[str], pat
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    with naming_errors(path):  # a full disk names the file
+        fig.savefig(path, dpi=80)
     plt.close(fig)
     return Path(path)
 
@@ -92,7 +94,8 @@ def plot_reward_curve(history: list[dict[str, Any]], baselines: dict[str, float]
     ax.set_title(title)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    with naming_errors(path):  # a full disk names the file
+        fig.savefig(path, dpi=90)
     plt.close(fig)
     return Path(path)
 
@@ -227,7 +230,8 @@ def plot_curves(runs: dict[str, list[dict[str, Any]]], path: Path, title: str,
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=90)
+    with naming_errors(path):  # a full disk names the file
+        fig.savefig(path, dpi=90)
     plt.close(fig)
     return path
 

@@ -8,6 +8,12 @@
     aslexp sweep report SWEEP_DIR [--out DIR]
     aslexp sweep dashboard SWEEP_DIR [--host 127.0.0.1] [--port 8080]
 
+A damaged run file (a run.json of the wrong shape, an empty metrics.json, a bad
+.hydra/overrides.yaml; :mod:`aslexp.runs.read`) is named in one warning line on stderr and the
+tool goes on with the rest: ``runs list`` skips a run without a usable run.json, ``sweep status``
+names the damaged files of trial folders, ``sweep best`` falls back to the overrides the study
+recorded; ``runs diff`` of a damaged run prints that line and exits 2.
+
 ``--storage URL`` (or the environment variable ASLEXP_OPTUNA_STORAGE) reads a sweep whose study
 lives in a database whose password sweep.json does not keep. Also runnable as
 ``python -m aslexp.runs.cli runs|sweep ...``.
@@ -80,10 +86,11 @@ def runs_main(argv: list[str]) -> int:
         return 0
 
     from aslexp.runs.diff import NotARunError, diff_runs, format_diff
+    from aslexp.runs.read import RunFileError
 
     try:
         result = diff_runs(args.run_a, args.run_b)
-    except NotARunError as err:
+    except (NotARunError, RunFileError) as err:  # one line: the folder or the damaged file, and why
         print(f"aslexp runs diff: {err}", file=sys.stderr)
         return 2
     print(json.dumps(result.as_dict(), indent=2, default=str) if args.json else format_diff(result))
@@ -128,6 +135,7 @@ def sweep_main(argv: list[str]) -> int:
     try:
         study, info = open_sweep(args.sweep_dir, storage=args.storage, study_name=args.study)
         if args.command == "status":
+            sweep_report.check_trial_files(study)  # damaged run files: one warning line each
             summary = sweep_report.status_summary(study, info, args.sweep_dir)
             print(json.dumps(summary, indent=2, default=str) if args.json
                   else sweep_report.format_status(summary, args.sweep_dir))

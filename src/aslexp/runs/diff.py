@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from aslexp.runs.listing import read_config, read_overrides
-from aslexp.runs.record import RUN_FILE, read_json
+from aslexp.runs.read import load_config, load_overrides, load_run_info
+from aslexp.runs.record import RUN_FILE
 
 _MISSING = object()
 
@@ -86,7 +86,7 @@ def _load_run(path: str | os.PathLike) -> tuple[Path, dict[str, Any]]:
         raise NotARunError(f"{path}: no such directory")
     if not (path / RUN_FILE).exists() and not (path / ".hydra" / "config.yaml").exists():
         raise NotARunError(f"{path} is not a run directory (no {RUN_FILE}, no .hydra/config.yaml)")
-    info = read_json(path / RUN_FILE) if (path / RUN_FILE).exists() else {}
+    info = load_run_info(path) if (path / RUN_FILE).exists() else {}
     return path, info
 
 
@@ -117,18 +117,36 @@ def _metric(info_a: dict[str, Any], info_b: dict[str, Any]) -> dict[str, Any]:
     return result
 
 
+# Config keys that define what a main metric measures (the data, the task, the protocol): runs
+# that differ in one are not comparable by that number.
+EVALUATION_KEYS = ("split", "property", "data.root", "data.lexicon", "data.movement_none_as_missing",
+                   "pose", "motion", "body", "reward", "engine",
+                   "tuning.motion", "tuning.random", "tuning.objective", "tuning.steps",
+                   "ppo.eval_steps", "ppo.eval_episodes", "ppo.phases")
+
+
+def not_comparable(keys: list[str]) -> list[str]:
+    """The keys among ``keys`` (dotted) that change what the main metric measures."""
+    return [k for k in keys if any(k == e or k.startswith(e + ".") for e in EVALUATION_KEYS)]
+
+
 def diff_runs(a: str | os.PathLike, b: str | os.PathLike) -> RunDiff:
     path_a, info_a = _load_run(a)
     path_b, info_b = _load_run(b)
-    changed, added, removed = diff_mappings(read_config(path_a), read_config(path_b))
-    over_a, over_b = read_overrides(path_a), read_overrides(path_b)
+    changed, added, removed = diff_mappings(load_config(path_a), load_config(path_b))
+    over_a, over_b = load_overrides(path_a), load_overrides(path_b)
     ctx_a, ctx_b = _context(info_a), _context(info_b)
     context = {k: (ctx_a.get(k), ctx_b.get(k)) for k in sorted(ctx_a.keys() | ctx_b.keys())
                if ctx_a.get(k) != ctx_b.get(k)}
-    return RunDiff(a=path_a, b=path_b, changed=changed, added=added, removed=removed,
+    result = RunDiff(a=path_a, b=path_b, changed=changed, added=added, removed=removed,
                    overrides_a_only=[o for o in over_a if o not in over_b],
                    overrides_b_only=[o for o in over_b if o not in over_a],
                    context=context, metric=_metric(info_a, info_b))
+    differs = not_comparable([*changed, *added, *removed])
+    if differs and result.metric.get("better") is not None:
+        result.metric["better"] = None
+        result.metric["not_comparable"] = differs
+    return result
 
 
 def _show(value: Any) -> str:
@@ -156,7 +174,10 @@ def format_diff(d: RunDiff) -> str:
     if m.get("name_a") or m.get("name_b"):
         name = m["name_a"] if m["name_a"] == m["name_b"] else f"{m['name_a']} / {m['name_b']}"
         text = f"main metric {name} ({m.get('goal') or '?'}): A {_show(m['a'])}  B {_show(m['b'])}"
-        if m["delta"] is not None:
+        if m.get("not_comparable"):
+            shown = ", ".join(m["not_comparable"][:4]) + (", ..." if len(m["not_comparable"]) > 4 else "")
+            text += f"  (not comparable: they differ in {shown})"
+        elif m["delta"] is not None:
             text += f"  delta {m['delta']:+.6g}"
             text += "  (same)" if m["better"] == "same" else f"  ({m['better'].upper()} is better)"
         lines.append(text)

@@ -4,7 +4,8 @@ A run directory is any folder with a run.json (see :mod:`aslexp.runs.record`); i
 come from Hydra's ``.hydra/overrides.yaml`` and its resolved config from ``.hydra/config.yaml``.
 A run whose run.json still says "running" but whose process on this machine is gone (killed,
 out of memory, the machine's power) is listed as ``lost``; a sweep's resume records its trials
-as interrupted.
+as interrupted. A damaged file (see :mod:`aslexp.runs.read`) is named in one warning line: a run
+without a usable run.json is skipped, one without usable overrides or config is listed without.
 """
 
 from __future__ import annotations
@@ -20,8 +21,9 @@ from typing import Any
 
 import yaml
 
+from aslexp.runs import read
 from aslexp.runs.process import process_is_gone
-from aslexp.runs.record import RUN_FILE, read_json
+from aslexp.runs.record import RUN_FILE
 
 log = logging.getLogger(__name__)
 
@@ -52,22 +54,14 @@ class RunSummary:
 
 
 def read_overrides(run_dir: str | os.PathLike) -> list[str]:
-    path = Path(run_dir) / ".hydra" / "overrides.yaml"
-    if not path.exists():
-        return []
-    with open(path, encoding="utf-8") as fh:
-        loaded = yaml.safe_load(fh)
-    return [str(x) for x in loaded] if isinstance(loaded, list) else []
+    """The run's overrides; [] when absent or damaged (a warning names the file)."""
+    return read.read_overrides(run_dir) or []
 
 
 def read_config(run_dir: str | os.PathLike) -> dict[str, Any]:
-    """The run's resolved config (``.hydra/config.yaml``) as plain containers, {} if absent."""
-    path = Path(run_dir) / ".hydra" / "config.yaml"
-    if not path.exists():
-        return {}
-    with open(path, encoding="utf-8") as fh:
-        loaded = yaml.safe_load(fh)
-    return loaded if isinstance(loaded, dict) else {}
+    """The run's resolved config (``.hydra/config.yaml``) as plain containers; {} when absent or
+    damaged (a warning names the file)."""
+    return read.read_config(run_dir) or {}
 
 
 def find_run_dirs(roots: Iterable[str | os.PathLike]) -> Iterator[Path]:
@@ -83,10 +77,9 @@ def find_run_dirs(roots: Iterable[str | os.PathLike]) -> Iterator[Path]:
 
 
 def summarise(run_dir: Path) -> RunSummary | None:
-    try:
-        info = read_json(run_dir / RUN_FILE)
-    except (OSError, ValueError) as err:
-        log.warning("skipping %s: unreadable %s (%s)", run_dir, RUN_FILE, err)
+    """The run's row; None (after a warning naming the file) when its run.json is damaged."""
+    info = read.read_run_info(run_dir)
+    if info is None:
         return None
     main = info.get("main_metric") or {}
     value = main.get("value")
@@ -133,11 +126,9 @@ def list_runs(roots: Iterable[str | os.PathLike], job: str | None = None,
               limit: int | None = None) -> list[RunSummary]:
     """Runs under ``roots``, filtered and sorted (time: newest first; metric: best first)."""
     runs = []
-    skipped = 0
     for run_dir in find_run_dirs(roots):
         run = summarise(run_dir)
-        if run is None:
-            skipped += 1
+        if run is None:  # named in its warning line
             continue
         if job and run.job != job:
             continue
@@ -148,9 +139,6 @@ def list_runs(roots: Iterable[str | os.PathLike], job: str | None = None,
         if not matches(run, where or []):
             continue
         runs.append(run)
-    if skipped:
-        log.warning("%d run director%s skipped (unreadable run.json)", skipped,
-                    "y" if skipped == 1 else "ies")
     if sort == "metric":
         def key(r: RunSummary) -> tuple:
             value = r.metric_value

@@ -54,3 +54,35 @@ def install_float_rounding() -> None:
 
     logging.setLogRecordFactory(rounded_record)
     _installed = True
+
+
+_quiet = False
+
+
+def quiet_log_write_errors() -> None:
+    """A log file that cannot be written (a full disk) says so in one line, once per file.
+
+    Python's default prints a traceback for every record a handler fails to write: on a full
+    disk, dozens of them bury the one line that says what happened (idempotent).
+    """
+    global _quiet
+    if _quiet:
+        return
+    import sys
+
+    warned: set[str] = set()
+
+    def handle_error(self: logging.Handler, record: logging.LogRecord) -> None:
+        error = sys.exc_info()[1]
+        target = getattr(self, "baseFilename", None) or type(self).__name__
+        if target in warned:
+            return
+        warned.add(target)
+        try:
+            print(f"aslexp: cannot write the log {target} ({error}); its records are lost until "
+                  "this is fixed, the console keeps them", file=sys.stderr, flush=True)
+        except OSError:
+            pass
+
+    logging.Handler.handleError = handle_error  # type: ignore[method-assign]
+    _quiet = True

@@ -174,13 +174,36 @@ class HistoryLogger:
     """Forwards the rows a job appends to a history list (``{"step": ..., metric: value}``) to a
     logger: each ``flush()`` logs the rows added since the last one, at their own step."""
 
-    def __init__(self, logger: MetricLogger, history: list[dict[str, Any]]):
+    def __init__(self, logger: MetricLogger, history: list[dict[str, Any]],
+                 rename: Any = None) -> None:
         self.logger, self.history, self.logged = logger, history, 0
+        self.rename = rename or (lambda key: key)  # a row's key -> the logged tag
 
     def flush(self) -> None:
         for row in self.history[self.logged :]:
-            self.logger.log({k: v for k, v in row.items() if k != "step"}, int(row.get("step", self.logged)))
+            self.logger.log({self.rename(k): v for k, v in row.items() if k != "step"},
+                            int(row.get("step", self.logged)))
             self.logged += 1
+
+
+_PPO_TIME = {"seconds", "env_steps_per_s", "steps_per_s"}
+
+
+def ppo_tag(key: str) -> str:
+    """A PPO history key as the tag SB3 users know: ``rollout/`` (training episodes' reward and
+    terms), ``eval/`` (evaluations), ``train/`` (losses, KL, log std, learning rate), ``time/``
+    (seconds, steps per second), ``counts/`` (NaN actions, divergences, early ends)."""
+    if key in _PPO_TIME:
+        return f"time/{key}"
+    if key.startswith("train_"):
+        return f"rollout/{key[6:]}"
+    if key.startswith("eval_"):
+        return f"eval/{key[5:]}"
+    if key == "last_eval":
+        return "eval/last"
+    if key.startswith("count_"):
+        return f"counts/{key[6:]}"
+    return f"train/{key}"
 
 
 def make_logger(cfg: dict[str, Any], run_dir: Path, run_config: dict[str, Any]) -> MetricLogger:

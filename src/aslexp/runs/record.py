@@ -71,6 +71,60 @@ def refuse_finished_run(run_dir: str | os.PathLike) -> None:
         )
 
 
+LOCK_FILE = ".aslexp-run.lock"  # held (flock) by the one process running in the folder
+_held_locks: dict[str, Any] = {}  # run folder -> open lock file, kept for the process' lifetime
+
+
+class RunFolderBusy(RunExistsError):
+    """Another live process runs in this folder."""
+
+
+def claim_new_folder(run_dir: str | os.PathLike) -> Path:
+    """Create ``run_dir`` exclusively; if it exists, ``<name>_2``, ``<name>_3``, ... (the first
+    free one). Jobs started in the same second with the same default name never share a folder."""
+    base = Path(run_dir)
+    base.parent.mkdir(parents=True, exist_ok=True)
+    candidate, k = base, 1
+    while True:
+        try:
+            candidate.mkdir(exist_ok=False)
+            return candidate
+        except FileExistsError:
+            k += 1
+            candidate = base.with_name(f"{base.name}_{k}")
+
+
+def hold_run_folder(run_dir: str | os.PathLike) -> None:
+    """Take the folder's run lock for the rest of this process (the kernel drops it on exit).
+
+    Raises :class:`RunFolderBusy`, naming the holder, if another live process holds it: two jobs
+    (two resumes of one run, two array tasks given one ``hydra.run.dir``) never share a folder.
+    """
+    import fcntl
+
+    folder = Path(run_dir)
+    key = str(folder.resolve())
+    if key in _held_locks:
+        return
+    folder.mkdir(parents=True, exist_ok=True)
+    handle = open(folder / LOCK_FILE, "a+", encoding="utf-8")
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        handle.seek(0)
+        holder = handle.read().strip() or "another process"
+        handle.close()
+        raise RunFolderBusy(
+            f"{folder} is in use by another aslexp job ({holder}); nothing was changed: wait for "
+            "it, or choose another hydra.run.dir"
+        ) from None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(f"pid {os.getpid()} on {socket.gethostname()} since {_now()}\n")
+    handle.flush()
+    _held_locks[key] = handle
+
+
 def _now() -> str:
     return _dt.datetime.now().astimezone().isoformat(timespec="seconds")
 

@@ -41,6 +41,17 @@ def format_status(summary: dict[str, Any], sweep_dir: Path) -> str:
     if summary.get("lost"):
         lines.append(f"  ({summary['lost']} of the running trials' workers are gone: they are marked "
                      "interrupted when the sweep resumes)")
+    if summary.get("orphans_finished"):
+        lines.append(f"  ({summary['orphans_finished']} of the running trials' workers are gone but "
+                     "their jobs finished: the resume adopts their results from run.json)")
+    if summary.get("orphans_running"):
+        lines.append(f"  ({summary['orphans_running']} of the running trials' workers are gone but "
+                     "their jobs still run: the resume waits for them and adopts their results)")
+    adopted = summary.get("adopted") or []
+    if adopted:
+        shown = ", ".join(str(n) for n in adopted[:10]) + (", ..." if len(adopted) > 10 else "")
+        lines.append(f"  (results adopted from their run folder after their worker was gone: "
+                     f"{len(adopted)} trial(s): {shown})")
     if summary.get("other_studies"):
         lines.append("other studies in this folder: " + ", ".join(summary["other_studies"]))
     failed = summary.get("failed") or []
@@ -73,7 +84,7 @@ def format_best(best: dict[str, Any]) -> str:
 def failed_trials(study: optuna.Study) -> list[dict[str, Any]]:
     from aslexp.tuning.study import trial_summary
 
-    return [trial_summary(t) for t in study.get_trials(deepcopy=False, states=(TrialState.FAIL,))]
+    return [trial_summary(t, study.study_name) for t in study.get_trials(deepcopy=False, states=(TrialState.FAIL,))]
 
 
 def write_report(study: optuna.Study, sweep_dir: Path, out_dir: Path | None = None) -> list[Path]:
@@ -130,6 +141,27 @@ def write_report(study: optuna.Study, sweep_dir: Path, out_dir: Path | None = No
     return written
 
 
+def check_trial_files(study: optuna.Study) -> int:
+    """Read every trial folder's run.json, metrics.json (of a completed trial) and overrides; each
+    damaged file is named in one warning line (the study's own record is unaffected). Returns how
+    many were damaged."""
+    from aslexp.runs import read
+    from aslexp.runs.record import METRICS_FILE, RUN_FILE
+    from aslexp.tuning.worker import ATTR_RUN_DIR, run_dir_of
+
+    damaged = 0
+    for trial in study.get_trials(deepcopy=False):
+        run_dir = run_dir_of(trial.user_attrs.get(ATTR_RUN_DIR), study.study_name)
+        if not run_dir or not (Path(run_dir) / RUN_FILE).is_file():
+            continue
+        what = f"trial {trial.number}'s folder: the study's record of it stands"
+        damaged += read.read_run_info(run_dir, what) is None
+        if trial.state == TrialState.COMPLETE and (Path(run_dir) / METRICS_FILE).exists():
+            damaged += read.read_metrics(run_dir, what) is None
+        damaged += read.read_overrides(run_dir, what) is None
+    return damaged
+
+
 def serve_dashboard(study: optuna.Study, host: str = "127.0.0.1", port: int = 8080) -> None:
     """Serve the study's storage in optuna-dashboard until interrupted (blocks)."""
     try:
@@ -142,4 +174,4 @@ def serve_dashboard(study: optuna.Study, host: str = "127.0.0.1", port: int = 80
 
 
 __all__ = ["best_summary", "status_summary", "format_status", "format_best", "write_report",
-           "serve_dashboard", "failed_trials"]
+           "serve_dashboard", "failed_trials", "check_trial_files"]

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aslexp.errors import DataError
 from aslexp.files import atomic_path
 
 log = logging.getLogger("aslexp.motion")
@@ -29,8 +30,14 @@ ROOT_COLUMNS = 7  # root position (3) + root quaternion (4)
 QUATERNION_TOLERANCE = 0.5  # |norm - 1| above this: not a unit quaternion (DeepMimic's own files reach 0.42)
 
 
-class MotionFormatError(ValueError):
-    """A motion file or array that does not follow the format (the message names file and field)."""
+class MotionFormatError(DataError):
+    """A motion file or array that does not follow the format (the message names file and field).
+
+    ``found``: the values per frame the file has, when the width was what did not fit."""
+
+    def __init__(self, message: str, found: int | None = None) -> None:
+        super().__init__(message)
+        self.found = found
 
 
 class Motion:
@@ -271,7 +278,7 @@ def load_motion(
         raise MotionFormatError(
             f"{path}: the model expects {expected_columns} values per frame "
             f"({expected_columns + 1} columns with dt) but the file has {found} "
-            f"({found + 1} columns with dt)"
+            f"({found + 1} columns with dt)", found=found
         )
     loop = payload.get("Loop", "wrap")
     return Motion(data[:, 1:], data[:, 0], loop=loop, quaternions=quaternions, source=str(path))

@@ -25,6 +25,13 @@ layout and lexicon (a suffix names the group when a folder holds more than one):
                                       models misclassify, per task, with mean ± std over the six tasks;
                                       the mutual misclassification (clips in 2 (3) test sets wrong for
                                       every model on all of them); the per-model error overlap
+    runs.md / runs.csv                the runs of other jobs (tune_pd, imitate, ...), per job best
+                                      main metric first: folder, status, main metric, overrides
+
+A folder with several runs of one split, model and property (an Optuna sweep's trials) is
+reported by the one with the best validation objective (run.json's main metric), named in a log
+line; test numbers never choose. A damaged run.json or metrics.json is named in one warning line
+and its run left out (:mod:`aslexp.runs.read`).
 """
 
 from __future__ import annotations
@@ -32,44 +39,105 @@ from __future__ import annotations
 import argparse
 import csv
 import io
-import json
 import logging
 import math
+import sys
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from aslexp.runs.record import METRICS_FILE, RUN_FILE, read_json, write_json
+from aslexp.runs import read
+from aslexp.runs.record import METRICS_FILE, RUN_FILE, write_json
 
 log = logging.getLogger(__name__)
 
 
-def find_recognition_runs(paths: list[Path]) -> tuple[list[dict[str, Any]], dict[str, int]]:
-    """Completed recognition runs under ``paths``; counts what was skipped and why."""
-    runs, skipped = [], defaultdict(int)
+_OBJECT_KEYS = ("context", "objective", "baseline", "split_sizes", "paired_vs_baseline")
+_CONTEXT_KEYS = ("split", "property", "classifier")
+
+
+def _recognition_problem(metrics: dict[str, Any]) -> str | None:
+    """What a recognition run's metrics.json lacks for the tables (None: nothing)."""
+    for key in _OBJECT_KEYS:
+        if not isinstance(metrics.get(key), dict):
+            return f'"{key}" is missing or not an object'
+    for key in _CONTEXT_KEYS:
+        if not isinstance(metrics["context"].get(key), str):
+            return f'"context.{key}" is missing or not a string'
+    return None
+
+
+def find_runs(paths: list[Path]) -> tuple[list[dict[str, Any]], list[dict[str, Any]], dict[str, int]]:
+    """(completed recognition runs, runs of other jobs, what was skipped and why) under ``paths``.
+    A damaged run.json or metrics.json is named in one warning line and its run skipped."""
+    runs, others, skipped = [], [], defaultdict(int)
     for base in paths:
         if not base.exists():
-            raise FileNotFoundError(f"aslexp report: {base} does not exist")
+            raise FileNotFoundError(f"{base}: no such file or directory")
         for run_file in sorted(base.rglob(RUN_FILE)):
             run_dir = run_file.parent
-            try:
-                info = read_json(run_file)
-            except (OSError, json.JSONDecodeError):
-                skipped["unreadable run.json"] += 1
+            info = read.read_run_info(run_dir)
+            if info is None:
+                skipped["damaged run.json"] += 1
                 continue
             if info.get("job") != "recognize":
-                skipped[f"job {info.get('job')}"] += 1
+                others.append({"dir": run_dir, "info": info})
                 continue
             if info.get("status") != "completed" or not (run_dir / METRICS_FILE).exists():
                 skipped[f"status {info.get('status')}"] += 1
                 continue
-            metrics = read_json(run_dir / METRICS_FILE)
+            metrics = read.read_metrics(run_dir)
+            if metrics is None:
+                skipped["damaged metrics.json"] += 1
+                continue
             if "test_interval" not in metrics:
                 skipped["metrics.json of an older format (no test_interval)"] += 1
                 continue
-            layout = metrics.get("layout", {}).get("name", metrics["context"].get("pose"))
+            problem = _recognition_problem(metrics)
+            if problem:
+                read.warn(read.RunFileError(run_dir / METRICS_FILE, problem), "run skipped")
+                skipped["damaged metrics.json"] += 1
+                continue
+            layout = (metrics.get("layout") or {}).get("name", metrics["context"].get("pose"))
             runs.append({"dir": run_dir, "info": info, "metrics": metrics, **metrics["context"], "layout": layout})
-    return runs, dict(skipped)
+    return runs, others, dict(skipped)
+
+
+def find_recognition_runs(paths: list[Path]) -> tuple[list[dict[str, Any]], dict[str, int]]:
+    """Completed recognition runs under ``paths``; counts what was skipped and why."""
+    runs, others, skipped = find_runs(paths)
+    for run in others:
+        skipped[f"job {run['info'].get('job')}"] = skipped.get(f"job {run['info'].get('job')}", 0) + 1
+    return runs, skipped
+
+
+def _validation_key(run: dict[str, Any]) -> float:
+    """A run's validation objective, larger is better (run.json's main metric and goal, else
+    metrics.json's objective, maximised); -inf when it has none."""
+    main = run["info"].get("main_metric") or {}
+    value = main.get("value")
+    if value is None:
+        value = (run["metrics"].get("objective") or {}).get("value")
+    value = _finite(value, -math.inf)
+    return -value if main.get("goal") == "minimize" and math.isfinite(value) else value
+
+
+def best_by_validation(members: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One run per (split, model, property): where a folder holds several (an Optuna sweep's
+    trials, repeated runs), the one with the best validation objective, with a log line; test
+    numbers never choose."""
+    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = defaultdict(list)
+    for run in members:
+        groups[(str(run["split"]), str(run["classifier"]), str(run["property"]))].append(run)
+    chosen = []
+    for (split, model, prop), group in groups.items():
+        best = max(group, key=_validation_key)
+        if len(group) > 1:
+            name = (best["info"].get("main_metric") or {}).get("name") or "objective"
+            log.info("%s split, %s, %s: %d runs (e.g. a sweep's trials); the tables show the best by validation "
+                     "%s: %s", split, model, prop, len(group), name, best["dir"])
+        chosen.append(best)
+    return chosen
 
 
 def read_predictions(run_dir: Path) -> dict[tuple[int, int], dict[str, tuple[str, str]]]:
@@ -125,6 +193,13 @@ def best_vs_baseline(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
             "run": str(best["dir"]),
         })  # fmt: skip
     return rows
+
+
+def interval_label(units: list[int]) -> str:
+    """What the whiskers of bars over ``units`` (splits or seeds per bar) show: an interval
+    needs two units or more."""
+    spread = [u >= 2 for u in units]
+    return "95% CI" if all(spread) else "95% CI where 2+ units" if any(spread) else "one unit: no interval"
 
 
 def best_vs_baseline_markdown(rows: list[dict[str, Any]]) -> str:
@@ -241,7 +316,12 @@ def plot_best_vs_baseline(rows: list[dict[str, Any]], path: Path) -> None:
             low = np.array([_finite(r[f"test_{metric}_low"], b) for r, b in zip(sub, best)])
             high = np.array([_finite(r[f"test_{metric}_high"], b) for r, b in zip(sub, best)])
             base = [_finite(r[f"baseline_{metric}"], 0.0) for r in sub]
-            ax.bar(x - 0.2, best, 0.4, yerr=[best - low, high - best], capsize=3, label="best model (by validation), 95% CI")
+            # An interval needs two units (splits or seeds) or more: one run gets a bar, no whisker.
+            spread = np.array([(r.get("units") or 0) >= 2 for r in sub])
+            yerr = [np.where(spread, best - low, 0.0), np.where(spread, high - best, 0.0)]
+            what = interval_label([r.get("units") or 0 for r in sub])
+            ax.bar(x - 0.2, best, 0.4, yerr=yerr if spread.any() else None, capsize=3,
+                   label=f"best model (by validation), {what}")
             ax.bar(x + 0.2, base, 0.4, label="chance baseline", color="0.6")
             ax.set_xticks(x, [f"{r['property']}\n({r['model']})" for r in sub], fontsize=7)
             ax.set_title(f"{split} split: {label}")
@@ -373,7 +453,44 @@ def write_run_plots(members: list[dict[str, Any]], out_dir: Path) -> list[Path]:
     return written
 
 
+def _metric_order(run: dict[str, Any]) -> tuple:
+    """Completed runs with a finite main metric first, best first (by its goal); then the rest."""
+    info = run["info"]
+    main = info.get("main_metric") or {}
+    value = _finite(main.get("value"), math.nan)
+    if info.get("status") != "completed" or math.isnan(value):
+        return (1, 0.0, str(run["dir"]))
+    return (0, value if main.get("goal") == "minimize" else -value, str(run["dir"]))
+
+
+def runs_table(others: list[dict[str, Any]], base: Path) -> tuple[str, str]:
+    """The runs of jobs other than recognize (a tune_pd or imitate sweep, the quadratic job), per
+    job best first: (markdown, csv) of run folder, status, main metric and overrides."""
+    header = ["job", "run", "status", "main metric", "value", "goal", "overrides"]
+    rows = []
+    for run in sorted(others, key=lambda r: (str(r["info"].get("job")), _metric_order(r))):
+        info, main = run["info"], run["info"].get("main_metric") or {}
+        try:
+            where = str(run["dir"].resolve().relative_to(base.resolve()))
+        except ValueError:
+            where = str(run["dir"])
+        overrides = [o for o in read.read_overrides(run["dir"]) or [] if not o.startswith("hydra.")]
+        value = main.get("value")
+        rows.append([str(info.get("job") or "-"), where, str(info.get("status") or "-"), str(main.get("name") or "-"),
+                     "-" if value is None else f"{value:.6g}", str(main.get("goal") or "-"), " ".join(overrides)])
+    markdown = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    markdown += ["| " + " | ".join(cell.replace("|", "\\|") or "-" for cell in row) + " |" for row in rows]
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(header)
+    writer.writerows(rows)
+    return "\n".join(markdown) + "\n", buffer.getvalue()
+
+
 def write_report(paths: list[Path], out_dir: Path) -> dict[str, Any]:
+    """The recognition tables of the completed recognition runs under ``paths`` (one run per
+    split, model and property: the best by validation where a sweep ran several) and runs.md /
+    runs.csv for the runs of other jobs."""
     from aslexp.recognition.report import (
         collect_table,
         comparisons,
@@ -383,21 +500,31 @@ def write_report(paths: list[Path], out_dir: Path) -> dict[str, Any]:
         thesis_ch4_table,
     )
 
-    runs, skipped = find_recognition_runs(paths)
+    runs, others, skipped = find_runs(paths)
     if skipped:
         log.info("skipped run directories: %s", skipped)
-    if not runs:
-        raise SystemExit(f"aslexp report: no completed recognition runs under {', '.join(map(str, paths))}")
+    if not runs and not others:
+        raise SystemExit(f"aslexp report: no completed recognition runs and no runs of other jobs under "
+                         f"{', '.join(map(str, paths))}")
     out_dir.mkdir(parents=True, exist_ok=True)
+    result: dict[str, Any] = {"runs": len(runs), "other_runs": len(others), "skipped": skipped, "table": "",
+                              "best_vs_baseline": "", "runs_table": "", "out_dir": str(out_dir)}
+    if others:
+        markdown, table_csv = runs_table(others, out_dir)
+        (out_dir / "runs.md").write_text(markdown, encoding="utf-8")
+        (out_dir / "runs.csv").write_text(table_csv, encoding="utf-8")
+        result["runs_table"] = markdown
     groups: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
     for run in runs:
         groups[(str(run.get("lexicon")), str(run["layout"]))].append(run)
     tables, best_md = [], []
-    for (lexicon, layout), members in sorted(groups.items()):
+    for (lexicon, layout), found in sorted(groups.items()):
         suffix = "" if len(groups) == 1 else f"_{lexicon}_{layout}"
+        members = best_by_validation(found)
         cells = [{"model": r["classifier"], "property": r["property"], "split": r["split"], "metrics": r["metrics"]}
                  for r in members]  # fmt: skip
-        heading = f"{lexicon}, {layout}: {len(members)} runs\n\n"
+        chosen = "" if len(members) == len(found) else f" (the best by validation of {len(found)})"
+        heading = f"{lexicon}, {layout}: {len(members)} runs{chosen}\n\n"
         markdown, table_csv = collect_table(cells)
         (out_dir / f"table{suffix}.md").write_text(heading + markdown, encoding="utf-8")
         (out_dir / f"table{suffix}.csv").write_text(table_csv, encoding="utf-8")
@@ -419,8 +546,8 @@ def write_report(paths: list[Path], out_dir: Path) -> dict[str, Any]:
         write_json(out_dir / f"agreement{suffix}.json", agreement(members))
         tables.append(heading + markdown)
         best_md.append(heading + best_vs_baseline_markdown(best))
-    return {"runs": len(runs), "skipped": skipped, "table": "\n".join(tables), "best_vs_baseline": "\n".join(best_md),
-            "out_dir": str(out_dir)}  # fmt: skip
+    result.update({"table": "\n".join(tables), "best_vs_baseline": "\n".join(best_md)})
+    return result
 
 
 def report_main(argv: list[str]) -> int:
@@ -430,8 +557,19 @@ def report_main(argv: list[str]) -> int:
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: first path)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
+    missing = [path for path in args.paths if not path.exists()]
+    if missing:
+        print(f"aslexp report: {missing[0]}: no such file or directory", file=sys.stderr)
+        return 2
     result = write_report(args.paths, args.out or args.paths[0])
-    print(f"{result['runs']} recognition runs -> {result['out_dir']}\n")
-    print(result["table"])
-    print(result["best_vs_baseline"])
+    if result["runs"]:
+        print(f"{result['runs']} recognition runs -> {result['out_dir']}\n")
+        print(result["table"])
+        print(result["best_vs_baseline"])
+    if result["other_runs"]:
+        print(f"{result['other_runs']} runs of other jobs -> {Path(result['out_dir']) / 'runs.md'}\n")
+        print(result["runs_table"])
+    for path in args.paths:
+        if (path / "sweep.json").is_file():
+            print(f"{path} is an Optuna sweep: `aslexp sweep report {path}` draws its study (history, importances)")
     return 0

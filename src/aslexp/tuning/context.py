@@ -11,9 +11,16 @@ at its final one. A pruner never discards a finished trial.
 The sweeper passes the trial as JSON in the environment variable ``ASLEXP_TRIAL`` (set through
 ``hydra.job.env_set``, so it reaches the job in-process, in a submitit subprocess or on a Slurm
 node alike, and stays out of the job's config):
-``{"storage": SPEC, "study_name": ..., "trial_id": ..., "number": ..., "pruner": {...}}``.
-A job in the sweeper's own process uses the sweeper's live trial object; any other process
-loads the study from the storage.
+``{"storage": SPEC, "study_name": ..., "trial_id": ..., "number": ..., "pruner": {...},
+"heartbeat": SECONDS}``. A job in the sweeper's own process uses the sweeper's live trial
+object; any other process loads the study from the storage, and there:
+
+* refuses to run a trial the study has finished already (its worker was gone before the job
+  started, say a Slurm job that waited in the queue, and a resume gave the trial up and ran a
+  replacement): :class:`TrialGivenUp`, recorded in run.json as the job's error;
+* refreshes the trial's heartbeat every ``heartbeat`` seconds while it runs, so that a sweep
+  that lost the job's worker can tell, from any host, that the job still runs and wait for its
+  result rather than run a replacement.
 """
 
 from __future__ import annotations
@@ -43,12 +50,15 @@ class TrialContext:
     trial_id: int
     number: int
     pruner: Mapping[str, Any] | None = None
+    heartbeat: float | None = None  # seconds between the job's heartbeats (None: none)
 
     def to_json(self) -> str:
-        return json.dumps({"storage": self.storage, "study_name": self.study_name,
-                           "trial_id": self.trial_id, "number": self.number,
-                           "pruner": dict(self.pruner or {})},
-                          sort_keys=True, separators=(",", ":"))
+        data = {"storage": self.storage, "study_name": self.study_name,
+                "trial_id": self.trial_id, "number": self.number,
+                "pruner": dict(self.pruner or {})}
+        if self.heartbeat:
+            data["heartbeat"] = self.heartbeat
+        return json.dumps(data, sort_keys=True, separators=(",", ":"))
 
     @classmethod
     def from_json(cls, text: str) -> "TrialContext":
@@ -56,9 +66,18 @@ class TrialContext:
             data = json.loads(text)
             return cls(storage=str(data["storage"]), study_name=str(data["study_name"]),
                        trial_id=int(data["trial_id"]), number=int(data["number"]),
-                       pruner=data.get("pruner") or None)
+                       pruner=data.get("pruner") or None,
+                       heartbeat=float(data["heartbeat"]) if data.get("heartbeat") else None)
         except (ValueError, KeyError, TypeError) as err:
             raise ValueError(f"{ENV_VAR} is not a trial description ({err}): {text[:200]!r}") from err
+
+
+class TrialGivenUp(RuntimeError):
+    """The job's trial is finished in the study already: the job must not run it."""
+
+
+# Heartbeats of the trials this process runs as a job (kept so they are started once).
+_JOB_HEARTBEATS: dict[tuple[str, int], Any] = {}
 
 
 def register_live_trial(study_name: str, trial: Any) -> None:
@@ -130,4 +149,19 @@ def trial_reporter(cfg: Mapping[str, Any] | None = None) -> NullReporter | Trial
 
     study = optuna.load_study(study_name=context.study_name, storage=open_storage(context.storage),
                               pruner=make_pruner(context.pruner))
+    frozen = study._storage.get_trial(context.trial_id)
+    if frozen.state.is_finished():
+        from aslexp.tuning.worker import ATTR_ERROR
+
+        why = frozen.user_attrs.get(ATTR_ERROR)
+        raise TrialGivenUp(
+            f"trial {context.number} of study {context.study_name!r} is already "
+            f"{frozen.state.name.lower()} in the study" + (f" ({why})" if why else "") +
+            ": its sweep gave it up before this job started; the job does not run it")
+    if context.heartbeat and (context.study_name, context.trial_id) not in _JOB_HEARTBEATS:
+        from aslexp.tuning.worker import Heartbeat
+
+        # Ends with the process (a daemon thread), or at the first beat after the trial ended.
+        _JOB_HEARTBEATS[(context.study_name, context.trial_id)] = Heartbeat(
+            study, context.trial_id, context.heartbeat).__enter__()
     return TrialReporter(optuna.trial.Trial(study, context.trial_id))

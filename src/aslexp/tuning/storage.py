@@ -12,15 +12,20 @@ Passwords: prefer ``~/.pgpass`` or ``PGPASSWORD`` to a password in the URL; tool
 storage into files (sweep.json) strip the password with :func:`redact`. PostgreSQL needs the
 driver: ``pip install 'aslexp[postgres]'``.
 
-A journal file whose last record was torn (a writer killed or a disk filled mid-append) is
-repaired when it is opened: the file is backed up, the partial record cut off, and a warning
-names the file and the byte offset. The torn record was never acknowledged to anyone, so nothing
-that happened is lost. Damage inside the file is refused with the file, line and byte offset.
+Every append to a journal file is all-or-nothing (:class:`AtomicJournalFileBackend`): a write
+that comes back short or fails (a full disk, a file-size limit) is cut back to the last whole
+record and retried for ``JOURNAL_FULL_DISK_WAIT`` seconds, then refused with one line naming the
+file; a record is never glued onto a torn one. A torn last record (a writer killed mid-append)
+is cut off by the next writer, under the write lock, after a backup copy and a warning naming the
+file and the byte offset; the torn record was never acknowledged to anyone, so nothing that
+happened is lost. Readers (``open_storage(spec, read_only=True)``: the sweep tools) write nothing,
+take no lock and skip a torn tail. Damage inside the file is refused with the file, line and byte.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import fcntl
 import hashlib
 import json
@@ -43,6 +48,9 @@ from optuna.storages.journal._file import BaseJournalFileLock  # not re-exported
 log = logging.getLogger(__name__)
 
 DEFAULT_JOURNAL = "optuna.journal"
+# How long an append waits for a full disk (or a file-size limit) to clear before it gives up.
+JOURNAL_FULL_DISK_WAIT = float(os.environ.get("ASLEXP_JOURNAL_FULL_DISK_WAIT", "120"))
+_NO_SPACE = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
 
 class StorageError(RuntimeError):
@@ -79,13 +87,15 @@ def redact(spec: str) -> str:
     return urlunsplit(parts._replace(netloc=f"{user}@{netloc}" if user else netloc))
 
 
-def open_storage(spec: str, retries: int = 5) -> BaseStorage:
+def open_storage(spec: str, retries: int = 5, read_only: bool = False) -> BaseStorage:
     """Open (creating if needed) the storage named by ``spec``.
 
     Several workers starting at once may race to create an RDB schema; that is retried.
+    ``read_only``: a journal file is read without creating, repairing or locking anything (the
+    sweep tools: a sweep on a read-only file system, or another user's, reads back).
     """
     if not is_database_url(spec):
-        return _open_journal(Path(spec))
+        return _open_journal(Path(spec), read_only=read_only)
     if urlsplit(spec).scheme.startswith("postgresql"):
         _require_postgres_driver(spec)
     last: Exception | None = None
@@ -122,20 +132,119 @@ def _require_postgres_driver(spec: str) -> None:
                            f"installed: {POSTGRES_EXTRA_HINT}")
 
 
-def _open_journal(path: Path) -> JournalStorage:
-    """A journal file storage, its torn tail (if any) repaired first."""
-    lock = FlockJournalLock(path)
+def _open_journal(path: Path, read_only: bool = False) -> JournalStorage:
+    """A journal file storage; a writer's journal gets its torn tail (if any) repaired first."""
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        if path.exists():
-            with _held(lock):
-                repair_torn_tail(path)
+        if read_only:
+            if not path.is_file():
+                raise StorageError(f"journal file {path} does not exist")
+            backend: JournalFileBackend = ReadOnlyJournalFileBackend(str(path))
+        else:
+            lock = FlockJournalLock(path)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if path.exists():
+                with _held(lock):
+                    repair_torn_tail(path)
+            backend = AtomicJournalFileBackend(str(path), lock_obj=lock)
         try:
-            return JournalStorage(JournalFileBackend(str(path), lock_obj=lock))
+            return JournalStorage(backend)
         except (ValueError, UnicodeDecodeError) as err:  # JSONDecodeError is a ValueError
             raise StorageError(damage_report(path) or f"journal file {path} cannot be read: {err}") from None
     except OSError as err:
         raise StorageError(f"cannot open journal file {path}: {err}") from err
+
+
+class JournalWriteError(StorageError):
+    """A journal record that could not be written; the file was left at its last whole record."""
+
+
+class AtomicJournalFileBackend(JournalFileBackend):
+    """Optuna's journal file backend with all-or-nothing appends.
+
+    Optuna appends with one buffered ``write``: on a full disk part of a record can land, the
+    error is swallowed by a heartbeat thread, and the next record is glued onto the torn one
+    (every later reader then refuses the file). Here, under the write lock: a torn tail left by a
+    killed writer is cut off first; the records are written with ``os.write`` until every byte is
+    down and fsynced; on any error the file is truncated back to where it was. A full disk (or a
+    file-size limit) is retried with backoff for ``full_disk_wait`` seconds, so a brief one costs a
+    pause, not the study; after that the error names the file and says nothing was written.
+    """
+
+    def __init__(self, file_path: str, lock_obj: BaseJournalFileLock | None = None,
+                 full_disk_wait: float | None = None) -> None:
+        super().__init__(file_path, lock_obj=lock_obj)
+        self.full_disk_wait = JOURNAL_FULL_DISK_WAIT if full_disk_wait is None else full_disk_wait
+
+    def append_logs(self, logs: list[dict[str, Any]]) -> None:
+        data = ("\n".join(json.dumps(r, separators=(",", ":")) for r in logs) + "\n").encode("utf-8")
+        path = Path(self._file_path)
+        deadline = time.monotonic() + self.full_disk_wait
+        delay, warned = 0.1, False
+        with _held(self._lock):
+            while True:
+                try:
+                    _append_whole(path, data)
+                    if warned:
+                        log.warning("%s: written again after the full disk cleared", path)
+                    return
+                except OSError as err:
+                    full = err.errno in _NO_SPACE
+                    if not full or time.monotonic() + delay > deadline:
+                        what = "the disk is full" if full else str(err)
+                        raise JournalWriteError(
+                            f"journal file {path}: {what}; the record was not written and the file "
+                            "ends at its last whole record (free space, then resume the sweep)"
+                        ) from err
+                    if not warned:
+                        log.warning("%s: the disk is full (%s); the record was cut back and is "
+                                    "retried for up to %.0f s", path, err.strerror,
+                                    self.full_disk_wait)
+                        warned = True
+                    time.sleep(delay)
+                    delay = min(delay * 2, 5.0)
+
+
+def _append_whole(path: Path, data: bytes) -> None:
+    """Append ``data`` entirely or not at all (call with the journal's write lock held)."""
+    if path.stat().st_size:
+        repair_torn_tail(path)  # a writer killed mid-append: never glue a record onto it
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND)
+    try:
+        start = os.fstat(fd).st_size
+        try:
+            view = memoryview(data)
+            while view:
+                written = os.write(fd, view)
+                if written <= 0:
+                    raise OSError(errno.ENOSPC, "short write", str(path))
+                view = view[written:]
+            os.fsync(fd)
+        except BaseException:
+            os.ftruncate(fd, start)  # frees what landed: the file ends at its last whole record
+            raise
+    finally:
+        os.close(fd)
+
+
+class ReadOnlyJournalFileBackend(JournalFileBackend):
+    """Reads a journal file and never writes: no file created, no lock taken.
+
+    A torn last record (a writer died mid-append) is skipped by Optuna's reader; the next writer
+    cuts it off.
+    """
+
+    def __init__(self, file_path: str) -> None:
+        self._file_path = file_path
+        self._lock = None  # type: ignore[assignment]
+        self._log_number_offset = {0: 0}
+        with open(file_path, "rb") as fh:
+            size = fh.seek(0, os.SEEK_END)
+            if size and (fh.seek(size - 1), fh.read(1))[1] != b"\n":
+                log.warning("%s: the last record is torn (a writer died mid-append); it is skipped "
+                            "here and cut off by the sweep's next writer", file_path)
+
+    def append_logs(self, logs: list[dict[str, Any]]) -> None:
+        raise StorageError(f"journal file {self._file_path} was opened read-only")
 
 
 @contextlib.contextmanager

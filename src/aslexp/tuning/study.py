@@ -23,7 +23,6 @@ from typing import Any
 import optuna
 from optuna.trial import FrozenTrial, TrialState
 
-from aslexp.runs.process import process_is_gone
 from aslexp.runs.record import read_json, write_json
 from aslexp.tuning.storage import (
     default_storage,
@@ -34,7 +33,17 @@ from aslexp.tuning.storage import (
     resolve_spec,
     study_names,
 )
-from aslexp.tuning.worker import ATTR_ERROR, ATTR_OVERRIDES, ATTR_RUN_DIR, ATTR_WORKER, state_counts
+from aslexp.tuning.worker import (
+    ATTR_ADOPTED,
+    ATTR_ERROR,
+    ATTR_OVERRIDES,
+    ATTR_RUN_DIR,
+    INTERRUPTED,
+    judge_running_trial,
+    register_sweep_dir,
+    run_dir_of,
+    state_counts,
+)
 
 SWEEP_FILE = "sweep.json"
 STUDIES_DIR = "studies"  # homes of the further studies of a sweep folder
@@ -72,9 +81,17 @@ def _now() -> str:
     return _dt.datetime.now().astimezone().isoformat(timespec="seconds")
 
 
-def write_sweep_info(sweep_dir: str | os.PathLike, info: SweepInfo) -> None:
+def write_sweep_info(sweep_dir: str | os.PathLike, info: SweepInfo,
+                     root: str | os.PathLike | None = None) -> None:
+    """Write ``sweep_dir/sweep.json``. A journal inside ``root`` (the sweep folder; default
+    ``sweep_dir``) is recorded relative to ``sweep_dir``: a moved or copied sweep folder reads
+    its own journal, never the original's."""
     path = Path(sweep_dir) / SWEEP_FILE
     path.parent.mkdir(parents=True, exist_ok=True)
+    if info.storage and not is_database_url(info.storage) and Path(info.storage).is_absolute():
+        journal, top = Path(info.storage).resolve(), Path(root or sweep_dir).resolve()
+        if journal.is_relative_to(top):
+            info.storage = os.path.relpath(journal, Path(sweep_dir).resolve())
     if path.exists():
         try:
             info.created = read_json(path).get("created") or info.created
@@ -89,7 +106,13 @@ def read_sweep_info(sweep_dir: str | os.PathLike) -> SweepInfo | None:
     path = Path(sweep_dir) / SWEEP_FILE
     if not path.exists():
         return None
-    return SweepInfo.from_dict(read_json(path))
+    try:
+        data = read_json(path)
+    except ValueError as err:
+        raise ValueError(f"{path}: not valid JSON ({err})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a JSON {type(data).__name__}, expected an object")
+    return SweepInfo.from_dict(data)
 
 
 def safe_name(name: str) -> str:
@@ -114,7 +137,7 @@ def study_home(sweep_dir: str | os.PathLike, info: SweepInfo, write: bool = True
         else:
             home = sweep_dir / STUDIES_DIR / safe_name(info.study_name)
         if write or not (home / SWEEP_FILE).exists():
-            write_sweep_info(home, info)
+            write_sweep_info(home, info, root=sweep_dir)
     return home
 
 
@@ -174,12 +197,22 @@ def open_sweep(sweep_dir: str | os.PathLike, storage: str | None = None,
     ``study_name`` other than the folder's own study: that study's home under studies/.
     """
     sweep_dir = Path(sweep_dir)
-    info = read_sweep_info(sweep_dir)
-    if study_name and info is not None and info.study_name != study_name:
-        home = sweep_dir / STUDIES_DIR / safe_name(study_name)
-        info = read_sweep_info(home) or info
+    info_dir = sweep_dir  # the folder of the sweep.json read: its storage path is relative to it
+    try:
+        info = read_sweep_info(sweep_dir)
+        if study_name and info is not None and info.study_name != study_name:
+            home = sweep_dir / STUDIES_DIR / safe_name(study_name)
+            own = read_sweep_info(home)
+            info, info_dir = (own, home) if own is not None else (info, info_dir)
+    except (OSError, ValueError) as err:  # a damaged sweep.json: one line, no traceback
+        raise StudyError(f"{' '.join(str(err).split())}; pass --storage and --study to read the study "
+                         "without it") from None
     if storage is None:
-        storage = os.environ.get("ASLEXP_OPTUNA_STORAGE") or (info.storage if info else None)
+        storage = os.environ.get("ASLEXP_OPTUNA_STORAGE")
+        if storage is None and info is not None:
+            storage = info.storage  # a journal inside the folder is recorded relative to it
+            if not is_database_url(storage) and not Path(storage).is_absolute():
+                storage = str(info_dir / storage)
     if storage is None:
         if not (sweep_dir / "optuna.journal").exists():
             raise StudyError(f"{sweep_dir} is not a sweep directory: no {SWEEP_FILE} and no "
@@ -188,7 +221,7 @@ def open_sweep(sweep_dir: str | os.PathLike, storage: str | None = None,
     spec = resolve_spec(storage, sweep_dir)
     if not is_database_url(spec) and not Path(spec).exists():
         raise StudyError(f"journal file {spec} of sweep {sweep_dir} does not exist")
-    backend = open_storage(spec)
+    backend = open_storage(spec, read_only=True)  # the tools write nothing, lock nothing
     names = study_names(backend)
     name = study_name or (info.study_name if info else None)
     if name is None:
@@ -197,20 +230,22 @@ def open_sweep(sweep_dir: str | os.PathLike, storage: str | None = None,
         name = names[0]
     if name not in names:
         raise StudyError(f"no study {name!r} in {redact(spec)} (it holds {names})")
+    register_sweep_dir(name, info_dir)  # trial folders are recorded relative to the study's home
     return optuna.load_study(study_name=name, storage=backend), info
 
 
 # --------------------------------------------------------------------------- summaries
 
 
-def trial_summary(trial: FrozenTrial) -> dict[str, Any]:
+def trial_summary(trial: FrozenTrial, study_name: str | None = None) -> dict[str, Any]:
     return {
         "number": trial.number,
         "state": trial.state.name.lower(),
         "value": trial.value,
         "params": dict(trial.params),
         "error": trial.user_attrs.get(ATTR_ERROR),
-        "run_dir": trial.user_attrs.get(ATTR_RUN_DIR),
+        "adopted": trial.user_attrs.get(ATTR_ADOPTED),
+        "run_dir": run_dir_of(trial.user_attrs.get(ATTR_RUN_DIR), study_name),
         "overrides": list(trial.user_attrs.get(ATTR_OVERRIDES) or []),
         "started": trial.datetime_start.isoformat(timespec="seconds") if trial.datetime_start else None,
         "finished": trial.datetime_complete.isoformat(timespec="seconds") if trial.datetime_complete else None,
@@ -220,12 +255,18 @@ def trial_summary(trial: FrozenTrial) -> dict[str, Any]:
 
 def status_summary(study: optuna.Study, info: SweepInfo | None,
                    sweep_dir: str | os.PathLike | None = None) -> dict[str, Any]:
-    """Counts by state against the budget, the best trial; ``lost``: running trials whose
-    worker (on this machine) is gone; ``other_studies``: further studies in ``sweep_dir``."""
+    """Counts by state against the budget, the best trial; ``other_studies``: further studies
+    in ``sweep_dir``. Running trials whose worker (on this machine) is gone, as the next worker
+    will settle them (:func:`aslexp.tuning.worker.judge_running_trial`): ``lost`` (to be marked
+    interrupted), ``orphans_finished`` (their job finished: its result will be adopted),
+    ``orphans_running`` (their job still runs: waited for, then adopted). Nothing is changed."""
     trials = study.get_trials(deepcopy=False)
     counts = state_counts(trials)
-    lost = sum(1 for t in trials if t.state == TrialState.RUNNING
-               and process_is_gone(t.user_attrs.get(ATTR_WORKER)))
+    verdicts = [judge_running_trial(t, grace_period=float("inf"), study_name=study.study_name)
+                for t in trials if t.state == TrialState.RUNNING]
+    lost = sum(1 for v in verdicts if v.action == INTERRUPTED)
+    finished = sum(1 for v in verdicts if v.action == "adopt")
+    orphans = sum(1 for v in verdicts if v.action == "wait")
     summary: dict[str, Any] = {
         "study_name": study.study_name,
         "direction": study.direction.name.lower(),
@@ -233,14 +274,17 @@ def status_summary(study: optuna.Study, info: SweepInfo | None,
         "trials": len(trials),
         "counts": dict(sorted(counts.items())),
         "lost": lost,
+        "orphans_finished": finished,
+        "orphans_running": orphans,
+        "adopted": [t.number for t in trials if t.user_attrs.get(ATTR_ADOPTED)],
         "other_studies": [str(p) for p in other_studies(sweep_dir)] if sweep_dir else [],
         "best": None,
     }
-    summary["failed"] = [trial_summary(t) for t in trials
+    summary["failed"] = [trial_summary(t, study.study_name) for t in trials
                          if t.state == TrialState.FAIL and t.user_attrs.get(ATTR_ERROR)]
     completed = [t for t in trials if t.state == TrialState.COMPLETE]
     if completed:
-        summary["best"] = trial_summary(study.best_trial)
+        summary["best"] = trial_summary(study.best_trial, study.study_name)
     return summary
 
 
@@ -250,18 +294,15 @@ def rerun_command(job: str, overrides: list[str], python_module: str | None = No
     return shlex.join([*head, *overrides])
 
 
-def trial_overrides(trial: FrozenTrial) -> list[str]:
+def trial_overrides(trial: FrozenTrial, study_name: str | None = None) -> list[str]:
     """The task overrides a trial's job got: from its run directory, else from the study."""
-    run_dir = trial.user_attrs.get(ATTR_RUN_DIR)
-    if run_dir:
-        path = Path(run_dir) / ".hydra" / "overrides.yaml"
-        if path.exists():
-            import yaml
+    run_dir = run_dir_of(trial.user_attrs.get(ATTR_RUN_DIR), study_name)
+    if run_dir and (Path(run_dir) / ".hydra" / "overrides.yaml").exists():
+        from aslexp.runs.read import read_overrides  # a damaged file: one warning line naming it
 
-            with open(path, encoding="utf-8") as fh:
-                loaded = yaml.safe_load(fh)
-            if isinstance(loaded, list):
-                return [str(x) for x in loaded]
+        loaded = read_overrides(run_dir, consequence="the overrides the study recorded are used")
+        if loaded is not None:
+            return loaded
     return [str(x) for x in trial.user_attrs.get(ATTR_OVERRIDES) or []]
 
 
@@ -270,9 +311,9 @@ def best_summary(study: optuna.Study, info: SweepInfo | None) -> dict[str, Any]:
     if not completed:
         raise StudyError(f"study {study.study_name!r} has no completed trial yet")
     best = study.best_trial
-    overrides = trial_overrides(best)
+    overrides = trial_overrides(best, study.study_name)
     job = info.job if info else "JOB"
-    result = trial_summary(best)
+    result = trial_summary(best, study.study_name)
     result.update({
         "job": job,
         "direction": study.direction.name.lower(),

@@ -9,20 +9,31 @@ study. Guarantees, for journal-file, SQLite and PostgreSQL storages:
   ``n_trials`` counted trials, and a resumed sweep runs exactly the missing ones.
 * **No trial twice.** Each trial is created by ``study.ask()`` in the storage (atomic in the
   journal file and in the database) and run by the worker that created it only.
-* **Dead workers.** A RUNNING trial whose worker is gone is marked FAIL with
-  ``aslexp_state = "interrupted"`` before anyone counts: at once when the worker ran on this host
-  and its process no longer exists (a zombie counts as gone), otherwise when its heartbeat is
-  older than ``grace_period``. Interrupted trials do not count, so the sweep runs a replacement.
+* **Dead workers.** A RUNNING trial whose worker is gone (on this host: its process no longer
+  exists, a zombie counts as gone; anywhere: its heartbeat is older than ``grace_period``) is
+  settled before anyone counts, from its run folder first (:func:`judge_running_trial`): a job
+  that finished without its worker (a separate process: submitit's local executor, Slurm) is
+  *adopted*, its run.json's result (completed with a finite main metric, pruned, failed) told
+  to the study; a job that still runs is waited for (the trial stays RUNNING and counts; the
+  worker that spends the budget waits for it before it stops); otherwise the trial is marked
+  FAIL with ``aslexp_state = "interrupted"``. Interrupted trials do not count, so the sweep
+  runs a replacement.
 * **One story.** The trial's run folder is known before its job starts; whenever the study
   records a trial as interrupted, a run.json still saying "running" says so too.
 * **Signals.** Ctrl-C or SIGTERM records the running trial as interrupted; further signals
-  during that bookkeeping are held off, so it is never cut in half.
+  during that bookkeeping are held off, so it is never cut in half. A trial whose job runs in
+  another process and goes on after the signal (it did not get it: ``kill -INT`` of the sweep
+  alone, a Slurm job) is left RUNNING for the resume to adopt; one that ends within
+  ``_SETTLE_AFTER_SIGNAL`` seconds is recorded as it ended.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import math
+import os
+import socket
 import threading
 import time
 import traceback
@@ -30,14 +41,22 @@ from collections import Counter
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import Any
 
 import optuna
+import yaml
 from optuna.distributions import BaseDistribution
 from optuna.trial import FrozenTrial, Trial, TrialState
 
-from aslexp.runs.process import process_identity, process_is_gone, sigterm_raises, signals_held
-from aslexp.runs.record import mark_interrupted
+from aslexp.runs.process import (
+    boot_id,
+    process_identity,
+    process_is_gone,
+    sigterm_raises,
+    signals_held,
+)
+from aslexp.runs.record import RUN_FILE, mark_interrupted, read_json
 from aslexp.tuning.storage import budget_lock
 
 log = logging.getLogger(__name__)
@@ -45,12 +64,16 @@ log = logging.getLogger(__name__)
 ATTR_STATE = "aslexp_state"          # "interrupted" for trials lost to a dead or stopped worker
 ATTR_ERROR = "aslexp_error"          # why a trial failed (exception text, NaN, ...)
 ATTR_WORKER = "aslexp_worker"        # {"host", "boot", "pid", "start"} of the worker running it
-ATTR_HEARTBEAT = "aslexp_heartbeat"  # unix time of the worker's last sign of life
+ATTR_HEARTBEAT = "aslexp_heartbeat"  # unix time of the last sign of life of the worker or its job
 ATTR_OVERRIDES = "aslexp_overrides"  # the trial's Hydra task overrides, as passed to the job
-ATTR_RUN_DIR = "aslexp_run_dir"      # the trial's run directory
+ATTR_RUN_DIR = "aslexp_run_dir"      # the trial's run folder, relative to the sweep folder
+ATTR_ADOPTED = "aslexp_adopted"      # why the result came from the run folder, not the worker
 INTERRUPTED = "interrupted"
+TRIAL_ENV = "ASLEXP_TRIAL"           # = aslexp.tuning.context.ENV_VAR (the job's trial context)
 
 _ERROR_CHARS = 4000
+_SETTLE_AFTER_SIGNAL = 3.0  # seconds a stopped worker waits for its job to record how it ended
+_ORPHAN_POLL = 1.0          # seconds between looks at orphaned jobs when only they are left
 
 
 class DirectionMismatchError(RuntimeError):
@@ -74,6 +97,7 @@ class WorkerSummary:
     trials: list[int] = field(default_factory=list)
     states: Counter = field(default_factory=Counter)
     stale_failed: list[int] = field(default_factory=list)
+    adopted: list[int] = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------- worker identity
@@ -117,39 +141,258 @@ def _mark_failed(study: optuna.Study, trial_id: int, error: str, interrupted: bo
         return False
 
 
-def fail_stale_trials(study: optuna.Study, grace_period: float, now: float | None = None,
-                      trials: Iterable[FrozenTrial] | None = None) -> list[int]:
-    """Mark trials of dead workers FAIL (interrupted); returns their numbers.
+@dataclass
+class Verdict:
+    """What to do with a RUNNING trial (see :func:`judge_running_trial`)."""
+
+    action: str                   # "alive" | "wait" | "adopt" | "interrupted"
+    reason: str = ""              # why (the worker's fate, and its job's)
+    outcome: Outcome | None = None  # "adopt": the job's own result, from its run.json
+    run_dir: str | None = None    # the trial's run folder (None: none, or another trial's run)
+
+
+# The sweep folder of each study this process works on (the sweeper's, or the one a tool
+# opened): trial folders are recorded relative to it, so a moved or copied sweep folder finds
+# its own trials. Folders recorded as absolute paths (older sweeps) stay as they are.
+_SWEEP_DIRS: dict[str, Path] = {}
+
+
+def register_sweep_dir(study_name: str, sweep_dir: str | os.PathLike) -> None:
+    _SWEEP_DIRS[study_name] = Path(sweep_dir)
+
+
+def run_dir_of(stored: str | None, study_name: str | None) -> str | None:
+    """The trial folder a study records (``ATTR_RUN_DIR``) as a path to open here."""
+    if not stored:
+        return None
+    base = _SWEEP_DIRS.get(study_name or "")
+    return str(base / stored) if base is not None and not Path(stored).is_absolute() else stored
+
+
+def stored_run_dir(run_dir: str | None, study_name: str | None) -> str | None:
+    """``run_dir`` as the study records it: relative to the sweep folder when inside it."""
+    base = _SWEEP_DIRS.get(study_name or "")
+    if not run_dir or base is None:
+        return run_dir
+    path, top = Path(run_dir).resolve(), base.resolve()
+    return os.path.relpath(path, top) if path.is_relative_to(top) else run_dir
+
+
+def read_run_record(run_dir: str | None, trial: FrozenTrial | None = None,
+                    study_name: str | None = None) -> dict[str, Any]:
+    """The run.json of a trial's run folder, {} when there is none (or it is unreadable).
+
+    With ``trial``: {} as well when the folder's job was started for another trial. The sweeper
+    gives every trial a folder of its own (created empty before the job starts, never reused);
+    the trial context the sweeper passed to the job (``hydra.job.env_set.ASLEXP_TRIAL``, kept in
+    ``.hydra/hydra.yaml``) must also name this trial when it is there.
+    """
+    if not run_dir or not (Path(run_dir) / RUN_FILE).is_file():
+        return {}
+    try:
+        info = read_json(Path(run_dir) / RUN_FILE)
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(info, dict):
+        return {}
+    if trial is not None:
+        context = _job_trial_context(run_dir)
+        if context is not None and (
+                context.get("number") != trial.number or context.get("trial_id") != trial._trial_id
+                or (study_name is not None and context.get("study_name") != study_name)):
+            log.warning("trial %d: %s/%s belongs to trial %s of study %r, not to it: not adopted",
+                        trial.number, run_dir, RUN_FILE, context.get("number"),
+                        context.get("study_name"))
+            return {}
+    return info
+
+
+def _job_trial_context(run_dir: str) -> dict[str, Any] | None:
+    """The trial context a job was started with (None when the folder does not say)."""
+    path = Path(run_dir) / ".hydra" / "hydra.yaml"
+    if not path.is_file():
+        return None
+    try:
+        with open(path, encoding="utf-8") as fh:
+            loaded = yaml.safe_load(fh)
+        text = (((loaded or {}).get("hydra") or {}).get("job") or {}).get("env_set", {}).get(TRIAL_ENV)
+        return json.loads(text) if text else None
+    except (OSError, ValueError, AttributeError, yaml.YAMLError):
+        return None
+
+
+def _on_this_host(identity: Mapping[str, Any] | None) -> bool:
+    return bool(identity) and identity.get("host") == socket.gethostname() \
+        and identity.get("boot") == boot_id()
+
+
+def _job_where(process: Mapping[str, Any] | None, record: Mapping[str, Any]) -> str:
+    where = f"pid {(process or {}).get('pid')} on {(process or {}).get('host')}"
+    slurm = record.get("slurm") or {}
+    return where + (f", Slurm job {slurm['job_id']}" if slurm.get("job_id") else "")
+
+
+def _outcome_of_record(record: Mapping[str, Any], run_dir: str) -> Outcome | None:
+    """The result a finished run.json records (None while it runs or says nothing)."""
+    status = record.get("status")
+    main = record.get("main_metric") or {}
+    if status == "completed":
+        value = main.get("value")
+        try:
+            value = float(value)
+        except (TypeError, ValueError):
+            value = None
+        if value is None or not math.isfinite(value):
+            return Outcome("failed", run_dir=run_dir,
+                           error=f"its job completed without its worker, but its {RUN_FILE} "
+                                 f"records no finite main metric ({main.get('value')!r})")
+        return Outcome("complete", value=value, run_dir=run_dir, goal=main.get("goal"),
+                       metric=main.get("name"))
+    if status == "pruned":
+        return Outcome("pruned", error=record.get("error"), run_dir=run_dir)
+    if status == "failed":
+        return Outcome("failed", error=record.get("error") or "failed", run_dir=run_dir)
+    if status == INTERRUPTED:
+        return Outcome(INTERRUPTED, error=record.get("error") or INTERRUPTED, run_dir=run_dir)
+    return None
+
+
+def judge_running_trial(trial: FrozenTrial, grace_period: float, now: float | None = None,
+                        study_name: str | None = None) -> Verdict:
+    """What a RUNNING trial's state says, its worker's fate and its run folder together.
+
+    * its worker lives (on this host: its process runs; anywhere: a heartbeat within
+      ``grace_period``): "alive", not ours to judge (nor a trial no aslexp worker started);
+    * the worker is gone, and the trial's run.json records how the job ended: "adopt" that result
+      (completed with a finite main metric, pruned, failed; interrupted as interrupted);
+    * the worker is gone and the job still runs: on this host its process (run.json's
+      ``process``) is alive: "wait"; on another host nothing can be checked there, so the trial's
+      heartbeat decides (a job reporting to the study refreshes it too): "wait" within
+      ``grace_period``, "interrupted" after;
+    * otherwise (no run.json yet, the job's process gone too, or the job ran in the worker's
+      own process): "interrupted". A job that starts after that finds its trial finished and
+      does not run (:func:`aslexp.tuning.context.trial_reporter`).
+    """
+    now = time.time() if now is None else now
+    identity = trial.user_attrs.get(ATTR_WORKER)
+    if trial.state != TrialState.RUNNING or not identity:
+        return Verdict("alive")
+    beat = trial.user_attrs.get(ATTR_HEARTBEAT)
+    if beat is None and trial.datetime_start is not None:
+        beat = trial.datetime_start.timestamp()
+    silent = beat is not None and now - float(beat) > grace_period
+    if worker_is_dead(identity):
+        gone = (f"worker pid {identity.get('pid')} on {identity.get('host')} died while running "
+                "this trial")
+    elif silent:
+        gone = (f"no heartbeat from worker pid {identity.get('pid')} on {identity.get('host')} "
+                f"for {now - float(beat):.0f} s (grace period {grace_period:.0f} s)")
+    else:
+        return Verdict("alive")
+    run_dir = run_dir_of(trial.user_attrs.get(ATTR_RUN_DIR), study_name)
+    record = read_run_record(run_dir, trial, study_name)
+    if not record and run_dir and (Path(run_dir) / RUN_FILE).is_file():
+        run_dir = None  # another trial's run: never adopted, never marked
+    outcome = _outcome_of_record(record, str(run_dir)) if record else None
+    if outcome is not None:
+        if outcome.state == INTERRUPTED:
+            return Verdict(INTERRUPTED, f"{gone}; its job ended interrupted: {outcome.error}",
+                           outcome, run_dir)
+        return Verdict("adopt", f"{gone}; its job ({_job_where(record.get('process'), record)}) "
+                       f"finished {record.get('status')} without it: result adopted from "
+                       f"{run_dir}/{RUN_FILE}", outcome, run_dir)
+    if record.get("status") == "running":
+        process = record.get("process")
+        where = _job_where(process, record)
+        in_worker = process and all(process.get(k) == identity.get(k)
+                                    for k in ("host", "boot", "pid", "start"))
+        if in_worker:  # the job ran in the worker's own process: it went with it
+            return Verdict(INTERRUPTED, gone, run_dir=run_dir)
+        if process and not process_is_gone(process):
+            if _on_this_host(process):
+                return Verdict("wait", f"{gone}; its job ({where}) still runs", run_dir=run_dir)
+            if not silent:
+                return Verdict("wait", f"{gone}; its job ({where}) may still run (another host: "
+                               f"judged by the trial's heartbeat, grace period {grace_period:.0f} s)",
+                               run_dir=run_dir)
+            return Verdict(INTERRUPTED, f"{gone}; its job ({where}, another host) gave no "
+                           f"heartbeat for {now - float(beat):.0f} s either", run_dir=run_dir)
+        return Verdict(INTERRUPTED, f"{gone}; its job ({where}) is gone too", run_dir=run_dir)
+    return Verdict(INTERRUPTED, gone, run_dir=run_dir)
+
+
+@dataclass
+class Settled:
+    """What :func:`settle_stale_trials` did."""
+
+    interrupted: list[int] = field(default_factory=list)
+    adopted: list[int] = field(default_factory=list)
+    waiting: dict[int, str] = field(default_factory=dict)  # number -> why
+
+    @property
+    def changed(self) -> bool:
+        return bool(self.interrupted or self.adopted)
+
+
+def settle_stale_trials(study: optuna.Study, grace_period: float, now: float | None = None,
+                        trials: Iterable[FrozenTrial] | None = None) -> Settled:
+    """Settle the RUNNING trials of gone workers (:func:`judge_running_trial`): adopt finished
+    jobs' results, mark the lost ones interrupted (run.json included), list the ones to wait for.
 
     ``trials``: the study's trials if the caller has just read them (saves a storage read).
     """
-    now = time.time() if now is None else now
-    failed = []
+    settled = Settled()
     if trials is None:
         trials = study.get_trials(deepcopy=False, states=(TrialState.RUNNING,))
     for t in trials:
         if t.state != TrialState.RUNNING:
             continue
-        identity = t.user_attrs.get(ATTR_WORKER)
-        if not identity:
-            continue  # not started by an aslexp worker: not ours to judge
-        beat = t.user_attrs.get(ATTR_HEARTBEAT)
-        if beat is None and t.datetime_start is not None:
-            beat = t.datetime_start.timestamp()
-        if worker_is_dead(identity):
-            reason = (f"worker pid {identity.get('pid')} on {identity.get('host')} died while "
-                      "running this trial")
-        elif beat is not None and now - float(beat) > grace_period:
-            reason = (f"no heartbeat from worker pid {identity.get('pid')} on "
-                      f"{identity.get('host')} for {now - float(beat):.0f} s "
-                      f"(grace period {grace_period:.0f} s)")
-        else:
-            continue
-        if _mark_failed(study, t._trial_id, reason, interrupted=True):
-            log.warning("trial %d marked failed (interrupted): %s", t.number, reason)
-            _mark_run_interrupted(t.user_attrs.get(ATTR_RUN_DIR), reason)
-            failed.append(t.number)
-    return failed
+        verdict = judge_running_trial(t, grace_period, now, study.study_name)
+        if verdict.action == "wait":
+            settled.waiting[t.number] = verdict.reason
+        elif verdict.action == "adopt":
+            recorded = adopt_outcome(study, t, verdict.outcome, verdict.reason)
+            if recorded:
+                log.warning("trial %d %s (value %s): %s", t.number, recorded,
+                            _shown(verdict.outcome.value), verdict.reason)
+                settled.adopted.append(t.number)
+        elif verdict.action == INTERRUPTED:
+            if _mark_failed(study, t._trial_id, verdict.reason, interrupted=True):
+                log.warning("trial %d marked failed (interrupted): %s", t.number, verdict.reason)
+                _mark_run_interrupted(verdict.run_dir, verdict.reason)
+                settled.interrupted.append(t.number)
+    return settled
+
+
+def fail_stale_trials(study: optuna.Study, grace_period: float, now: float | None = None,
+                      trials: Iterable[FrozenTrial] | None = None) -> list[int]:
+    """:func:`settle_stale_trials`; returns the numbers of the trials marked interrupted."""
+    return settle_stale_trials(study, grace_period, now, trials).interrupted
+
+
+def adopt_outcome(study: optuna.Study, trial: FrozenTrial, outcome: Outcome, reason: str) -> str | None:
+    """Tell the study the result a trial's job recorded without its worker; the state recorded,
+    None when someone else finished the trial first."""
+    storage = study._storage
+    try:
+        storage.set_trial_user_attr(trial._trial_id, ATTR_ADOPTED, reason[:_ERROR_CHARS])
+        if outcome.state == "complete":
+            study.tell(trial.number, values=[outcome.value])
+            return "complete"
+        if outcome.state == "pruned":
+            study.tell(trial.number, state=TrialState.PRUNED)
+            return "pruned"
+    except (RuntimeError, ValueError) as err:  # finished meanwhile
+        log.debug("trial %d: not adopted: %s", trial.number, err)
+        return None
+    interrupted = outcome.state == INTERRUPTED
+    if _mark_failed(study, trial._trial_id, outcome.error or outcome.state, interrupted=interrupted):
+        return INTERRUPTED if interrupted else "failed"
+    return None
+
+
+def _shown(value: float | None) -> str:
+    return f"{value:.6g}" if value is not None else "-"
 
 
 def _mark_run_interrupted(run_dir: str | None, reason: str) -> None:
@@ -196,7 +439,8 @@ def record_outcome(study: optuna.Study, trial: Trial, outcome: Outcome) -> str:
     storage = study._storage
     try:
         if outcome.run_dir:
-            storage.set_trial_user_attr(trial_id, ATTR_RUN_DIR, outcome.run_dir)
+            storage.set_trial_user_attr(trial_id, ATTR_RUN_DIR,
+                                        stored_run_dir(outcome.run_dir, study.study_name))
         if outcome.state == "complete":
             value = outcome.value
             if value is None or not math.isfinite(value):
@@ -257,22 +501,34 @@ def _run_worker(study: optuna.Study, distributions: Mapping[str, BaseDistributio
     summary = WorkerSummary()
     identity = worker_identity()
     trial: Trial | None = None
+    waited_for: set[int] = set()
     try:
         while True:
             trial = None
             with budget_lock(settings.storage_spec, settings.study_name):
                 trials = study.get_trials(deepcopy=False)
-                stale = fail_stale_trials(study, settings.grace_period, trials=trials)
-                summary.stale_failed += stale
-                used = budget_used(study.get_trials(deepcopy=False) if stale else trials)
-                if used >= settings.n_trials:
+                settled = settle_stale_trials(study, settings.grace_period, trials=trials)
+                summary.stale_failed += settled.interrupted
+                summary.adopted += settled.adopted
+                used = budget_used(study.get_trials(deepcopy=False) if settled.changed else trials)
+                if used < settings.n_trials:
+                    # No heartbeat yet: until the first one, the trial's start time stands for it.
+                    trial = ask_claimed(study, distributions, identity)
+                    if on_asked is not None:
+                        on_asked(trial)
+            if trial is None:
+                if not settled.waiting:
                     log.info("%s: budget spent (%d/%d trials); stopping",
                              settings.worker_label, used, settings.n_trials)
                     break
-                # No heartbeat yet: until the first one, the trial's start time stands for it.
-                trial = ask_claimed(study, distributions, identity)
-                if on_asked is not None:
-                    on_asked(trial)
+                # Only jobs whose worker is gone are left: wait for them, adopt their results.
+                for number in sorted(set(settled.waiting) - waited_for):
+                    log.info("%s: budget spent (%d/%d trials); waiting for trial %d to adopt its "
+                             "result: %s", settings.worker_label, used, settings.n_trials, number,
+                             settled.waiting[number])
+                waited_for |= set(settled.waiting)
+                time.sleep(_ORPHAN_POLL)
+                continue
             log.info("%s: trial %d (%d/%d) %s", settings.worker_label, trial.number, used + 1,
                      settings.n_trials, trial.params)
             started = time.monotonic()
@@ -287,24 +543,60 @@ def _run_worker(study: optuna.Study, distributions: Mapping[str, BaseDistributio
             recorded = record_outcome(study, trial, outcome)
             summary.trials.append(trial.number)
             summary.states[recorded] += 1
-            shown = f"{outcome.value:.6g}" if outcome.value is not None else "-"
             log.info("%s: trial %d %s (value %s, %.1f s)%s", settings.worker_label, trial.number,
-                     recorded, shown, time.monotonic() - started,
+                     recorded, _shown(outcome.value), time.monotonic() - started,
                      f": {outcome.error}" if recorded == "failed" else "")
             trial = None
             _check_direction(study, outcome)
     except KeyboardInterrupt as err:
-        if trial is not None:  # asked but not yet told: give it back for a resume to re-run
+        if trial is not None:  # asked but not yet told
             what = "SIGTERM" if "SIGTERM" in str(err) else "Ctrl-C"
             reason = f"interrupted ({what}) in {settings.worker_label}"
             with signals_held():
-                record_outcome(study, trial, Outcome(INTERRUPTED, error=reason,
-                                                     run_dir=trial_run_dir(study, trial)))
-            log.debug("trial %d %s", trial.number, reason)
-            err.aslexp_note = (f"trial {trial.number} recorded as interrupted; the same command "  # type: ignore[attr-defined]
-                               "resumes the sweep and runs it again")
+                note = _settle_after_signal(study, trial, reason, settings.worker_label)
+            err.aslexp_note = note  # type: ignore[attr-defined]
         raise
     return summary
+
+
+def _settle_after_signal(study: optuna.Study, trial: Trial, reason: str, label: str) -> str:
+    """Record the trial a signal stopped its worker in; the note for the one-line report.
+
+    A job in the worker's own process stopped with it: the trial is interrupted (a resume runs
+    it again). A job in another process (submitit's local executor, a Slurm job) may have got
+    the signal too (Ctrl-C in a terminal): it gets ``_SETTLE_AFTER_SIGNAL`` seconds to record how
+    it ended, which the study then records as well. One that goes on is left RUNNING: the next
+    worker waits for it and adopts its result (nothing computed is lost).
+    """
+    run_dir = trial_run_dir(study, trial)
+    frozen = study._storage.get_trial(trial._trial_id)
+    deadline = time.monotonic() + _SETTLE_AFTER_SIGNAL
+    while True:
+        record = read_run_record(run_dir, frozen, study.study_name)
+        process = record.get("process")
+        elsewhere = (record.get("status") == "running" and process
+                     and not (_on_this_host(process) and process.get("pid") == os.getpid())
+                     and not process_is_gone(process))
+        if not elsewhere or time.monotonic() >= deadline:
+            break
+        time.sleep(0.1)
+    outcome = _outcome_of_record(record, str(run_dir)) if record else None
+    if outcome is not None and outcome.state != INTERRUPTED:
+        recorded = adopt_outcome(study, frozen, outcome,
+                                 f"{reason}; its job ({_job_where(process, record)}) finished "
+                                 f"{record.get('status')}: result taken from {run_dir}/{RUN_FILE}")
+        log.info("%s: trial %d %s (value %s) as its job ended", label, trial.number, recorded,
+                 _shown(outcome.value))
+        return f"trial {trial.number} recorded as {recorded}, as its job ended"
+    if elsewhere:
+        log.info("%s: trial %d left running: its job (%s) goes on", label, trial.number,
+                 _job_where(process, record))
+        return (f"trial {trial.number} left running: its job ({_job_where(process, record)}) goes "
+                "on; the same command resumes the sweep, waits for it and adopts its result")
+    record_outcome(study, trial, Outcome(INTERRUPTED, error=reason, run_dir=run_dir))
+    log.debug("trial %d %s", trial.number, reason)
+    return (f"trial {trial.number} recorded as interrupted; the same command resumes the sweep "
+            "and runs it again")
 
 
 def ask_claimed(study: optuna.Study, distributions: Mapping[str, BaseDistribution],
@@ -337,7 +629,8 @@ def ask_claimed(study: optuna.Study, distributions: Mapping[str, BaseDistributio
 def trial_run_dir(study: optuna.Study, trial: Trial) -> str | None:
     """The run folder recorded for ``trial`` when it was asked for (None if none was)."""
     try:
-        return study._storage.get_trial_user_attrs(trial._trial_id).get(ATTR_RUN_DIR)
+        return run_dir_of(study._storage.get_trial_user_attrs(trial._trial_id).get(ATTR_RUN_DIR),
+                          study.study_name)
     except Exception:  # noqa: BLE001 - bookkeeping only
         return None
 

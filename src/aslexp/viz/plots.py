@@ -14,6 +14,8 @@ import matplotlib.pyplot as plt  # noqa: E402  (after choosing the backend)
 import numpy as np  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 
+from aslexp.files import naming_errors  # noqa: E402
+
 
 def plot_confusion_matrix(
     matrix: Sequence[Sequence[float]] | np.ndarray,
@@ -52,7 +54,8 @@ def plot_confusion_matrix(
                 ax.text(j, i, text, ha="center", va="center", fontsize=font,
                         color="white" if shown[i, j] > threshold else "black")  # fmt: skip
     path = Path(path)
-    fig.savefig(path, dpi=120, bbox_inches="tight", pad_inches=0.15)
+    with naming_errors(path):  # a full disk names the file
+        fig.savefig(path, dpi=120, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
     return path
 
@@ -96,7 +99,8 @@ def plot_learning_curves(
             ax.text(0.5, 0.5, NO_EPOCHS_NOTE, ha="center", va="center", fontsize=10, wrap=True)
             ax.set_title(textwrap.fill(title, 70), fontsize=10)
         path = Path(path)
-        fig.savefig(path, dpi=120, bbox_inches="tight", pad_inches=0.15)
+        with naming_errors(path):  # a full disk names the file
+            fig.savefig(path, dpi=120, bbox_inches="tight", pad_inches=0.15)
         plt.close(fig)
         return path
 
@@ -124,6 +128,7 @@ def plot_learning_curves(
             ax.legend(fontsize=7)
     fig.suptitle(textwrap.fill(title, 110), fontsize=11)
     path = Path(path)
-    fig.savefig(path, dpi=120, bbox_inches="tight", pad_inches=0.15)
+    with naming_errors(path):  # a full disk names the file
+        fig.savefig(path, dpi=120, bbox_inches="tight", pad_inches=0.15)
     plt.close(fig)
     return path

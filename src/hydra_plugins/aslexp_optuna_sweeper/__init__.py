@@ -22,7 +22,8 @@ from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig
 
-_PROJECT_ROOT = Path(__file__).resolve().parents[3]
+from aslexp.paths import CONF_DIR
+
 _STOCK_PROVIDER = "optuna_sweeper"  # hydra-optuna-sweeper's ConfigStore provider name
 
 
@@ -54,7 +55,7 @@ class AslexpOptunaConfigs(SearchPathPlugin):
     """
 
     def manipulate_search_path(self, search_path: ConfigSearchPath) -> None:
-        if (_PROJECT_ROOT / "conf" / "hydra" / "sweeper" / "optuna.yaml").exists():
+        if (CONF_DIR / "hydra" / "sweeper" / "optuna.yaml").exists():
             _drop_stock_optuna_entries(ConfigStore.instance().repo)
 
 

@@ -26,8 +26,7 @@ from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from aslexp.runs.logfmt import install_float_rounding
-from aslexp.runs.record import RUN_FILE, read_json
+from aslexp.runs.logfmt import install_float_rounding, quiet_log_write_errors
 from aslexp.tuning.algorithms import AlgorithmSpecError, make_pruner, make_sampler
 from aslexp.tuning.context import (
     ENV_VAR,
@@ -35,7 +34,7 @@ from aslexp.tuning.context import (
     register_live_trial,
     unregister_live_trial,
 )
-from aslexp.tuning.storage import StorageError, redact, resolve_spec, silence_optuna
+from aslexp.tuning.storage import JournalWriteError, StorageError, redact, resolve_spec, silence_optuna
 from aslexp.tuning.study import (
     StudyError,
     SweepInfo,
@@ -50,6 +49,8 @@ from aslexp.tuning.worker import (
     DirectionMismatchError,
     Outcome,
     WorkerSettings,
+    read_run_record,
+    register_sweep_dir,
     run_worker,
     state_counts,
 )
@@ -124,6 +125,9 @@ class SweeperImpl(Sweeper):
     def sweep(self, arguments: list[str]) -> None:
         try:
             self._sweep(arguments)
+        except JournalWriteError as err:  # a full disk: the job of the machine, not bad input
+            print(f"aslexp {self.config.hydra.job.name}: {err}", file=sys.stderr, flush=True)
+            raise SystemExit(1) from err
         except (SearchSpaceError, StudyError, StorageError, AlgorithmSpecError,
                 DirectionMismatchError) as err:
             # Bad input, not a bug: say what is wrong in one line, without a traceback.
@@ -133,6 +137,7 @@ class SweeperImpl(Sweeper):
     def _sweep(self, arguments: list[str]) -> None:
         silence_optuna()
         install_float_rounding()
+        quiet_log_write_errors()
         space = parse_search_space(self.params, list(arguments))
         sweep_dir = Path(str(self.config.hydra.sweep.dir)).resolve()
         spec = resolve_spec(self.storage, sweep_dir)
@@ -157,6 +162,7 @@ class SweeperImpl(Sweeper):
             command=" ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
         ), write=self.worker_index == 0)
         self.sweep_dir = sweep_dir
+        register_sweep_dir(study_name, self.home)  # trial folders are recorded relative to it
         if self.worker_index == 0:
             if self.home != sweep_dir:
                 log.info("%s belongs to another study (its sweep.json): study %r lives in %s",
@@ -200,11 +206,14 @@ class SweeperImpl(Sweeper):
     def _launch(self, study: optuna.Study, trial: optuna.trial.Trial, space: SearchSpace,
                 spec: str, study_name: str) -> Outcome:
         context = TrialContext(storage=spec, study_name=study_name, trial_id=trial._trial_id,
-                               number=trial.number, pruner=self.pruner_spec)
+                               number=trial.number, pruner=self.pruner_spec,
+                               heartbeat=self.heartbeat_interval or None)
         subdir = self._claim_trial_folder(trial.number, space.overrides_for(trial.params))
         run_dir = str(self.sweep_dir / subdir)
         # Known before the job starts: a trial lost with its worker is marked in its run.json too.
-        study._storage.set_trial_user_attr(trial._trial_id, ATTR_RUN_DIR, run_dir)
+        # Recorded relative to the study's home (a moved or copied folder finds its trials).
+        study._storage.set_trial_user_attr(trial._trial_id, ATTR_RUN_DIR,
+                                           os.path.relpath(run_dir, self.home))
         overrides = [*space.overrides_for(trial.params),
                      f"hydra.sweep.subdir={quote(subdir)}",
                      f"++hydra.job.env_set.{ENV_VAR}={quote(context.to_json())}"]
@@ -322,13 +331,7 @@ def outcome_of(ret: JobReturn, number: int) -> Outcome:
 
 def _run_record(run_dir: str | None) -> dict[str, Any]:
     """The job's run.json ({} when there is none or it is unreadable)."""
-    if not run_dir or not (Path(run_dir) / RUN_FILE).exists():
-        return {}
-    try:
-        info = read_json(Path(run_dir) / RUN_FILE)
-    except (OSError, ValueError):
-        return {}
-    return info if isinstance(info, dict) else {}
+    return read_run_record(run_dir)
 
 
 def _stopped_state(err: BaseException) -> str | None:

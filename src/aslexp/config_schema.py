@@ -1,0 +1,376 @@
+"""Typed, ranged configuration keys: one declaration per key, checked at the edge.
+
+Every numeric (and a few other) key that a job reads is declared here once, with its type and
+range or choices: :data:`PPO` (``conf/ppo/*.yaml``, read by :meth:`aslexp.rl.ppo.PPOConfig.from_dict`),
+:data:`TRAINER` (``conf/trainer/*.yaml``, read by
+:meth:`aslexp.recognition.train.TrainerConfig.from_dict`) and :data:`JOBS` (each job's keys,
+sections included). The jobs check their composed config against :data:`JOBS` before anything
+runs (:mod:`aslexp.jobs.validation`); the two readers coerce their section through the same
+declarations, so a value is refused or accepted the same way wherever it comes from. What
+depends on several keys or on the machine (``steps_per_rollout >= num_envs``, a CUDA device
+that exists) stays with the readers (``PPOConfig.__post_init__``).
+
+A refused value is a :class:`~aslexp.errors.ConfigError` naming the key, the value given and
+what is expected, e.g. ``ppo.total_steps=abc: expected an integer >= 0``. Integers are never
+rounded: ``4096.5`` and ``"abc"`` are refused, ``4096.0``, ``2e6`` and ``"4096"`` (an environment
+variable) are read as integers.
+
+A leaf module: it imports nothing of aslexp but :mod:`aslexp.errors`.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from aslexp.errors import ConfigError
+
+
+class _Refused(Exception):
+    """A value that does not fit its key (turned into a ConfigError naming the key)."""
+
+
+@dataclass(frozen=True)
+class Key:
+    """One key's type (``int``, ``float``, ``bool``, ``str``, ``choice`` or ``list``) and range.
+
+    ``low``/``high`` bound numbers (``low_open``/``high_open``: excluded); ``choices`` lists the
+    values of a ``choice``; ``item`` is a list's element; ``nullable`` accepts null.
+    """
+
+    kind: str
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    choices: tuple[str, ...] = ()
+    item: Key | None = None
+    nullable: bool = False
+    nonempty: bool = False
+    aliases: tuple[tuple[str, str], ...] = ()  # other spellings of a choice: (alias, choice)
+
+    # ------------------------------------------------------------------ what is expected
+
+    def _range(self) -> str:
+        low, high = self.low, self.high
+        if low is not None and high is not None:
+            return f" in {'(' if self.low_open else '['}{_num(low)}, {_num(high)}{')' if self.high_open else ']'}"
+        if low is not None:
+            return f" {'>' if self.low_open else '>='} {_num(low)}"
+        if high is not None:
+            return f" {'<' if self.high_open else '<='} {_num(high)}"
+        return ""
+
+    def expected(self, plural: bool = False) -> str:
+        if self.kind == "int":
+            if self.low == 1 and not self.low_open and self.high is None:
+                text = "positive integers" if plural else "a positive integer"
+            else:
+                text = ("integers" if plural else "an integer") + self._range()
+        elif self.kind == "float":
+            if self.low == 0 and self.low_open and self.high is None:
+                text = "positive numbers" if plural else "a positive number"
+            else:
+                text = ("numbers" if plural else "a number") + self._range()
+        elif self.kind == "bool":
+            text = "true or false"
+        elif self.kind == "choice":
+            text = "one of " + ", ".join(self.choices)
+        elif self.kind == "list":
+            assert self.item is not None
+            text = f"a {'non-empty ' if self.nonempty else ''}list of {self.item.expected(plural=True)}"
+        else:
+            text = "text" if plural else "a text"
+        return f"null or {text}" if self.nullable else text
+
+    # ------------------------------------------------------------------ coercion
+
+    def coerce(self, value: Any) -> Any:
+        """``value`` as this key's type; raises :class:`_Refused` if it does not fit."""
+        if value is None:
+            if self.nullable:
+                return None
+            raise _Refused
+        if self.kind == "int":
+            number = _integer(value)
+        elif self.kind == "float":
+            number = _number(value)
+        elif self.kind == "bool":
+            return _boolean(value)
+        elif self.kind == "choice":
+            if isinstance(value, (list, tuple, dict, bool)):
+                raise _Refused
+            text = dict(self.aliases).get(str(value), str(value))
+            if text not in self.choices:
+                raise _Refused
+            return text
+        elif self.kind == "list":
+            if not isinstance(value, (list, tuple)) or (self.nonempty and not value):
+                raise _Refused
+            assert self.item is not None
+            items = [self.item.coerce(v) for v in value]
+            return items
+        else:
+            if isinstance(value, (list, tuple, dict)):
+                raise _Refused
+            return str(value)
+        if self.low is not None and (number < self.low or (self.low_open and number == self.low)):
+            raise _Refused
+        if self.high is not None and (number > self.high or (self.high_open and number == self.high)):
+            raise _Refused
+        return number
+
+
+def _num(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() else repr(float(x))
+
+
+def _integer(value: Any) -> int:
+    if isinstance(value, bool):
+        raise _Refused
+    if isinstance(value, int):
+        return value
+    if isinstance(value, str):
+        text = value.strip()
+        try:
+            return int(text)
+        except ValueError:
+            value = _number(text)
+    if isinstance(value, float) and math.isfinite(value) and value.is_integer():
+        return int(value)
+    raise _Refused
+
+
+def _number(value: Any) -> float:
+    if isinstance(value, bool):
+        raise _Refused
+    if isinstance(value, (int, float)):
+        number = float(value)
+    elif isinstance(value, str):
+        try:
+            number = float(value.strip())
+        except ValueError:
+            raise _Refused from None
+    else:
+        raise _Refused
+    if math.isnan(number):
+        raise _Refused
+    return number
+
+
+def _boolean(value: Any) -> bool:
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, int) and value in (0, 1):
+        return bool(value)
+    if isinstance(value, str) and value.strip().lower() in ("true", "false"):
+        return value.strip().lower() == "true"
+    raise _Refused
+
+
+def Int(low: int | None = None, high: int | None = None, *, nullable: bool = False) -> Key:  # noqa: N802
+    return Key("int", low, high, nullable=nullable)
+
+
+def Float(low: float | None = None, high: float | None = None, *, low_open: bool = False,  # noqa: N802
+          high_open: bool = False, nullable: bool = False) -> Key:
+    return Key("float", low, high, low_open, high_open, nullable=nullable)
+
+
+def Positive(*, nullable: bool = False) -> Key:  # noqa: N802
+    return Key("float", 0, None, low_open=True, nullable=nullable)
+
+
+def Bool() -> Key:  # noqa: N802
+    return Key("bool")
+
+
+def Text(*, nullable: bool = False) -> Key:  # noqa: N802
+    return Key("str", nullable=nullable)
+
+
+def Choice(*values: str, aliases: Mapping[str, str] | None = None) -> Key:  # noqa: N802
+    return Key("choice", choices=tuple(values), aliases=tuple((aliases or {}).items()))
+
+
+def List(item: Key, *, nonempty: bool = False, nullable: bool = False) -> Key:  # noqa: N802
+    return Key("list", item=item, nonempty=nonempty, nullable=nullable)
+
+
+def shown(value: Any) -> str:
+    """A value as it was written on the command line (``abc``, ``4096.5``, ``null``, ``[1, 2]``)."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(shown(v) for v in value) + "]"
+    if isinstance(value, Mapping):
+        return "{" + ", ".join(f"{k}: {shown(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+def check_value(path: str, value: Any, key: Key) -> Any:
+    """``value`` coerced to ``key``'s type, or a ConfigError naming ``path``, the value and the rule."""
+    try:
+        return key.coerce(value)
+    except _Refused:
+        raise ConfigError(f"{path}={shown(value)}: expected {key.expected()}") from None
+
+
+def check_section(section: str, values: Mapping[str, Any], schema: Mapping[str, Key],
+                  unknown: bool = True) -> dict[str, Any]:
+    """Every key of ``values`` checked and coerced against ``schema`` (keys absent from ``values``
+    are left to their defaults). ``unknown``: a key the schema does not declare is refused."""
+    out: dict[str, Any] = {}
+    for name, value in values.items():
+        key = schema.get(name)
+        if key is None:
+            if unknown:
+                near = difflib.get_close_matches(name, list(schema), n=1)
+                hint = f"; did you mean {section}.{near[0]}?" if near else f"; expected one of {', '.join(schema)}"
+                raise ConfigError(f"{section}.{name}={shown(value)}: unknown key{hint}")
+            out[name] = value
+            continue
+        out[name] = check_value(f"{section}.{name}", value, key)
+    return out
+
+
+# ---------------------------------------------------------------------------- the declarations
+
+SEED = Int(0)
+# aslexp.recognition.device.check_precision's spellings (Lightning's included)
+_PRECISION_ALIASES = {alias + suffix: canonical for alias, canonical in (
+    ("32", "32"), ("fp32", "32"), ("float32", "32"), ("bf16", "bf16"), ("bfloat16", "bf16"),
+    ("fp16", "fp16"), ("16", "fp16"), ("float16", "fp16")) for suffix in ("", "-mixed")}
+FRACTION = Float(0, 1)
+
+#: conf/ppo/base.yaml documents every key (aslexp.rl.ppo.PPOConfig reads them).
+PPO: dict[str, Key] = {
+    "name": Text(),
+    "hidden_sizes": List(Int(1)),
+    "actor_hidden_sizes": List(Int(1), nullable=True),
+    "activation": Choice("relu", "tanh", "elu"),
+    "ortho_init": Bool(),
+    "log_std_init": Float(),
+    "noise_beta": Float(0),
+    "noise_horizon": Int(2),
+    "learning_rate": Float(0),  # 0: a frozen policy
+    "learning_rate_final": Float(0, nullable=True),
+    "log_std_final": Float(nullable=True),
+    "steps_per_rollout": Int(1),
+    "minibatch_size": Int(1),
+    "epochs": Int(1),
+    "gamma": FRACTION,
+    "gae_lambda": FRACTION,
+    "clip_epsilon": Positive(),
+    "entropy_coef": Float(0),
+    "value_coef": Float(0),
+    "max_grad_norm": Positive(),
+    "target_kl": Positive(nullable=True),
+    "weight_decay": Float(0),
+    "critic_warmup_steps": Int(0),
+    "total_steps": Int(0),  # 0: baselines and plots only
+    "max_minutes": Float(0, nullable=True),  # 0: one rollout, then stop
+    "target_reward": Float(nullable=True),
+    "eval_interval": Int(1),
+    "eval_steps": Int(1),
+    "eval_episodes": Int(1),
+    "eval_phases": List(Float(0, 1, high_open=True), nonempty=True, nullable=True),
+    "eval_last_k": Int(1),
+    "num_envs": Int(1),
+    "vector_env": Choice("auto", "sync", "async", "workers", "batched"),
+    "batched_workers": Int(0),
+    "device": Text(),
+    "rollout_device": Choice("cpu", "learner"),
+    "torch_threads": Int(1),
+    "progress_interval": Float(0),
+}
+
+#: conf/trainer/default.yaml documents every key (aslexp.recognition.train.TrainerConfig reads them).
+TRAINER: dict[str, Key] = {
+    "optimizer": Choice("adam", "sgd"),
+    "lr": Float(0),  # 0: a frozen model
+    "weight_decay": Float(0),
+    "momentum": Float(0, 1),
+    "nesterov": Bool(),
+    "lr_schedule": Choice("step", "multistep", "none"),
+    "lr_step_size": Int(1),
+    "lr_gamma": Positive(),
+    "lr_milestones": List(Int(0)),
+    "warmup_epochs": Int(0),
+    "batch_size": Int(1),
+    "drop_last": Bool(),
+    "max_epochs": Int(1),
+    "early_stopping": Bool(),
+    "patience": Int(1),
+    "min_delta": Float(0),
+    "selection_metric": Choice("mcc", "f1_micro", "f1_macro", "accuracy", "balanced_accuracy"),
+    "retrain_epochs": Choice("best", "smoothed"),
+    "smoothing_window": Int(1),
+    "final_retrain": Bool(),
+    "class_weights": Bool(),
+    "crop_window": Int(0),
+    "shift": Float(0),
+    "shift_channels": List(Int(0)),
+    "device": Text(),
+    "precision": Choice("32", "bf16", "fp16", aliases=_PRECISION_ALIASES),
+    "data_on_device": Bool(),
+    "num_threads": Int(1),
+    "deterministic": Bool(),
+    "eval_batch_size": Int(1),
+}
+
+#: Per job: a dotted key and its Key, or a section name and its schema (every key of the section).
+JOBS: dict[str, dict[str, Key | dict[str, Key]]] = {
+    "imitate": {
+        "seed": SEED,
+        "ppo": PPO,
+        "render.frames_every": Int(0),  # 0: no GIF frames
+    },
+    "recognize": {
+        "seed": SEED,
+        "n_seeds": Int(1),
+        "trainer": TRAINER,
+        "data.num_frames": Int(1),
+        "data.padding": Choice("loop", "zero"),
+        "split.seed": SEED,
+        "split.repeats": Int(1),
+        "split.val_fraction": Float(0, 1, low_open=True, high_open=True),
+        "split.test_fraction": Float(0, 1, low_open=True, high_open=True),
+        "split.num_folds": Int(2),
+        "split.rare_classes": Choice("drop", "merge", "train_only"),
+    },
+    "tune_pd": {
+        "seed": SEED,
+        "tuning.steps": Int(1, nullable=True),
+        "tuning.lookahead": Int(0),
+        "tuning.objective": Choice("mean_abs", "thesis"),
+        "tuning.kp": Float(0, nullable=True),
+        "tuning.kd": Float(0, nullable=True),
+        "tuning.max_force": Positive(nullable=True),
+        "tuning.velocity_scale": Float(nullable=True),
+        "tuning.random.seconds": Positive(),
+        "tuning.random.keyframe_seconds": Positive(),
+        "tuning.random.seed": SEED,
+    },
+}
+
+
+def check_job(job: str, select) -> None:
+    """Check ``job``'s keys; ``select(dotted_key)`` returns a key's resolved value (a section as a
+    plain dict) or raises ``KeyError`` when the config has no such key. Jobs without a schema pass."""
+    for path, rule in JOBS.get(job, {}).items():
+        try:
+            value = select(path)
+        except KeyError:
+            continue
+        if isinstance(rule, dict):
+            if not isinstance(value, Mapping):
+                raise ConfigError(f"{path}={shown(value)}: expected a config group (a mapping of keys)")
+            check_section(path, value, rule)
+        else:
+            check_value(path, value, rule)
