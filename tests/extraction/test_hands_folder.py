@@ -98,3 +98,30 @@ def test_recognize_on_a_folder_of_pose_files(wlasl6, data_root, tmp_path):
     assert metrics["context"]["pose"] == "pose_format" and metrics["context"]["num_clips"] == 6
     manifest = json.loads(next((tmp_path / "cache").glob("wlasl_lex-*/manifest.json")).read_text())
     assert manifest["layout"] == "mediapipe_holistic_slgcn27" and manifest["shape"]["V"] == 27
+
+
+def test_pose_formats_reduced_and_hands_only_files_make_datasets(wlasl6, data_root, tmp_path):
+    """The six clips' `.pose` files reduced with pose-format's own reduce_holistic, and cut to the
+    hands: `pose=pose_format` with its defaults (subset slgcn27) makes a dataset of each."""
+    from pose_format import Pose
+    from pose_format.utils.generic import reduce_holistic
+
+    out, _ = wlasl6
+    for kind in ("reduced", "hands"):
+        (tmp_path / kind).mkdir()
+    for vid in GLOSS:
+        pose = Pose.read((out / f"{vid}.pose").read_bytes())
+        for kind, made in (("reduced", reduce_holistic(pose)),
+                           ("hands", pose.get_components(["LEFT_HAND_LANDMARKS", "RIGHT_HAND_LANDMARKS"]))):
+            with open(tmp_path / kind / f"{vid}.pose", "wb") as handle:
+                made.write(handle)
+    reduced = _dataset(["pose=pose_format", f"pose.path={tmp_path / 'reduced'}"], data_root)
+    assert reduced.layout.name == "mediapipe_holistic_reduced_slgcn27" and reduced.layout.num_nodes == 26
+    assert reduced.channels == ["x", "y", "visibility"] and reduced.X.shape == (6, 3, 16, 26, 1)
+    # Hands have no visibility channel: the default channels say what to set, in one line.
+    with pytest.raises(DataError) as error:
+        _dataset(["pose=pose_format", f"pose.path={tmp_path / 'hands'}"], data_root)
+    assert "'mediapipe_hands_slgcn27'" in str(error.value) and "pose.channels=null" in str(error.value)
+    hands = _dataset(["pose=pose_format", f"pose.path={tmp_path / 'hands'}", "pose.channels=null"], data_root)
+    assert hands.layout.name == "mediapipe_hands_slgcn27" and hands.X.shape == (5, 3, 16, 20, 1)
+    assert sorted(hands.video_ids) == sorted(set(GLOSS) - {"70212"})  # 70212 shows no hand

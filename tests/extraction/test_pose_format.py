@@ -92,8 +92,8 @@ def test_unknown_layout_is_one_line_naming_file_and_component(tmp_path):
     with pytest.raises(DataError) as error:
         source.layout
     message = str(error.value)
-    assert "\n" not in message and "clip1.pose" in message and "'BODY_135'" in message
-    assert "pose.options.layout=header" in message
+    assert "\n" not in message and "clip1.pose" in message and "BODY_135 (3 points, XYC)" in message
+    assert "pose.options.layout=header" in message and "mediapipe_hands: both hands" in message
     # The header itself describes the layout: read it with layout=header.
     source = open_keypoint_source("pose_format", path=tmp_path, layout="header")
     assert source.layout.names == ("BODY_135:NOSE", "BODY_135:NECK", "BODY_135:RSHOULDER")

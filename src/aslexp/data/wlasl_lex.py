@@ -234,7 +234,8 @@ def _channel_index(layout: KeypointLayout, wanted) -> list[int]:
         return list(range(len(layout.channels)))
     unknown = [c for c in wanted if c not in layout.channels]
     if unknown:
-        raise DataError(f"channel(s) {unknown} not in layout {layout.name!r} channels {layout.channels}")
+        raise DataError(f"channel(s) {unknown} not in layout {layout.name!r} channels {layout.channels}: set "
+                        "pose.channels to some of them, or pose.channels=null for all")  # fmt: skip
     return [layout.channels.index(c) for c in wanted]
 
 

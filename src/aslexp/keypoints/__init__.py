@@ -2,13 +2,19 @@
 
 This package imports nothing of aslexp but the leaf modules ``errors`` and ``files``, so the
 data layer, extraction and retargeting all build on it. Importing it registers the built-in
-layouts (``mediapipe_pose``, ``mediapipe_holistic``, ``mediapipe_hands``, ``sign27``) and sources
-(``mediapipe_pose_npy``, ``array_folder``, ``directory``, ``published``, ``pose_format``); see
-:mod:`aslexp.keypoints.registry` for registering more.
+layouts (``mediapipe_pose``, ``mediapipe_holistic``, ``mediapipe_holistic_reduced``,
+``mediapipe_hands``, ``sign27``) and sources (``mediapipe_pose_npy``, ``array_folder``, ``directory``,
+``published``, ``pose_format``); see :mod:`aslexp.keypoints.registry` for registering more.
 """
 
 from aslexp.keypoints.layout import KeypointLayout, generic_layout, induced_edges
-from aslexp.keypoints.layouts import MEDIAPIPE_HANDS, MEDIAPIPE_HOLISTIC, MEDIAPIPE_POSE, SIGN27
+from aslexp.keypoints.layouts import (
+    MEDIAPIPE_HANDS,
+    MEDIAPIPE_HOLISTIC,
+    MEDIAPIPE_HOLISTIC_REDUCED,
+    MEDIAPIPE_POSE,
+    SIGN27,
+)
 from aslexp.keypoints.registry import (
     get_layout,
     get_source,
@@ -31,8 +37,8 @@ from aslexp.keypoints.arrays import ArrayFolderSource, DirectoryKeypointSource, 
 
 __all__ = [
     "ArrayFolderSource", "DirectoryKeypointSource", "KeypointLayout", "KeypointSource", "MEDIAPIPE_HANDS",
-    "MEDIAPIPE_HOLISTIC", "MEDIAPIPE_POSE", "SIGN27", "SubsetSource", "check_clip", "generic_layout",
-    "get_layout", "get_source", "induced_edges", "layout_names", "open_source", "read_layout",
-    "register_layout", "register_source", "register_subsets", "resolve_layout", "source_names",
+    "MEDIAPIPE_HOLISTIC", "MEDIAPIPE_HOLISTIC_REDUCED", "MEDIAPIPE_POSE", "SIGN27", "SubsetSource",
+    "check_clip", "generic_layout", "get_layout", "get_source", "induced_edges", "layout_names", "open_source",
+    "read_layout", "register_layout", "register_source", "register_subsets", "resolve_layout", "source_names",
     "subset_indices", "subset_layout", "subset_names", "write_layout",
 ]  # fmt: skip

@@ -35,6 +35,11 @@ NUM_HAND = len(HAND_NAMES)  # 21
 LEFT_HAND_OFFSET = NUM_POSE  # 33
 RIGHT_HAND_OFFSET = NUM_POSE + NUM_HAND  # 54
 NUM_NODES = NUM_POSE + 2 * NUM_HAND  # 75
+HAND_NODES: tuple[int, ...] = tuple(range(LEFT_HAND_OFFSET, NUM_NODES))  # both hands, left first
+# The body nodes pose-format's reduce_holistic keeps: it drops every POSE_LANDMARKS point whose name
+# has EAR, NOSE, MOUTH, EYE, THUMB, PINKY, INDEX, KNEE, ANKLE, HEEL or FOOT_INDEX in it.
+REDUCED_BODY: tuple[int, ...] = tuple(i for i, n in enumerate(POSE_NAMES)
+                                      if n.endswith(("shoulder", "elbow", "wrist", "hip")))  # fmt: skip
 
 NAMES: tuple[str, ...] = (
     POSE_NAMES

@@ -11,6 +11,11 @@
 - ``mediapipe_holistic``: the 75 nodes of ``aslexp extract`` (33 body, the signer's left hand,
   the right hand; :mod:`aslexp.keypoints.holistic`), channels (x, y, z, visibility); subsets
   ``upper_body`` (61) and ``slgcn27`` (all 27 of SL-GCN's points).
+- ``mediapipe_holistic_reduced``: what pose-format's ``reduce_holistic`` keeps of Holistic for the
+  body and hands: 8 body landmarks (shoulders, elbows, wrists, hips; no face, no feet, no pose
+  "hand" points) then both hands (21 each), 50 nodes, channels (x, y, z, visibility); edges those of
+  ``mediapipe_holistic`` contracted through the dropped nodes; centre the left shoulder (there is
+  no nose). Subset ``slgcn27``: 26 of SL-GCN's 27 points (all but the nose).
 - ``mediapipe_hands``: MediaPipe Hands, two hands x 21 landmarks, the signer's LEFT hand first
   (nodes 0-20), then the right (21-41), channels (x, y, z): the usual ``(T, 126)`` arrays of
   hand-only pipelines. Edges: MediaPipe's ``HAND_CONNECTIONS`` per hand plus wrist-wrist, so that
@@ -31,7 +36,7 @@ dropped nodes only (so nose-eye survives dropping the inner eye corners: 0-1-2 b
 from __future__ import annotations
 
 from aslexp.keypoints import holistic as H
-from aslexp.keypoints.layout import KeypointLayout
+from aslexp.keypoints.layout import KeypointLayout, restrict
 from aslexp.keypoints.registry import register_layout
 
 MEDIAPIPE_POSE = register_layout(
@@ -56,6 +61,9 @@ MEDIAPIPE_HOLISTIC = register_layout(
     KeypointLayout.from_spec({**H.holistic_layout("all"), "channels": list(H.CHANNELS)}, "holistic.py"),
     subsets={name: tuple(H.holistic_subset(name)) for name in H.SUBSETS},
 )
+
+MEDIAPIPE_HOLISTIC_REDUCED = register_layout(
+    restrict(MEDIAPIPE_HOLISTIC, H.REDUCED_BODY + H.HAND_NODES, "mediapipe_holistic_reduced"))  # fmt: skip
 
 MEDIAPIPE_HANDS = register_layout(
     KeypointLayout(

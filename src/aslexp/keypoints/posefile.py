@@ -2,7 +2,8 @@
 
 A ``.pose`` holds a header (width, height, and components: named point lists, limbs, a point
 format such as ``XYZC``) and a body (fps, data (frames, people, points, dims) masked where the
-confidence is 0, confidence (frames, people, points)).
+confidence is 0, confidence (frames, people, points)). Files are read with pose-format's own
+``Pose.read``, so every header version it reads (0.0, 0.1, 0.2) is read here.
 
 MediaPipe Holistic, as pose-format writes it (``video_to_pose``), is five components:
 ``POSE_LANDMARKS`` (33), ``FACE_LANDMARKS`` (468), ``LEFT_HAND_LANDMARKS`` (21),
@@ -10,21 +11,37 @@ MediaPipe Holistic, as pose-format writes it (``video_to_pose``), is five compon
 in pixels (MediaPipe's normalised x times the width, y times the height), z MediaPipe's relative
 depth as is, confidence = pose visibility (hands: 1), 0 where a part was not found. The world
 component is MediaPipe's metric pose with the same x*width, y*height scaling (pose-format's
-convention, undone on reading).
+convention, undone on reading). pose-format's ``reduce_holistic`` keeps 8 of the 33 body points
+(shoulders, elbows, wrists, hips), the face contour and both hands, and drops the world component.
 
-That maps exactly onto aslexp's 75-node ``mediapipe_holistic`` layout (body, left hand, right
-hand): x / width, y / height, z, confidence as visibility, a masked point -> NaN. Files written
-by aslexp add two components of their own, ``LEFT_HAND_WORLD_LANDMARKS`` and
+Points are found BY NAME (component name, point name), never by position: a file with extra,
+fewer or reordered components maps as long as the points a layout needs are there. The MediaPipe
+layouts a file can map onto, richest first (the ``auto`` choice):
+
+- ``mediapipe_holistic`` (75): all 33 ``POSE_LANDMARKS`` points, ``LEFT_HAND_LANDMARKS`` and
+  ``RIGHT_HAND_LANDMARKS`` (21 each); channels x, y, z, visibility (the confidence);
+- ``mediapipe_holistic_reduced`` (50): pose-format's reduced Holistic: the 8 body points it keeps
+  and both hands;
+- ``mediapipe_pose`` (33): ``POSE_LANDMARKS`` only;
+- ``mediapipe_hands`` (42): both hands only (a hands-only file); channels x, y, z.
+
+Each mapped component needs x, y and z in its point format. Values: x / width, y / height, z as
+is, a masked point (confidence 0) -> NaN. ``FACE_LANDMARKS`` and other components are not used.
+Files written by aslexp add two components of their own, ``LEFT_HAND_WORLD_LANDMARKS`` and
 ``RIGHT_HAND_WORLD_LANDMARKS`` (the metric MediaPipe Hands, same scaling), so that retargeting
-from a ``.pose`` is as exact as from the ``.npy`` folder; other readers ignore components they
-do not use. ``FACE_LANDMARKS`` is written only when the face was extracted (its mesh tesselation
-is not available without mediapipe, so its limbs are left empty).
+from a ``.pose`` is as exact as from the ``.npy`` folder; other readers ignore components they do
+not use. ``FACE_LANDMARKS`` is written only when the face was extracted (its mesh tesselation is
+not available without mediapipe, so its limbs are left empty).
 
 The ``pose_format`` keypoint source reads a folder of ``<video_id>.pose`` files. ``layout``:
-``auto`` (default) maps Holistic files and rejects any other header in one line naming the file
-and the component; ``header`` builds the layout from the file's own header (every point of the
-non-world components, ``COMPONENT:POINT`` names, limbs as edges), for OpenPose, AlphaPose or any
-other layout the library writes.
+``auto`` (default) takes the first of the layouts above that the first file has everything for
+(every file must then have it too), and otherwise says in one line which components the file has
+and what each layout needs; a layout name forces that layout; ``header`` builds the layout from
+the file's own header (every point of the non-world components, ``COMPONENT:POINT`` names, limbs
+as edges), for OpenPose, AlphaPose or any other layout the library writes.
+
+For retargeting, :func:`holistic_arrays` takes whatever MediaPipe points a file has (NaN for the
+rest) and says which parts are missing and why.
 
 pose-format is imported only when a file is read or written.
 """
@@ -33,7 +50,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +59,8 @@ import numpy as np
 from aslexp.errors import DataError
 from aslexp.keypoints import holistic as H
 from aslexp.keypoints.layout import KeypointLayout
-from aslexp.keypoints.layouts import MEDIAPIPE_HOLISTIC
-from aslexp.keypoints.registry import register_layout, register_source
+from aslexp.keypoints.layouts import MEDIAPIPE_HANDS, MEDIAPIPE_HOLISTIC, MEDIAPIPE_HOLISTIC_REDUCED, MEDIAPIPE_POSE
+from aslexp.keypoints.registry import get_layout, register_layout, register_source
 
 log = logging.getLogger(__name__)
 
@@ -61,11 +78,36 @@ HAND_POINTS = (
     "RING_FINGER_MCP", "RING_FINGER_PIP", "RING_FINGER_DIP", "RING_FINGER_TIP",
     "PINKY_MCP", "PINKY_PIP", "PINKY_DIP", "PINKY_TIP",
 )  # fmt: skip
+REDUCED_POSE_POINTS = tuple(POSE_POINTS[i] for i in H.REDUCED_BODY)  # what reduce_holistic keeps
 HOLISTIC_PARTS = ((POSE, POSE_POINTS, 0), (LEFT, HAND_POINTS, H.LEFT_HAND_OFFSET),
                   (RIGHT, HAND_POINTS, H.RIGHT_HAND_OFFSET))  # fmt: skip
 WORLD_PARTS = ((POSE_WORLD, POSE_POINTS, 0), (LEFT_WORLD, HAND_POINTS, H.LEFT_HAND_OFFSET),
                (RIGHT_WORLD, HAND_POINTS, H.RIGHT_HAND_OFFSET))  # fmt: skip
-LAYOUT_MODES = ("auto", "header")
+
+
+def _sources(parts) -> dict[str, tuple[str, str]]:
+    """aslexp holistic node name -> (component, point) in a .pose."""
+    return {H.NAMES[offset + k]: (component, point) for component, points, offset in parts
+            for k, point in enumerate(points)}  # fmt: skip
+
+
+IMAGE_SOURCES = _sources(HOLISTIC_PARTS)
+WORLD_SOURCES = _sources(WORLD_PARTS)
+# The MediaPipe layouts a .pose maps onto by name, richest first: layout auto takes the first that fits.
+AUTO_LAYOUTS: tuple[KeypointLayout, ...] = (MEDIAPIPE_HOLISTIC, MEDIAPIPE_HOLISTIC_REDUCED, MEDIAPIPE_POSE,
+                                            MEDIAPIPE_HANDS)  # fmt: skip
+NEEDS = {
+    MEDIAPIPE_HOLISTIC.name: f"{POSE} (MediaPipe's 33 Pose points) + {LEFT} + {RIGHT} (its 21 hand points each)",
+    MEDIAPIPE_HOLISTIC_REDUCED.name: f"both hands + the shoulders, elbows, wrists and hips of {POSE} "
+                                     "(pose-format's reduce_holistic)",
+    MEDIAPIPE_POSE.name: POSE,
+    MEDIAPIPE_HANDS.name: "both hands",
+}
+LAYOUT_MODES = ("auto", "header", *(layout.name for layout in AUTO_LAYOUTS))
+
+
+class LayoutMismatch(DataError):
+    """A readable ``.pose`` without the components or points a layout needs."""
 
 
 @dataclass
@@ -79,6 +121,9 @@ class PoseFile:
     width: int
     height: int
     world: np.ndarray | None = None  # (T, 75, 3) metres for Holistic files with a world component
+    # holistic_arrays only: part ('body', 'left_hand', 'right_hand') -> why the file cannot give it
+    missing: dict[str, str] = field(default_factory=dict)
+    components: list[str] = field(default_factory=list)  # the file's components, described
 
 
 def _pose_format():
@@ -92,7 +137,8 @@ def _pose_format():
 
 
 def read_pose(path: str | Path):
-    """The pose-format ``Pose`` in ``path`` (a DataError naming the file when it is not one)."""
+    """The pose-format ``Pose`` in ``path``, read by pose-format itself (any header version it
+    reads); a DataError naming the file when it is not one."""
     Pose = _pose_format()[0]
     path = Path(path)
     if not path.is_file():
@@ -100,39 +146,106 @@ def read_pose(path: str | Path):
     try:
         return Pose.read(path.read_bytes())
     except Exception as error:  # noqa: BLE001 - any parse failure of a foreign file is bad input
-        raise DataError(f"{path}: not a readable .pose file ({type(error).__name__}: {error})") from None
+        raise DataError(f"{path}: not a readable .pose file: pose-format's reader says "
+                        f"{type(error).__name__}: {error}".rstrip(": ")) from None  # fmt: skip
 
 
 def _offsets(header) -> dict[str, tuple[int, Any]]:
-    offsets, start = {}, 0
+    """Component name -> (its first point's index in the body, the component); the first of
+    two components with one name."""
+    offsets: dict[str, tuple[int, Any]] = {}
+    start = 0
     for component in header.components:
-        offsets[component.name] = (start, component)
+        offsets.setdefault(component.name, (start, component))
         start += len(component.points)
     return offsets
 
 
-def holistic_mismatch(header) -> str | None:
-    """None when the header is MediaPipe Holistic as pose-format writes it, else the reason,
-    naming the component."""
+def describe_components(header) -> list[str]:
+    """``NAME (points, FORMAT)`` for each component of a header."""
+    return [f"{c.name} ({len(c.points)} points, {c.format})" for c in header.components]
+
+
+def known_format(header) -> str:
+    """pose-format's own name for the header's layout ('holistic', 'openpose', ...), or ''."""
+    try:
+        from pose_format.utils.generic import detect_known_pose_format
+
+        return f"pose-format calls it {detect_known_pose_format(header)!r}"
+    except Exception:  # noqa: BLE001 - unknown to pose-format too
+        return "unknown to pose-format"
+
+
+def _locate(header, wanted: list[tuple[str, str]], dims: str = "XYZ"):
+    """Where each wanted (component, point) is: (body point index, index of each of ``dims`` in
+    the data's last axis), or None; and the reasons the missing ones are missing (one per
+    component: absent, without a dimension, or lacking points)."""
     components = _offsets(header)
-    for name, points, _ in HOLISTIC_PARTS:
-        if name not in components:
-            unknown = [c.name for c in header.components if c.name not in (POSE, FACE, LEFT, RIGHT, POSE_WORLD)]
-            what = f"component {unknown[0]!r}" if unknown else f"no component {name!r}"
-            return f"{what} (components {[c.name for c in header.components]})"
-        found = tuple(components[name][1].points)
-        if found != points:
-            return f"component {name!r} has points {list(found[:4])}... ({len(found)}), expected MediaPipe's {len(points)}"
-    return None
+    found: list[tuple[int, list[int]] | None] = []
+    lacking: dict[str, list[str]] = {}
+    reasons: dict[str, str] = {}
+    for component_name, point in wanted:
+        if component_name not in components:
+            reasons[component_name] = f"no component {component_name}"
+            found.append(None)
+            continue
+        start, component = components[component_name]
+        spatial = component.format.upper().replace("C", "")
+        if any(d not in spatial for d in dims):
+            reasons[component_name] = (f"component {component_name} has point format {component.format}, "
+                                       f"not {dims}C")  # fmt: skip
+            found.append(None)
+            continue
+        try:
+            k = list(component.points).index(point)
+        except ValueError:
+            lacking.setdefault(component_name, []).append(point)
+            found.append(None)
+            continue
+        found.append((start + k, [spatial.index(d) for d in dims]))
+    for component_name, points in lacking.items():
+        total = len(components[component_name][1].points)
+        shown = ", ".join(points[:4]) + (", ..." if len(points) > 4 else "")
+        reasons[component_name] = (f"component {component_name} ({total} points) lacks {len(points)} "
+                                   f"needed point(s): {shown}")  # fmt: skip
+    return found, reasons
 
 
-def check_holistic(header, origin: str) -> None:
-    """Raise the one-line DataError for a header that is not MediaPipe Holistic."""
-    mismatch = holistic_mismatch(header)
-    if mismatch is not None:
-        raise DataError(f"{origin}: unknown .pose layout: {mismatch}; aslexp maps MediaPipe Holistic "
-                        f"({POSE}, {LEFT}, {RIGHT}); set pose.options.layout=header to build the "
-                        "layout from the file's header")  # fmt: skip
+def _fit(header, layout: KeypointLayout):
+    """(locations, reasons) of a MediaPipe layout's nodes in a header (reasons empty when it fits)."""
+    dims = "".join(c.upper() for c in layout.channels if c in ("x", "y", "z"))
+    try:
+        wanted = [IMAGE_SOURCES[name] for name in layout.names]
+    except KeyError:
+        raise DataError(f"layout {layout.name!r} has nodes that are not MediaPipe Holistic points; "
+                        f"a .pose maps onto {[lay.name for lay in AUTO_LAYOUTS]} or layout=header") from None
+    return _locate(header, wanted, dims)
+
+
+def choose_layout(header, origin: str, mode: str = "auto") -> KeypointLayout:
+    """The MediaPipe layout a header maps onto: ``mode`` (a layout name) or, for ``auto``, the
+    first of :data:`AUTO_LAYOUTS` that it has everything for; else the one-line DataError."""
+    candidates = AUTO_LAYOUTS if mode == "auto" else (get_layout(mode),)
+    results = []
+    for layout in candidates:
+        reasons = _fit(header, layout)[1]
+        if not reasons:
+            return layout
+        results.append((layout, reasons))
+    has = f"the file has components {', '.join(describe_components(header)) or 'none'} ({known_format(header)})"
+    if mode != "auto":
+        layout, reasons = results[0]
+        raise LayoutMismatch(f"{origin}: layout {mode} needs {NEEDS.get(mode, 'its nodes')}: "
+                        f"{'; '.join(reasons.values())}; {has}")  # fmt: skip
+    mediapipe = {POSE, LEFT, RIGHT} & {c.name for c in header.components}
+    closest = ""
+    if mediapipe:  # MediaPipe components with something missing: say what, for the nearest layout
+        layout, reasons = min(results, key=lambda r: len(r[1]))
+        closest = f" (nearest: {layout.name}: {'; '.join(reasons.values())})"
+    needs = "; ".join(f"{name}: {text}" for name, text in NEEDS.items())
+    raise LayoutMismatch(f"{origin}: no MediaPipe layout fits: {has}{closest}; the layouts need, by component and "
+                    f"point name, with x, y and z: {needs}; set pose.options.layout=header to use the file's "
+                    "own layout instead")  # fmt: skip
 
 
 def header_layout(header, origin: str) -> tuple[KeypointLayout, list[int]]:
@@ -170,70 +283,118 @@ def _scaled(data: np.ndarray, width: int, height: int) -> np.ndarray:
     return out
 
 
-def pose_to_arrays(pose, origin: str, layout: str = "auto", person: int = 0) -> PoseFile:
-    """A pose-format ``Pose`` -> aslexp arrays (see the module doc for the mapping)."""
-    if layout not in LAYOUT_MODES:
-        raise DataError(f"{origin}: pose.options.layout = {layout!r}; expected one of {LAYOUT_MODES}")
-    header, body = pose.header, pose.body
-    width, height = int(header.dimensions.width), int(header.dimensions.height)
-    data = np.ma.getdata(body.data)
-    confidence = np.asarray(body.confidence, dtype=np.float32)
+def _person(pose, origin: str, person: int) -> tuple[np.ndarray, np.ndarray]:
+    """One person's (T, P, D) data (masked values kept as written) and (T, P) confidence."""
+    data = np.ma.getdata(pose.body.data)
+    confidence = np.asarray(np.ma.getdata(pose.body.confidence), dtype=np.float32)
     if data.ndim != 4:
         raise DataError(f"{origin}: body data has shape {data.shape}, expected (frames, people, points, dims)")
     if not 0 <= person < data.shape[1]:
         if data.shape[0] == 0:  # an empty file: no frames, no people
-            data = np.zeros((0, person + 1, *data.shape[2:]), np.float32)
-            confidence = np.zeros(data.shape[:3], np.float32)
-        else:
-            raise DataError(f"{origin}: person {person} requested, the file has {data.shape[1]}")
-    data, confidence = data[:, person], confidence[:, person]
-    missing = confidence <= 0
-    components = _offsets(header)
-    if layout == "auto":
-        check_holistic(header, origin)
-        T = len(data)
-        clip = np.full((T, H.NUM_NODES, 4), np.nan, np.float32)
+            return np.zeros((0, *data.shape[2:]), np.float32), np.zeros((0, data.shape[2]), np.float32)
+        raise DataError(f"{origin}: person {person} requested, the file has {data.shape[1]}")
+    return data[:, person], confidence[:, person]
+
+
+def _gather(data, confidence, found, width: int, height: int, with_confidence: bool) -> np.ndarray:
+    """(T, len(found), D) float32 from located points (NaN for None and for masked frames):
+    x / width, y / height, other dimensions as they are, then the confidence if asked."""
+    T = len(data)
+    dims = next((len(f[1]) for f in found if f is not None), 3)
+    out = np.full((T, len(found), dims + with_confidence), np.nan, np.float32)
+    for k, where in enumerate(found):
+        if where is None:
+            continue
+        point, axes = where
+        values = data[:, point][:, axes].astype(np.float32)
+        values[:, 0] /= float(width or 1)
+        if dims > 1:
+            values[:, 1] /= float(height or 1)
+        out[:, k, :dims] = values
+        if with_confidence:
+            out[:, k, dims] = confidence[:, point]
+        out[confidence[:, point] <= 0, k] = np.nan
+    return out
+
+
+def pose_to_arrays(pose, origin: str, layout: str = "auto", person: int = 0) -> PoseFile:
+    """A pose-format ``Pose`` -> aslexp arrays in a MediaPipe layout found by name (``auto`` or a
+    layout name), or in the header's own layout (``header``); see the module doc."""
+    if layout not in LAYOUT_MODES:
+        raise DataError(f"{origin}: pose.options.layout = {layout!r}; expected one of {list(LAYOUT_MODES)}")
+    header = pose.header
+    width, height = int(header.dimensions.width), int(header.dimensions.height)
+    data, confidence = _person(pose, origin, person)
+    fps = float(pose.body.fps)
+    if layout != "header":
+        chosen = choose_layout(header, origin, layout)
+        found, _ = _fit(header, chosen)
+        clip = _gather(data, confidence, found, width, height, with_confidence="visibility" in chosen.channels)
         world = None
-        for name, points, offset in HOLISTIC_PARTS:
-            start = components[name][0]
-            part = slice(start, start + len(points))
-            xyz = _scaled(data[:, part, :3], width, height)
-            clip[:, offset : offset + len(points), :3] = xyz
-            clip[:, offset : offset + len(points), 3] = confidence[:, part]
-            clip[:, offset : offset + len(points)][missing[:, part]] = np.nan
-        if POSE_WORLD in components:
-            world = np.full((T, H.NUM_NODES, 3), np.nan, np.float32)
-            for name, points, offset in WORLD_PARTS:
-                if name not in components:
-                    continue
-                start = components[name][0]
-                part = slice(start, start + len(points))
-                world[:, offset : offset + len(points)] = _scaled(data[:, part, :3], width, height)
-                world[:, offset : offset + len(points)][missing[:, part]] = np.nan
-        return PoseFile(Path(origin), MEDIAPIPE_HOLISTIC, clip, float(body.fps), width, height, world)
+        if chosen is MEDIAPIPE_HOLISTIC and POSE_WORLD in _offsets(header):
+            world_found = _locate(header, [WORLD_SOURCES[n] for n in H.NAMES])[0]
+            world = _gather(data, confidence, world_found, width, height, with_confidence=False)
+        return PoseFile(Path(origin), chosen, clip, fps, width, height, world,
+                        components=describe_components(header))  # fmt: skip
     layout_obj, take = header_layout(header, origin)
     dims = len(layout_obj.channels) - (1 if layout_obj.channels[-1] == "confidence" else 0)
     clip = _scaled(data[:, take, :dims], width, height)
     if layout_obj.channels[-1] == "confidence":
         clip = np.concatenate([clip, confidence[:, take, None]], axis=-1)
-    clip[missing[:, take]] = np.nan
-    return PoseFile(Path(origin), layout_obj, clip, float(body.fps), width, height)
+    clip[confidence[:, take] <= 0] = np.nan
+    return PoseFile(Path(origin), layout_obj, clip, fps, width, height, components=describe_components(header))
 
 
 def read_pose_file(path: str | Path, layout: str = "auto", person: int = 0) -> PoseFile:
-    """Read one ``.pose`` into aslexp arrays (layout ``auto``: Holistic, or ``header``)."""
+    """Read one ``.pose`` into aslexp arrays (layout ``auto``, a MediaPipe layout name, or ``header``)."""
     return pose_to_arrays(read_pose(path), str(path), layout, person)
 
 
+def holistic_arrays(path: str | Path, person: int = 0) -> PoseFile:
+    """Whatever MediaPipe points a ``.pose`` has, by name, in aslexp's 75-node Holistic arrays
+    (NaN for the rest), the world landmarks it has (or None), and in ``missing`` why a part
+    ('body', 'left_hand', 'right_hand') is not in the file: for retargeting, which takes what is
+    there. A file with none of them is the one-line DataError saying what is needed."""
+    pose = read_pose(path)
+    origin = str(path)
+    header = pose.header
+    width, height = int(header.dimensions.width), int(header.dimensions.height)
+    data, confidence = _person(pose, origin, person)
+    found, reasons = _locate(header, [IMAGE_SOURCES[n] for n in H.NAMES])
+    clip = _gather(data, confidence, found, width, height, with_confidence=True)
+    world = None
+    if POSE_WORLD in _offsets(header):  # the metric pose, with aslexp's metric hands where the file has them
+        world_found, _ = _locate(header, [WORLD_SOURCES[n] for n in H.NAMES])
+        world = _gather(data, confidence, world_found, width, height, with_confidence=False)
+    missing = {}
+    body = ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist")
+    if any(found[H.NAMES.index(n)] is None for n in body):
+        missing["body"] = f"not in the file: {reasons[POSE]}"
+    for side, component, offset in (("left_hand", LEFT, H.LEFT_HAND_OFFSET),
+                                    ("right_hand", RIGHT, H.RIGHT_HAND_OFFSET)):  # fmt: skip
+        if any(found[offset + k] is None for k in range(H.NUM_HAND)):
+            missing[side] = f"not in the file: {reasons[component]}"
+    result = PoseFile(Path(origin), MEDIAPIPE_HOLISTIC, clip, float(pose.body.fps), width, height, world,
+                      missing, describe_components(header))  # fmt: skip
+    if len(missing) == 3:
+        raise DataError(f"{origin}: nothing to retarget: the file has components "
+                        f"{', '.join(result.components) or 'none'} ({known_format(header)}); by name, "
+                        f"the hand motion needs {LEFT} or {RIGHT} (21 MediaPipe hand points), the upper "
+                        f"body {POSE} with both shoulders, elbows and wrists (MediaPipe Pose names), each "
+                        "with x, y, z; make MediaPipe keypoints from the video with "
+                        "`aslexp extract VIDEO --motions`")  # fmt: skip
+    return result
+
+
 class PoseFormatSource:
-    """A folder of ``<video_id>.pose`` files, all in one layout (read from the first file's header)."""
+    """A folder of ``<video_id>.pose`` files, all in one layout (chosen from the first file)."""
 
     def __init__(self, directory: str | Path, layout: str = "auto", person: int = 0):
         self.directory = Path(directory)
         if not self.directory.is_dir():
             raise FileNotFoundError(f".pose folder not found: {self.directory}")
         if layout not in LAYOUT_MODES:
-            raise DataError(f"{self.directory}: pose.options.layout = {layout!r}; expected one of {LAYOUT_MODES}")
+            raise DataError(f"{self.directory}: pose.options.layout = {layout!r}; expected one of {list(LAYOUT_MODES)}")
         self.mode, self.person = layout, int(person)
         self._layout: KeypointLayout | None = None
 
@@ -246,33 +407,41 @@ class PoseFormatSource:
             files = sorted(self.directory.glob(f"*{SUFFIX}"))
             if not files:
                 raise DataError(f"{self.directory}: no {SUFFIX} files")
-            Pose = _pose_format()[0]
-            from pose_format.pose_body import EmptyPoseBody
-
-            first = files[0]
-            try:
-                with open(first, "rb") as handle:
-                    header = Pose.read(handle, pose_body=EmptyPoseBody).header
-            except Exception as error:  # noqa: BLE001 - a foreign file
-                raise DataError(f"{first}: not a readable .pose file ({type(error).__name__}: {error})") from None
-            if self.mode == "auto":
-                check_holistic(header, str(first))
-                self._layout = MEDIAPIPE_HOLISTIC
-            else:
+            first = self._first = files[0]
+            header = read_pose(first).header  # pose-format's reader: every version it knows
+            if self.mode == "header":
                 self._layout = register_layout(header_layout(header, str(first))[0])
+            else:
+                self._layout = choose_layout(header, str(first), self.mode)
+                unused = [c.name for c in header.components
+                          if c.name in (POSE, LEFT, RIGHT) and c.name not in self._uses()]  # fmt: skip
+                if unused:
+                    log.info("%s: .pose layout %s (from %s); components %s not used", self.directory,
+                             self._layout.name, first.name, unused)  # fmt: skip
         return self._layout
+
+    def _uses(self) -> set[str]:
+        return {IMAGE_SOURCES[name][0] for name in self.layout.names}
 
     def load(self, video_id: str) -> np.ndarray:
         path = self.directory / f"{video_id}{SUFFIX}"
-        result = read_pose_file(path, self.mode, self.person)
-        if result.layout.names != self.layout.names or result.layout.channels != self.layout.channels:
+        layout = self.layout
+        try:
+            result = read_pose_file(path, "header" if self.mode == "header" else layout.name, self.person)
+        except DataError as error:
+            if self.mode != "auto" or not isinstance(error, LayoutMismatch):
+                raise
+            raise DataError(f"{error} (the folder's layout, chosen from its first file {self._first.name}: "
+                            "set pose.options.layout to one that every file has)") from None  # fmt: skip
+        if result.layout.names != layout.names or result.layout.channels != layout.channels:
             raise DataError(f"{path}: layout {result.layout.name!r} differs from the folder's "
-                            f"{self.layout.name!r} (read from its first file)")  # fmt: skip
+                            f"{layout.name!r} (read from its first file)")  # fmt: skip
         return result.keypoints
 
 
 register_source("pose_format", PoseFormatSource,
-                summary="<dir>/<id>.pose (pose-format); layout from the header (options: layout, person)")  # fmt: skip
+                summary="<dir>/<id>.pose (pose-format): MediaPipe layouts by name, or the header's own "
+                        "(options: layout, person)")  # fmt: skip
 
 
 # ----------------------------------------------------------------------------- writing

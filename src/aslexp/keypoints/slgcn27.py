@@ -28,6 +28,10 @@ an honest layout, not 27 nodes of which some are always zero. What the 27 points
 
 - ``sign27`` (the thesis' published HRNet arrays) and ``mediapipe_holistic`` (MediaPipe Holistic,
   75 nodes, written by ``aslexp extract``): all 27, exact.
+- ``mediapipe_holistic_reduced`` (pose-format's ``reduce_holistic``, read from ``.pose`` files):
+  26, exact; no nose, so the centre is the left shoulder and the two shoulders are joined.
+- ``mediapipe_hands`` (two hands, e.g. a hands-only ``.pose``): the 20 hand points, exact; the
+  centre is the left hand root, joined to the right one.
 - ``mediapipe_pose`` (the shared data's 291 clips: 33 body landmarks, no fingers): 13 points.
   Exact: nose, shoulders, elbows, wrists (7). Approximate: per hand the index MCP (Pose's "index",
   the first knuckle), the little-finger MCP (Pose's "pinky", the first knuckle) and the thumb tip
@@ -40,6 +44,7 @@ an honest layout, not 27 nodes of which some are always zero. What the 27 points
 from __future__ import annotations
 
 from aslexp.errors import DataError
+from aslexp.keypoints import holistic as H
 from aslexp.keypoints.layout import KeypointLayout
 from aslexp.keypoints.registry import register_layout, register_subset_builder
 
@@ -98,10 +103,24 @@ def _holistic_map() -> dict[str, tuple[int | None, str]]:
     return mapping
 
 
+def _by_name(names: tuple[str, ...]) -> dict[str, tuple[int | None, str]]:
+    """The holistic map onto a layout whose nodes are some of the holistic ones (same names)."""
+    position = {name: k for k, name in enumerate(names)}
+    mapping: dict[str, tuple[int | None, str]] = {}
+    for node, (index, _) in _holistic_map().items():
+        k = position.get(H.NAMES[index])
+        mapping[node] = (k, "exact") if k is not None else (None, "missing")
+    return mapping
+
+
 MAPS: dict[str, dict[str, tuple[int | None, str]]] = {
     "sign27": {name: (i, "exact") for i, name in enumerate(NAMES)},
     "mediapipe_holistic": _holistic_map(),
     "mediapipe_pose": _pose_map(),
+    # Read from .pose files by name (aslexp.keypoints.posefile): pose-format's reduced Holistic has
+    # no nose; hands-only files have no body.
+    "mediapipe_holistic_reduced": _by_name(tuple(H.NAMES[i] for i in H.REDUCED_BODY + H.HAND_NODES)),
+    "mediapipe_hands": _by_name(tuple(H.NAMES[i] for i in H.HAND_NODES)),
 }
 NOTES = {
     "mediapipe_pose": {
@@ -135,7 +154,8 @@ def contracted_edges(kept: list[int]) -> tuple[tuple[int, int], ...]:
     positions in ``kept``: a kept node hangs from its nearest kept ancestor."""
     parent = {child: par for par, child in EDGES}
     position = {node: k for k, node in enumerate(kept)}
-    edges = []
+    roots = _roots(kept)  # without the nose SL-GCN's tree falls apart: join its branches at the first
+    edges = [(position[roots[0]], position[node]) for node in roots[1:]]
     for node in kept:
         ancestor = parent.get(node)
         while ancestor is not None and ancestor not in position:
@@ -143,6 +163,19 @@ def contracted_edges(kept: list[int]) -> tuple[tuple[int, int], ...]:
         if ancestor is not None:
             edges.append((position[ancestor], position[node]))
     return tuple(edges)
+
+
+def _roots(kept: list[int]) -> list[int]:
+    """The kept nodes with no kept ancestor: the nose alone when it is kept (the first is the centre)."""
+    parent = {child: par for par, child in EDGES}
+    roots = []
+    for node in kept:
+        ancestor = parent.get(node)
+        while ancestor is not None and ancestor not in kept:
+            ancestor = parent.get(ancestor)
+        if ancestor is None:
+            roots.append(node)
+    return roots
 
 
 def slgcn27_subset(layout: KeypointLayout) -> tuple[KeypointLayout, tuple[int, ...]]:
@@ -160,7 +193,7 @@ def slgcn27_subset(layout: KeypointLayout) -> tuple[KeypointLayout, tuple[int, .
         name=f"{layout.name}_{NAME}",
         names=tuple(NAMES[k] for k in kept),
         edges=contracted_edges(kept),
-        center=kept.index(CENTER),
+        center=kept.index(_roots(kept)[0]),  # the nose, or where there is none the first root
         channels=layout.channels,
     )
     return restricted, indices

@@ -43,7 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Extract MediaPipe Holistic keypoints from sign videos (cached per video), "
         "optionally with skeleton overlays and DeepMimic reference motions.",
     )
-    p.add_argument("inputs", nargs="*", help="video files, folders of videos, or a WLASL json")
+    p.add_argument("inputs", nargs="*", help="video files, folders of videos, or a WLASL json; or .pose "
+                   "files (pose-format) with --motions, retargeted as they are (MediaPipe points by name)")
     p.add_argument("--out", required=True, help="output folder (a 'directory' keypoint source)")
     p.add_argument("--wlasl", help="WLASL json: cut each video to its instance's frame range "
                    "(the videos come from --videos DIR or a folder among the inputs)")
@@ -153,11 +154,12 @@ def extract_main(argv: list[str]) -> int:
 def _batch_end(total: int, succeeded: int, problems: list[str]) -> int:
     """The batch's last line and exit code: 0 when anything succeeded (the failures are listed
     above, each with its reason), 1 when nothing did."""
-    if problems:
+    if problems and succeeded:
         print(f"done with {len(problems)} problem(s) in {total} input(s), listed above "
               "(FAILED lines); the rest is written")
     if total and not succeeded:
-        print(f"aslexp extract: none of the {total} input(s) succeeded", file=sys.stderr)
+        print(f"aslexp extract: none of the {total} input(s) succeeded"
+              + (" (FAILED lines above)" if problems else ""), file=sys.stderr)  # fmt: skip
         return 1
     return 0
 
@@ -177,7 +179,8 @@ def _write_motions(video_ids: list[str], args, from_pose: bool = False) -> tuple
                                     Path(args.out) / "motions", hand=args.hand, sigma=args.sigma,
                                     data_root=args.data_root, torso=args.torso)  # fmt: skip
         except (DataError, OSError) as err:
-            problems.append(f"  motion FAILED {vid}: {err}")
+            text = str(err)  # a .pose file's message names it already
+            problems.append(f"  motion FAILED {text if text.startswith(str(vid)) else f'{vid}: {text}'}")
             continue
         for part in ("hand", "upper_body"):
             r = result[part]
@@ -185,7 +188,8 @@ def _write_motions(video_ids: list[str], args, from_pose: bool = False) -> tuple
             if r["status"] != "ok":
                 problems.append(f"  motion FAILED {vid} {part}: {r['error']}")
         written += any(result[part]["status"] == "ok" for part in ("hand", "upper_body"))
-    print(f"motions in {Path(args.out) / 'motions'}: " + ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())))
+    print(f"motions in {Path(args.out) / 'motions'}: "
+          + (", ".join(f"{k}: {v}" for k, v in sorted(counts.items())) or "none"))  # fmt: skip
     for line in problems:
         print(line)
     return problems, written

@@ -713,32 +713,45 @@ def retarget_video(
     torso: str = "vertical",
 ) -> dict:
     """Write ``<out>/hand/<id>.txt`` (23 columns) and ``<out>/upper_body/<id>.txt`` (76 columns)
-    from a video's world landmarks: an extraction folder and a video id, or a MediaPipe-Holistic
-    ``.pose`` file (:mod:`aslexp.pose.landmarks`); returns a report. A part that cannot be made
-    (no hand, no body) is reported with its reason; the other part is still written."""
+    from a video's world landmarks: an extraction folder and a video id, or a ``.pose`` file with
+    MediaPipe points (:mod:`aslexp.pose.landmarks`); returns a report. A part that cannot be made
+    (no hand, no body; for a ``.pose``, a part the file does not have at all) is reported with its
+    reason; the other part is still written. A hands-only file gives the hand motion, a body-only
+    one the upper body (fingers open)."""
     from aslexp.pose.landmarks import load_world
 
     kdir = Path(keypoint_dir)
     out = Path(out_dir) if out_dir else (kdir.parent if kdir.suffix == ".pose" else kdir) / "motions"
-    world, fps, video_id = load_world(kdir, video_id)
-    world = world.astype(float)
+    landmarks = load_world(kdir, video_id)
+    world, fps, video_id, missing = landmarks.world.astype(float), landmarks.fps, landmarks.video_id, landmarks.missing
     result: dict = {"video_id": video_id, "fps": fps, "frames": len(world)}
+    if missing:
+        result["unavailable"] = dict(missing)  # parts a .pose does not have, and why
     side = dominant_side(world) if hand == "dominant" else hand
     offset = H.LEFT_HAND_OFFSET if side == "left" else H.RIGHT_HAND_OFFSET
+    no_hand = hand == "dominant" and {"left_hand", "right_hand"} <= set(missing)  # else the dominant one is there
+    which = "hand" if no_hand else f"{side} hand"
     try:
+        if no_hand:
+            raise ValueError(f"{missing['left_hand']}; {missing['right_hand'].removeprefix('not in the file: ')} "
+                             "(the hand motion needs one)")  # fmt: skip
+        if f"{side}_hand" in missing:
+            raise ValueError(f"{missing[f'{side}_hand']} (the hand motion needs it)")
         hand_kp = world[:, offset : offset + 21] @ MP_TO_HUMANOID.T
         motion = hand_motion_from_landmarks(hand_kp, fps, side, sigma, data_root)
         path = motion.save(out / "hand" / f"{video_id}.txt")
         result["hand"] = {"status": "ok", "path": str(path), **motion.report}
     except ValueError as err:
-        result["hand"] = {"status": "failed", "reason": "no_hand", "error": f"{video_id}: {side} hand: {err}"}
+        result["hand"] = {"status": "failed", "reason": "no_hand", "error": f"{video_id}: {which}: {err}"}
     try:
+        if "body" in missing:
+            raise ValueError(f"{missing['body']} (the upper body needs both shoulders, elbows and wrists)")
         body, hands = humanoid_inputs_from_world(world)
         motion = retarget_upper_body(body, hands, fps, sigma, data_root, torso)
         path = motion.save(out / "upper_body" / f"{video_id}.txt")
         result["upper_body"] = {"status": "ok", "path": str(path), **motion.report}
     except ValueError as err:
-        result["upper_body"] = {"status": "failed", "reason": "no_body", "error": f"{video_id}: {err}"}
+        result["upper_body"] = {"status": "failed", "reason": "no_body", "error": f"{video_id}: upper body: {err}"}
     report_path = out / "reports" / f"{video_id}.json"
     report_path.parent.mkdir(parents=True, exist_ok=True)
     report_path.write_text(json.dumps(result, indent=1))
