@@ -228,6 +228,8 @@ def read_pose_file(path: str | Path, layout: str = "auto", person: int = 0) -> P
 class PoseFormatSource:
     """A folder of ``<video_id>.pose`` files, all in one layout (read from the first file's header)."""
 
+    file_suffix = SUFFIX
+
     def __init__(self, directory: str | Path, layout: str = "auto", person: int = 0):
         self.directory = Path(directory)
         if not self.directory.is_dir():
