@@ -70,15 +70,22 @@ def _rank(gloss: str, entry: LexiconEntry) -> tuple[int, int, int, int]:
     return (0 if exact else 1, 0 if via_entry else 1, int(suffix.group(1)) if suffix else 0, entry.row)
 
 
-def match_glosses(wlasl: Wlasl, lexicon: Lexicon) -> MatchResult:
-    """Match every WLASL gloss to at most one lexicon row (rule in the module docstring)."""
+def lexicon_keys(lexicon: Lexicon) -> dict[str, list[LexiconEntry]]:
+    """``normalise_gloss`` of every EntryID and LemmaID -> the rows that have it."""
     rows_by_key: dict[str, list[LexiconEntry]] = {}
     for entry in lexicon.entries:
         for key in {normalise_gloss(entry.entry_id), normalise_gloss(entry.lemma_id)}:
             if key:
                 rows_by_key.setdefault(key, []).append(entry)
+    return rows_by_key
+
+
+def match_names(glosses, lexicon: Lexicon) -> tuple[dict[str, GlossMatch], list[str]]:
+    """Match gloss names to at most one lexicon row each (rule in the module docstring):
+    ({gloss: match}, [glosses with no row])."""
+    rows_by_key = lexicon_keys(lexicon)
     matches, unmatched = {}, []
-    for gloss in wlasl.glosses:
+    for gloss in glosses:
         candidates = sorted(rows_by_key.get(normalise_gloss(gloss), []), key=lambda e: _rank(gloss, e))
         if not candidates:
             unmatched.append(gloss)
@@ -87,6 +94,12 @@ def match_glosses(wlasl: Wlasl, lexicon: Lexicon) -> MatchResult:
         if len(candidates) > 1:
             log.debug("gloss %r matches %d %s rows %s; chose %r", gloss, len(candidates),
                       lexicon.name, [e.entry_id for e in candidates], candidates[0].entry_id)  # fmt: skip
+    return matches, unmatched
+
+
+def match_glosses(wlasl: Wlasl, lexicon: Lexicon) -> MatchResult:
+    """Match every WLASL gloss to at most one lexicon row (rule in the module docstring)."""
+    matches, unmatched = match_names(wlasl.glosses, lexicon)
     num_videos = sum(1 for instance in wlasl.instances if instance.gloss in matches)
     result = MatchResult(matches=matches, unmatched=tuple(unmatched), num_videos=num_videos)
     log.info("WLASL x %s: %d of %d glosses matched (%d videos); %d ambiguous glosses resolved "

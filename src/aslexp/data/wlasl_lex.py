@@ -1,6 +1,7 @@
 """WLASL-Lex: WLASL clips labelled with ASL-LEX phonological properties, ready for a model.
 
-Pipeline (``build_wlasl_lex``): lexicon + WLASL -> gloss matching -> keep the clips that have
+Pipeline (``build_wlasl_lex``): lexicon + WLASL -> gloss matching -> which clip each keypoint
+file holds (:mod:`aslexp.data.naming`, ``pose.options.names``) -> keep the clips that have
 keypoints, a matched gloss and a value for the property -> load keypoints (subset of the layout,
 chosen channels) -> fixed length + normalisation -> stratified split -> artefacts on disk (the
 thesis' WLASL-Lex layout) and a :class:`RecognitionDataset`. Every skipped clip is counted under
@@ -11,7 +12,7 @@ Artefacts in the output folder:
   (video ids per split; 'folds' for cv5), clips.json (video_id, gloss, entry_id, signer_id,
   label per clip), layout.json, {train,val,train+val,test}_data_joint_<pose>.npy (N, C, T, V, 1)
   float32, {split}_label.npy (N,) int64, {split}_mask.npy (N, T, V) bool, manifest.json
-  (parameters, counts, skip reasons; written last).
+  (parameters, counts, skip reasons, the build's warnings; written last).
 ``<pose>`` is the layout name, e.g. ``mediapipe_pose_thesis``.
 """
 
@@ -38,7 +39,8 @@ import numpy as np
 from aslexp.data.dataset import DataError, KeypointLayout, RecognitionDataset
 from aslexp.data.keypoints import open_keypoint_source
 from aslexp.data.lexicon import check_property, lexicon_spec, load_lexicon
-from aslexp.data.matching import match_glosses
+from aslexp.data.matching import lexicon_keys, match_glosses, match_names
+from aslexp.data.naming import resolve_clip_files
 from aslexp.data.preprocess import PADDINGS, preprocess_clips
 from aslexp.data.root import resolve_data_root
 from aslexp.data.splits import RARE_RULES, SPLIT_KINDS, make_splits
@@ -49,12 +51,13 @@ from aslexp.keypoints import SubsetSource, get_source, read_layout, write_layout
 log = logging.getLogger(__name__)
 
 # Bump when the artefacts or the built-in layouts (keypoints/layouts.py) change: cached builds are keyed on it.
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3  # 3: manifest "warnings" (said again on reuse), skip reason keypoints_not_named
 SPLIT_FILES = ("train", "val", "train+val", "test")
 MANIFEST = "manifest.json"
 INPUTS = "inputs.json"  # size and SHA-256 of every file a cached build read (its staleness check)
-SKIP_REASONS = ("no_keypoints", "keypoints_not_in_wlasl", "gloss_not_in_lexicon",
+SKIP_REASONS = ("no_keypoints", "keypoints_not_in_wlasl", "keypoints_not_named", "gloss_not_in_lexicon",
                 "missing_property_value", "bad_keypoint_file", "no_valid_frame", "rare_class")  # fmt: skip
+LEXICON_NAMES = {"asllex1": "ASL-LEX 1.0", "asllex2": "ASL-LEX 2.0"}
 
 
 @dataclass(frozen=True)
@@ -120,37 +123,42 @@ def build_wlasl_lex(
                            movement_none_as_missing=params.movement_none_as_missing)  # fmt: skip
     wlasl = load_wlasl(data_root)
     matched = match_glosses(wlasl, lexicon)
-    source = SubsetSource(
-        open_keypoint_source(params.source, data_root, params.source_path, **params.source_options),
-        params.subset,
-    )
+    options = dict(params.source_options)
+    names = options.pop("names", None)  # which clip each file holds (aslexp.data.naming); not the source's
+    inner = open_keypoint_source(params.source, data_root, params.source_path, **options)
+    source = SubsetSource(inner, params.subset)
     layout = source.layout
     channel_index = _channel_index(layout, params.channels)
     channels = [layout.channels[i] for i in channel_index]
 
     skipped: Counter = Counter({reason: 0 for reason in SKIP_REASONS})
     available = source.available()
-    wlasl_ids = {instance.video_id for instance in wlasl.instances}
-    skipped["no_keypoints"] = len(wlasl_ids - available)
-    skipped["keypoints_not_in_wlasl"] = len(available - wlasl_ids)
+    where = _describe_source(params, inner)
+    files = resolve_clip_files(available, names, wlasl, lexicon_keys(lexicon), where=where,
+                               suffix=getattr(inner, "file_suffix", ""),
+                               lexicon_name=LEXICON_NAMES.get(params.lexicon, params.lexicon))  # fmt: skip
+    build_warnings = list(files.warnings)
+    skipped.update(files.skipped)
+    gloss_matches = dict(matched.matches)
+    extra = sorted({i.gloss for i, _ in files.clips} - gloss_matches.keys() - set(matched.unmatched))
+    gloss_matches.update(match_names(extra, lexicon)[0])  # glosses named by files, not by WLASL
     candidates = []
-    for instance in wlasl.instances:
-        if instance.video_id not in available:
-            continue
-        match = matched.matches.get(instance.gloss)
+    for instance, file_id in files.clips:
+        match = gloss_matches.get(instance.gloss)
         if match is None:
             skipped["gloss_not_in_lexicon"] += 1
         elif match.entry.properties[params.property] is None:
             skipped["missing_property_value"] += 1
         else:
-            candidates.append((instance, match.entry))
+            candidates.append((instance, match.entry, file_id))
 
     clips, loaded = [], []
     rejected: list[str] = []
-    for instance, entry in _progress(candidates, desc="keypoints", unit="clip", mininterval=2,
-                                leave=False, disable=len(candidates) < 500):  # fmt: skip
+    loaded_files = []
+    for instance, entry, file_id in _progress(candidates, desc="keypoints", unit="clip", mininterval=2,
+                                              leave=False, disable=len(candidates) < 500):  # fmt: skip
         try:
-            clip = source.load(instance.video_id)
+            clip = source.load(file_id)
         except (DataError, OSError) as error:
             if strict:
                 raise
@@ -160,14 +168,21 @@ def build_wlasl_lex(
             continue
         clips.append(clip[..., channel_index])
         loaded.append((instance, entry))
+        loaded_files.append(file_id)
     if candidates and not loaded:  # every file is wrong for this source: say why, not "too few clips"
         raise DataError(f"keypoint source {params.source!r}: all {len(candidates)} keypoint files of the "
                         f"labelled clips were rejected, e.g. {rejected[0]} (files in another format need "
                         "their source and layout: conf/pose/array_folder.yaml, pose=mediapipe_hands, ...)")  # fmt: skip
-    zero_frames = getattr(source.source, "zero_frames", {})  # sources that mark all-zero frames
+    for line in build_warnings:
+        log.warning("%s", line)
+    for level, line in getattr(inner, "build_messages", lambda ids: [])(loaded_files):
+        log.log(level, "%s", line)  # e.g. hand files that look like detection order: one line per build
+        if level >= logging.WARNING:
+            build_warnings.append(line)
+    zero_frames = getattr(inner, "zero_frames", {})  # sources that mark all-zero frames
+    all_zero_frames = int(sum(zero_frames.get(f, 0) for f in loaded_files))
     if zero_frames:
-        total = sum(zero_frames.get(i.video_id, 0) for i, _ in loaded)
-        log.info("%d all-zero frames (no detection) in %d clips marked missing", total, len(loaded))
+        log.info("%d all-zero frames (no detection) in %d clips marked missing", all_zero_frames, len(loaded))
 
     prepared = preprocess_clips(clips, channels, params.length, params.padding)
     skipped["no_valid_frame"] = len(prepared.skipped_no_valid_frame)
@@ -211,13 +226,22 @@ def build_wlasl_lex(
                 "clips": len(kept),
                 "glosses": len(set(dataset.glosses)),
                 "classes": dataset.num_classes,
-                "all_zero_frames": int(sum(zero_frames.get(i.video_id, 0) for i, _ in loaded)),
+                "all_zero_frames": all_zero_frames,
                 **{f"preprocess_{k}": v for k, v in prepared.stats.items()},
             },
             "rare_classes": {"rule": params.rare_classes, "classes": split.rare},
+            "warnings": build_warnings,
         }
         write_wlasl_lex(out_dir, dataset, params, info)
     return dataset
+
+
+def _describe_source(params: WlaslLexParams, source) -> str:
+    """The keypoint folder (or file) of a build, for messages."""
+    folder = getattr(source, "directory", None)
+    if folder is not None:
+        return f"keypoint folder {folder}"
+    return f"keypoint source {params.source!r}" + (f" ({params.source_path})" if params.source_path else "")
 
 
 def _progress(items, **options):
@@ -292,6 +316,7 @@ def write_wlasl_lex(out_dir: str | Path, dataset: RecognitionDataset, params: Wl
         "label_counts": label_counts,
         "skipped": dataset.skipped,
         "rare_classes": info["rare_classes"],
+        "warnings": info.get("warnings", []),  # repeated when the build is reused
         "files": files,
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }
@@ -441,6 +466,15 @@ def _unusable(build: Path, params: WlaslLexParams, fingerprint: dict[str, list])
     return _stale_inputs(build, fingerprint)
 
 
+def _recorded_warnings(build: Path) -> list[str]:
+    """The warnings a build recorded in its manifest (said again each time it is reused)."""
+    try:
+        warnings = json.loads((build / MANIFEST).read_text(encoding="utf-8")).get("warnings") or []
+    except (OSError, ValueError, AttributeError):
+        return []
+    return [str(w) for w in warnings] if isinstance(warnings, list) else []
+
+
 def _publish(staging: Path, final: Path, params: WlaslLexParams, fingerprint: dict[str, list]) -> None:
     """Rename the finished build ``staging`` to ``final`` in one step. A build found there that
     is usable (another process's, finished meanwhile) stays and ours is discarded; a stale one is
@@ -499,6 +533,8 @@ def build_or_load(
                 if why is None:
                     dataset = _load_wlasl_lex(build, final)
                     log.info("reusing WLASL-Lex build %s", final)
+                    for line in _recorded_warnings(build):
+                        log.warning("%s (found when this build was made)", line)
                     return dataset, final
         except FileNotFoundError as error:
             if not final.exists():

@@ -29,7 +29,7 @@ def dataset_params(cfg: DictConfig) -> WlaslLexParams:
         property=cfg.property.name,
         source=cfg.pose.source,
         source_path=cfg.pose.get("path"),
-        source_options=to_dict(cfg.pose.get("options")) or {},
+        source_options=source_options(cfg.pose.get("options")),
         subset=cfg.pose.subset,
         channels=to_dict(cfg.pose.get("channels")),
         split=cfg.split.name,
@@ -39,6 +39,16 @@ def dataset_params(cfg: DictConfig) -> WlaslLexParams:
         rare_classes=cfg.split.rare_classes,
         movement_none_as_missing=bool(cfg.data.get("movement_none_as_missing", False)),
     )
+
+
+def source_options(options) -> dict:
+    """``pose.options`` for the build; ``names: null`` (files named by video id, the default every
+    pose config carries so that ``pose.options.names=...`` overrides) is left out, so builds made
+    before the key existed keep their cache key."""
+    options = to_dict(options) or {}
+    if options.get("names", 0) is None:
+        del options["names"]
+    return options
 
 
 def recognize(cfg: DictConfig, run) -> float:

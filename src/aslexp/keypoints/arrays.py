@@ -23,8 +23,9 @@ import numpy as np
 
 from aslexp.errors import DataError
 from aslexp.files import atomic_write_text
+from aslexp.keypoints import hands
 from aslexp.keypoints.layout import KeypointLayout
-from aslexp.keypoints.layouts import MEDIAPIPE_POSE
+from aslexp.keypoints.layouts import MEDIAPIPE_HANDS, MEDIAPIPE_POSE
 from aslexp.keypoints.registry import register_source, register_subsets, resolve_layout
 
 log = logging.getLogger(__name__)
@@ -35,7 +36,8 @@ MEDIAPIPE_POSE_DIR = "keypoints/wlasl-mediapipe-pose"
 
 
 def npy_ids(directory: Path) -> set[str]:
-    return {path.stem for path in directory.glob("*.npy")}
+    """The ids of ``<dir>/<id>.npy`` (handedness companions ``<id>.handedness.npy`` are not clips)."""
+    return {path.stem for path in directory.glob("*.npy") if not path.name.endswith(hands.HANDEDNESS_SUFFIX)}
 
 
 def load_npy(path: Path) -> np.ndarray:
@@ -63,17 +65,39 @@ class ArrayFolderSource:
     count per video is kept in ``zero_frames`` / ``zero_nodes``. An empty file gives a
     (0, V, C) clip (the builder skips it and counts it); any other shape is a :class:`DataError`
     naming the file, the shape and the layout expected.
+
+    With the two-hand layout ``mediapipe_hands``: ``hand_order`` (``left_right`` | ``detection``)
+    and ``mirrored`` (see :mod:`aslexp.keypoints.hands`); per video, ``side_reports`` (detection:
+    how each clip's sides were decided) or ``order_fingerprints`` (left_right: the signs of
+    detection order), summed up by :meth:`build_messages`.
     """
 
+    file_suffix = ".npy"
+
     def __init__(self, directory: str | Path, layout: KeypointLayout | str | Mapping[str, Any],
-                 zeros: str = "node"):  # fmt: skip
+                 zeros: str = "node", hand_order: str = "left_right", mirrored: bool = False):  # fmt: skip
         self.directory = _folder(directory, "keypoint")
         self._layout = resolve_layout(layout, f"{self.directory}: pose.options.layout")
         if zeros not in ZERO_RULES:
             raise DataError(f"{self.directory}: pose.options.zeros = {zeros!r}; expected one of {ZERO_RULES}")
+        if hand_order not in hands.HAND_ORDERS:
+            raise DataError(f"{self.directory}: pose.options.hand_order = {hand_order!r}; expected one of "
+                            f"{hands.HAND_ORDERS}")  # fmt: skip
+        if not isinstance(mirrored, bool):
+            raise DataError(f"{self.directory}: pose.options.mirrored = {mirrored!r}; expected true or false")
+        self.two_hands = (self._layout.names == MEDIAPIPE_HANDS.names
+                          and {"x", "y"} <= set(self._layout.channels))  # fmt: skip
+        if (hand_order != "left_right" or mirrored) and not self.two_hands:
+            raise DataError(f"{self.directory}: pose.options.hand_order / mirrored apply to the two-hand layout "
+                            f"'mediapipe_hands' (the 21 landmarks of each hand, channels with x and y); "
+                            f"layout {self._layout.name!r} has {self._layout.num_nodes} nodes")  # fmt: skip
         self.zeros = zeros
+        self.hand_order = hand_order
+        self.mirrored = mirrored
         self.zero_frames: dict[str, int] = {}
         self.zero_nodes: dict[str, int] = {}
+        self.side_reports: dict[str, hands.SideReport] = {}
+        self.order_fingerprints: dict[str, hands.OrderFingerprint] = {}
 
     @property
     def layout(self) -> KeypointLayout:
@@ -96,6 +120,8 @@ class ArrayFolderSource:
             raise DataError(f"{path}: array has shape {raw.shape}, expected (T, {nodes * channels}) or "
                             f"(T, {nodes}, {channels}) = T frames x {nodes} nodes of layout "
                             f"{self.layout.name!r} x channels {list(self.layout.channels)}")  # fmt: skip
+        if self.two_hands:
+            clip = self._hand_sides(video_id, path, clip)
         if self.zeros == "frame":
             missing = np.all(clip == 0, axis=(1, 2))
             clip[missing] = np.nan
@@ -110,10 +136,51 @@ class ArrayFolderSource:
                       path.name, self.zero_frames[video_id], len(clip))  # fmt: skip
         return clip
 
+    def _hand_sides(self, video_id: str, path: Path, clip: np.ndarray) -> np.ndarray:
+        xy = (self.layout.channels.index("x"), self.layout.channels.index("y"))
+        if self.hand_order == "left_right":
+            self.order_fingerprints[video_id] = hands.order_fingerprint(clip, xy)
+            return clip
+        companion = hands.handedness_path(path)
+        labels = hands.read_handedness(companion, len(clip)) if companion.is_file() else None
+        clip, report = hands.assign_sides(clip, labels, mirrored=self.mirrored, xy=xy)
+        self.side_reports[video_id] = report
+        return clip
+
+    def build_messages(self, video_ids) -> list[tuple[int, str]]:
+        """(logging level, line) about the clips ``video_ids`` one build loaded: how the hands got
+        their sides (hand_order=detection), or the one warning naming files that look like
+        detection order (left_right)."""
+        video_ids = list(video_ids)
+        messages: list[tuple[int, str]] = []
+        reports = [self.side_reports[v] for v in video_ids if v in self.side_reports]
+        if reports:
+            total = {k: sum(getattr(r, k) for r in reports) for k in vars(reports[0])}
+            with_labels = sum(1 for v in video_ids if hands.handedness_path(self.directory / f"{v}.npy").is_file())
+            messages.append((logging.INFO, (
+                f"{self.directory}: hand_order=detection on {len(reports)} clips ({with_labels} with a handedness "
+                f"file, mirrored={self.mirrored}): frames decided by handedness {total['by_label']}, by the two "
+                f"wrists' x {total['by_position']}, by tracking one hand {total['tracked']}; "
+                f"{total['label_conflicts']} frames with one label on both slots; {total['swapped']} frames "
+                "had a hand moved to the other slot")))  # fmt: skip
+        prints = {f"{v}.npy": self.order_fingerprints[v] for v in video_ids if v in self.order_fingerprints}
+        line = hands.detection_order_warning(prints)
+        if line:
+            messages.append((logging.WARNING, f"{self.directory}: {line}"))
+        elif prints:
+            flagged = sum(f.looks_like_detection_order for f in prints.values())
+            if flagged:
+                messages.append((logging.INFO, (
+                    f"{self.directory}: {flagged} of {len(prints)} hand files have only the first slot filled, "
+                    f"but {sum(f.second_only > 0 for f in prints.values())} show the second hand alone: read as "
+                    "left_right (the signer's left hand first)")))  # fmt: skip
+        return messages
+
 
 @register_source("array_folder", summary="<dir>/<id>.npy (T, V*C) or (T, V, C), layout from the config")
-def open_array_folder(path, layout, zeros: str = "node") -> ArrayFolderSource:
-    return ArrayFolderSource(path, layout, zeros)
+def open_array_folder(path, layout, zeros: str = "node", hand_order: str = "left_right",
+                      mirrored: bool = False) -> ArrayFolderSource:  # fmt: skip
+    return ArrayFolderSource(path, layout, zeros, hand_order, mirrored)
 
 
 @register_source("mediapipe_pose_npy", default_path=MEDIAPIPE_POSE_DIR,

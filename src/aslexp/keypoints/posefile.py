@@ -389,6 +389,8 @@ def holistic_arrays(path: str | Path, person: int = 0) -> PoseFile:
 class PoseFormatSource:
     """A folder of ``<video_id>.pose`` files, all in one layout (chosen from the first file)."""
 
+    file_suffix = SUFFIX
+
     def __init__(self, directory: str | Path, layout: str = "auto", person: int = 0):
         self.directory = Path(directory)
         if not self.directory.is_dir():
