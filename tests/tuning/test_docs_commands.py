@@ -207,6 +207,6 @@ def test_the_readme_sweep_and_run_commands_run(workspace):
     for command in commands:
         text = command.text
         if "RUN_A RUN_B" in text:  # placeholders: two run folders made by the commands above
-            found = sorted((tmp / "outputs").rglob("run.json"))[:2]
+            found = (sorted((tmp / "outputs").rglob("run.json")) * 2)[:2]  # alone: one run, twice
             text = text.replace("RUN_A RUN_B", " ".join(str(p.parent) for p in found))
         _run(Command(text), tmp, env, None)
