@@ -16,7 +16,7 @@ from aslexp.data.wlasl_lex import WlaslLexParams, build_or_load
 from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
 from aslexp.jobs.validation import check_config
 from aslexp.recognition.experiment import run_recognition
-from aslexp.runs.loggers import make_logger
+from aslexp.runs.loggers import epoch_tag, make_logger
 from aslexp.tuning.context import trial_reporter
 
 log = logging.getLogger("aslexp.recognize")
@@ -66,7 +66,7 @@ def recognize(cfg: DictConfig, run) -> float:
     max_epochs = int(cfg.trainer.get("max_epochs") or 0)
 
     def on_epoch_record(epoch: int, record: dict) -> None:
-        metric_logger.log(grouped(record), step=epoch)
+        metric_logger.log({epoch_tag(k): v for k, v in record.items() if k != "epoch"}, step=epoch)
 
     def on_epoch_end(epoch: int, val_score: float) -> None:
         # The last epoch's report is final: a pruner never discards a finished fit.
@@ -111,20 +111,6 @@ def recognize(cfg: DictConfig, run) -> float:
         test.get("mcc"), test.get("balanced_accuracy"),
     )
     return float(objective["value"])
-
-
-def grouped(record: dict) -> dict:
-    """An epoch's numbers under the groups SB3 and Lightning users know: ``train/loss``,
-    ``train/accuracy``, ``train/lr``, ``val/accuracy``, ``val/mcc`` (``val/<metric>``),
-    ``time/epoch_s``, ``time/clips_per_s``."""
-    names = {"train_loss": "train/loss", "train_accuracy": "train/accuracy", "lr": "train/lr",
-             "epoch_time": "time/epoch_s", "clips_per_s": "time/clips_per_s"}
-    out = {}
-    for key, value in record.items():
-        if key == "epoch":
-            continue
-        out[names.get(key) or (f"val/{key[4:]}" if key.startswith("val_") else key)] = value
-    return out
 
 
 @job_main("recognize")

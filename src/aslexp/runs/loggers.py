@@ -186,6 +186,17 @@ class HistoryLogger:
             self.logged += 1
 
 
+_EPOCH_TAGS = {"train_loss": "train/loss", "train_accuracy": "train/accuracy", "lr": "train/lr",
+               "epoch_time": "time/epoch_s", "clips_per_s": "time/clips_per_s"}
+
+
+def epoch_tag(key: str) -> str:
+    """A recognition epoch's key as the tag Lightning users know: ``train/loss``,
+    ``train/accuracy``, ``train/lr``, ``val/accuracy``, ``val/mcc`` (``val/<metric>``),
+    ``time/epoch_s``, ``time/clips_per_s``."""
+    return _EPOCH_TAGS.get(key) or (f"val/{key[4:]}" if key.startswith("val_") else key)
+
+
 _PPO_TIME = {"seconds", "env_steps_per_s", "steps_per_s"}
 
 
