@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import statistics
 import time
@@ -124,8 +125,10 @@ def raw_rates(cls, motion: str, kwargs: dict, seconds: float, threads: int) -> t
     return rates
 
 
-def ppo_split(num_envs: int, device: str, threads: int, steps_per_rollout: int | None = None) -> dict[str, float]:
-    """Collection and learning time of two hand_thesis updates on ``num_envs`` batched MuJoCo hands."""
+def ppo_split(num_envs: int, device: str, threads: int, steps_per_rollout: int | None = None,
+              rollout_device: str = "cpu", updates: int = 2) -> dict[str, float]:
+    """Collection and learning time of hand_thesis updates on ``num_envs`` batched MuJoCo hands (with
+    more than two updates the first, which pays the device's warm-up, is left out)."""
     import functools
     import tempfile
 
@@ -137,7 +140,8 @@ def ppo_split(num_envs: int, device: str, threads: int, steps_per_rollout: int |
     if steps_per_rollout:  # a smaller update (the test's); the figures are for Table D.1's 10,240
         values["steps_per_rollout"] = steps_per_rollout
     config = PPOConfig.from_dict({**values, "num_envs": num_envs, "vector_env": "batched", "device": device,
-                                  "total_steps": 2 * int(values["steps_per_rollout"]), "eval_interval": 10**9,
+                                  "rollout_device": rollout_device,
+                                  "total_steps": updates * int(values["steps_per_rollout"]), "eval_interval": 10**9,
                                   "progress_interval": 1e9, "torch_threads": threads})
     make = functools.partial(BatchedImitationEnv, motion="motions/hand/A.txt", engine="mujoco",
                              env="hand_thesis", reward="hand_thesis")
@@ -146,13 +150,16 @@ def ppo_split(num_envs: int, device: str, threads: int, steps_per_rollout: int |
         result = trainer.train()
         trainer.close()
     rows = [h for h in result.history if "steps_per_s" in h]
+    rows = rows[1:] if len(rows) > 2 else rows
     batch = config.batch_size
     collect = sum(batch / h["env_steps_per_s"] for h in rows)
     total = sum(batch / h["steps_per_s"] for h in rows)
     steps = batch * len(rows)
     return {"collect_steps_per_s": steps / collect, "learn_s_per_update": (total - collect) / len(rows),
             "steps_per_s": steps / total, "hours_for_50M": 50e6 / (steps / total) / 3600,
-            "collection_hours_for_50M": 50e6 / (steps / collect) / 3600}
+            "collection_hours_for_50M": 50e6 / (steps / collect) / 3600,
+            "learn_ms_per_minibatch": 1000 * (total - collect) / len(rows) / (config.epochs * math.ceil(
+                batch / config.minibatch_size))}
 
 
 def main() -> None:
@@ -160,10 +167,12 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=3.0, help="timed seconds per row (7 windows, the median reported)")
     parser.add_argument("--sizes", default="1,16,64,256", help="batch sizes N")
     parser.add_argument("--threads", type=int, default=0, help="MuJoCo threads (0: every core)")
-    parser.add_argument("--bodies", default=",".join(BODIES), help="rows of " + ", ".join(BODIES))
+    parser.add_argument("--bodies", default=",".join(BODIES), help="rows of " + ", ".join(BODIES) + " (none: only --ppo)")
     parser.add_argument("--json", default=None, help="also write the figures here")
     parser.add_argument("--ppo", type=int, default=0, help="also time hand_thesis PPO on this many batched hands")
     parser.add_argument("--device", default="cpu", help="the learner's device for --ppo (cpu | cuda)")
+    parser.add_argument("--ppo-updates", type=int, default=2, help="--ppo: updates timed (> 2: the first left out)")
+    parser.add_argument("--rollout-device", default="cpu", help="--ppo: policy inference while collecting: cpu | learner")
     parser.add_argument("--ppo-steps-per-rollout", type=int, default=None,
                         help="--ppo with smaller updates than Table D.1's 10,240 steps (a quick check)")
     args = parser.parse_args()
@@ -171,10 +180,17 @@ def main() -> None:
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     print(f"cores {cores}, load average {os.getloadavg()[0]:.2f}, MuJoCo threads {args.threads or cores}")
     results: dict[str, dict[str, float]] = {}
-    for name in args.bodies.split(","):
-        body = BODIES[name.strip()]
+    try:
+        import pybullet  # noqa: F401
+        has_pybullet = True
+    except ImportError:  # a machine without its wheel (Python 3.12 GPU images): MuJoCo rows only
+        has_pybullet = False
+        print("pybullet is not installed here: no PyBullet row")
+    for name in [b.strip() for b in args.bodies.split(",") if b.strip() and b.strip() != "none"]:
+        body = BODIES[name]
         row: dict[str, float] = {}
-        row["pybullet env"] = single_rate(body["cls"], body["motion"], body["kwargs"], "pybullet", args.seconds)
+        if has_pybullet:
+            row["pybullet env"] = single_rate(body["cls"], body["motion"], body["kwargs"], "pybullet", args.seconds)
         row["mujoco env"] = single_rate(body["cls"], body["motion"], body["kwargs"], "mujoco", args.seconds)
         for n in sizes:
             row[f"mujoco batched {n}"] = batched_rate(body["cls"], body["motion"], body["kwargs"], n, args.seconds,
@@ -187,13 +203,16 @@ def main() -> None:
             print(f"  {key:44s} {value:12,.0f}")
         best = max(v for k, v in row.items() if k.startswith("mujoco batched"))
         substeps = 1 if "240" in name else 8
-        print(f"  best batched / pybullet env                  {best / row['pybullet env']:12.1f}x")
+        if has_pybullet:
+            print(f"  best batched / pybullet env                  {best / row['pybullet env']:12.1f}x")
         print(f"  best batched / raw rollout ceiling           "
               f"{best / (row['raw mujoco rollout 256 (physics steps/s)'] / substeps):12.2f}")
     if args.ppo:
-        split = ppo_split(args.ppo, args.device, cores, args.ppo_steps_per_rollout)
+        split = ppo_split(args.ppo, args.device, cores, args.ppo_steps_per_rollout, args.rollout_device,
+                          args.ppo_updates)
         results["ppo hand_thesis"] = split
-        print(f"\nppo=hand_thesis on {args.ppo} batched MuJoCo hands (240 Hz), learner on {args.device}")
+        print(f"\nppo=hand_thesis on {args.ppo} batched MuJoCo hands (240 Hz), learner on {args.device}, "
+              f"rollout inference on {args.rollout_device}")
         for key, value in split.items():
             print(f"  {key:44s} {value:12,.2f}")
     print(f"\nload average at the end {os.getloadavg()[0]:.2f}")

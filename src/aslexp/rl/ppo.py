@@ -330,8 +330,9 @@ class PPOTrainer:
         self.loss.set_keys(sample_log_prob=LOG_PROB)
         self.gae = GAE(gamma=config.gamma, lmbda=config.gae_lambda, value_network=self.agent.critic,
                        average_gae=False, device=self.device)
+        # On a GPU one fused kernel steps every parameter (the update is 800 small steps in Table D.1).
         self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=config.learning_rate,
-                                          weight_decay=config.weight_decay)
+                                          weight_decay=config.weight_decay, fused=self.device.type == "cuda")
         if config.log_std_final is not None:  # the noise follows its schedule: no gradient moves it
             self.agent.head.log_std.requires_grad_(False)
         self.steps = 0
@@ -503,38 +504,41 @@ class PPOTrainer:
         batch = batch.to(self.device)
         with torch.no_grad():
             self.gae(batch)  # per environment along time; bootstraps unless terminated
-        batch = batch.reshape(-1)
-        stats = {"loss_objective": 0.0, "loss_critic": 0.0, "kl": 0.0, "clip_fraction": 0.0}
+        flat = batch.reshape(-1)
+        # Plain tensors, indexed per minibatch: a TensorDict index and torchrl's loss module cost
+        # ~7 ms of Python per minibatch, the whole update on a GPU (800 minibatches in Table D.1).
+        data = MinibatchData(flat["observation"], flat["action"], flat[LOG_PROB], flat["advantage"],
+                             flat["value_target"])
+        totals = torch.zeros(len(STAT_KEYS), device=self.device)
         updates = 0
         stop = False
+        params = list(self.loss.parameters())
         for _ in range(cfg.epochs):
-            order = torch.from_numpy(self.rng.permutation(len(batch))).to(self.device)
-            for start in range(0, len(batch), cfg.minibatch_size):
-                minibatch = batch[order[start:start + cfg.minibatch_size]]
-                losses = self.loss(minibatch)
+            order = torch.from_numpy(self.rng.permutation(len(flat))).to(self.device)
+            for start in range(0, len(flat), cfg.minibatch_size):
+                losses = clipped_ppo_losses(self.agent, data.take(order[start:start + cfg.minibatch_size]),
+                                            cfg.clip_epsilon, cfg.value_coef, cfg.entropy_coef)
                 if self.steps <= cfg.critic_warmup_steps:
                     total = losses["loss_critic"]
                 else:
                     total = losses["loss_objective"] + losses["loss_critic"]
-                    if "loss_entropy" in losses.keys():
+                    if "loss_entropy" in losses:
                         total = total + losses["loss_entropy"]
                 self.optimizer.zero_grad()
                 total.backward()
-                torch.nn.utils.clip_grad_norm_(self.loss.parameters(), cfg.max_grad_norm)
+                torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
                 self.optimizer.step()
-                kl = float(losses.get("kl_approx", torch.tensor(0.0)).detach())
-                stats["loss_objective"] += float(losses["loss_objective"].detach())
-                stats["loss_critic"] += float(losses["loss_critic"].detach())
-                stats["kl"] += kl
-                stats["clip_fraction"] += float(losses.get("clip_fraction", torch.tensor(0.0)).detach())
+                totals += torch.stack([losses[k].detach() for k in STAT_KEYS])
                 updates += 1
-                if cfg.target_kl is not None and kl > 1.5 * cfg.target_kl:
+                # One device sync per minibatch, only when the early stop needs it.
+                if cfg.target_kl is not None and float(losses["kl"]) > 1.5 * cfg.target_kl:
                     stop = True  # as Stable-Baselines3: stop the epochs when the policy moved too far
                     break
             if stop:
                 break
         self._sync_rollout_agent()
-        return {k: v / max(updates, 1) for k, v in stats.items()} | {"updates": updates}
+        means = (totals / max(updates, 1)).tolist()
+        return dict(zip(STAT_KEYS, means)) | {"updates": updates}
 
     def evaluate(self) -> EvaluationSummary:
         """Deterministic episodes from the configured start phases (see :func:`evaluate_phases`)."""
@@ -619,6 +623,55 @@ class PPOTrainer:
         self.progress = None
         self.save("last.pt")
         return TrainResult(self.steps, self.elapsed, self.best_eval, self.last_eval(), self.history, stopped)
+
+
+STAT_KEYS = ("loss_objective", "loss_critic", "kl", "clip_fraction")
+HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
+
+
+@dataclass(frozen=True)
+class MinibatchData:
+    """One update's transitions, flat: normalised observations, actions, their log-probabilities
+    under the collecting policy, GAE advantages and value targets."""
+
+    observation: torch.Tensor
+    action: torch.Tensor
+    log_prob: torch.Tensor
+    advantage: torch.Tensor
+    value_target: torch.Tensor
+
+    def take(self, index: torch.Tensor) -> "MinibatchData":
+        return MinibatchData(self.observation[index], self.action[index], self.log_prob[index],
+                             self.advantage[index], self.value_target[index])
+
+
+def clipped_ppo_losses(agent: Agent, data: MinibatchData, clip_epsilon: float, value_coef: float,
+                       entropy_coef: float) -> dict[str, torch.Tensor]:
+    """PPO's clipped surrogate, the critic's L2 loss and the entropy bonus of one minibatch: the
+    same values and gradients as torchrl's ``ClipPPOLoss`` (advantages standardised per minibatch,
+    ratio clipped in log space, critic ``value_coef * mse``; tests/imitation/test_ppo_loss.py
+    checks them against it) in plain tensor code."""
+    advantage = data.advantage
+    if advantage.numel() > 1:  # torchrl: unbiased std, clamped at float32's resolution
+        advantage = (advantage - advantage.mean()) / advantage.std().clamp_min(torch.finfo(torch.float).resolution)
+    loc, scale = agent.head(data.observation)
+    log_scale = scale.log()  # the Normal's density in closed form: no distribution object per minibatch
+    log_prob = (-0.5 * ((data.action - loc) / scale).pow(2) - log_scale - HALF_LOG_2PI).sum(-1)
+    log_weight = (log_prob - data.log_prob).unsqueeze(-1)
+    bound = math.log1p(clip_epsilon)
+    low = math.log1p(-clip_epsilon)
+    clipped = log_weight.clamp(low, bound)
+    gain = torch.minimum(log_weight.exp() * advantage, clipped.exp() * advantage)
+    value = agent.critic.module(data.observation)
+    losses = {
+        "loss_objective": -gain.mean(),
+        "loss_critic": value_coef * torch.nn.functional.mse_loss(value, data.value_target),
+        "kl": (data.log_prob - log_prob).mean().detach(),
+        "clip_fraction": (clipped != log_weight).float().mean().detach(),
+    }
+    if entropy_coef > 0:
+        losses["loss_entropy"] = -entropy_coef * (0.5 + HALF_LOG_2PI + log_scale).sum(-1).mean()
+    return losses
 
 
 class ProgressCSV:

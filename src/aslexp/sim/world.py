@@ -14,8 +14,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from aslexp.sim._pybullet import c_output_quieted, pybullet  # noqa: I001 - first: silences its import banner
-from pybullet_utils import bullet_client
 
 from aslexp.quaternion import rotate, wxyz_to_xyzw, z_to
 from aslexp.sim.body import BodyLayout, BodySpec
@@ -38,6 +36,11 @@ class World:
     """One PyBullet physics server in DIRECT mode (no GUI, no shared state with other worlds)."""
 
     def __init__(self, physics: PhysicsConfig | None = None) -> None:
+        # PyBullet loads here, not at import: the MuJoCo engine's path runs where PyBullet has no
+        # wheel (Python 3.12 GPU machines). The first import silences its banner.
+        from aslexp.sim._pybullet import c_output_quieted, pybullet
+        from pybullet_utils import bullet_client
+
         self.physics = physics or PhysicsConfig()
         with c_output_quieted((1,)):  # PyBullet's C code prints "argv[0]=" on every connection
             self.client = bullet_client.BulletClient(connection_mode=pybullet.DIRECT)
@@ -68,6 +71,8 @@ class World:
 
     def close(self) -> None:
         if self.client is not None:
+            from aslexp.sim._pybullet import pybullet
+
             try:
                 self.client.disconnect()
             except pybullet.error:
@@ -103,6 +108,8 @@ class Character:
             raise FileNotFoundError(f"URDF not found: {path}")
         # A kinematic reference is never stepped: a fixed base is the cheapest holder for it.
         self.base = "fixed" if kinematic else spec.base
+        from aslexp.sim._pybullet import c_output_quieted
+
         with c_output_quieted((1, 2)):  # "no axis element for Joint" per spherical joint, per load
             self.id = pb.loadURDF(
                 str(path), list(base_position), wxyz_to_xyzw(np.asarray(base_orientation_wxyz)),
