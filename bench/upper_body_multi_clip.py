@@ -30,9 +30,9 @@ def main() -> None:
     import torch
 
     from aslexp.envs.config import deep_merge, resolve_group
-    from aslexp.envs.multi_clip import MultiClipImitationEnv, evaluate_clips
+    from aslexp.envs.multi_clip import MultiClipImitationEnv
     from aslexp.envs.upper_body import UpperBodyImitationEnv
-    from aslexp.rl.evaluate import evaluate, reference_policy
+    from aslexp.rl.evaluate import evaluate, evaluate_clips, reference_policy
     from aslexp.rl.ppo import PPOConfig, PPOTrainer
 
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

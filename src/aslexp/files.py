@@ -1,4 +1,5 @@
-"""Atomic file writes: one place for the write-to-temporary-then-rename pattern.
+"""Atomic file writes: one place for the write-to-temporary-then-rename pattern (and JSON
+written that way: :func:`write_json`, with :func:`read_json`, for every layer).
 
 The temporary file sits beside the target (``os.replace`` is atomic only within one file
 system) and its name is unique per writer: two processes writing the same target (two sweep
@@ -12,11 +13,13 @@ no path of its own), and :func:`describe_os_error` says "disk full" when the dev
 from __future__ import annotations
 
 import errno
+import json
 import os
 import secrets
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 
 @contextmanager
@@ -44,6 +47,29 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return path
+
+
+def _json_default(obj: Any) -> Any:
+    if hasattr(obj, "item"):
+        return obj.item()
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+def write_json(path: str | os.PathLike, payload: Any) -> None:
+    """Write JSON atomically (a crash never leaves half a file); numpy values and paths as their
+    plain values. The folder must exist (run.json, sweep.json and metrics.json sit in theirs)."""
+    with atomic_path(path, make_parents=False) as tmp, open(tmp, "w", encoding="utf-8") as fh:
+        json.dump(payload, fh, indent=2, default=_json_default, allow_nan=True)
+        fh.write("\n")
+
+
+def read_json(path: str | os.PathLike) -> Any:
+    with open(path, encoding="utf-8") as fh:
+        return json.load(fh)
 
 
 # --------------------------------------------------------------------------- failed writes

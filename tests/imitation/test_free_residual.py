@@ -119,7 +119,7 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
         np.median(rms), np.median([m["exploration_std"] for m in sizes]))
     assert (sweep / "residual_curves.png").stat().st_size > 0
     # The documented command prints the table again (baselines from the sweep's cache).
-    again = subprocess.run([sys.executable, "-m", "aslexp.rl.residual_report", str(sweep)], capture_output=True,
+    again = subprocess.run([sys.executable, "-m", "aslexp.reports.residual_report", str(sweep)], capture_output=True,
                            text=True, timeout=120, check=True)
     assert "| 52861 (snow) |" in again.stdout and "verdict" in again.stdout
 
@@ -138,7 +138,7 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
             == row["learned correction RMS / exploration std (box half-widths)"])
     assert (reevaluated / "residual_curves.png").stat().st_size > 0
     # ... and the table again from a shell, outside Hydra: each run's resume=${hydra:job.num} is its own.
-    again = subprocess.run([sys.executable, "-m", "aslexp.rl.residual_report", str(reevaluated)],
+    again = subprocess.run([sys.executable, "-m", "aslexp.reports.residual_report", str(reevaluated)],
                            capture_output=True, text=True, timeout=120)
     assert again.returncode == 0 and "n/a (re-evaluated)" in again.stdout, again.stderr[-2000:]
 
@@ -163,7 +163,7 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
 
     # What the exploration noise alone costs the controller in the run's training episodes (the
     # documented command, two short episodes per noise): no noise is the controller itself.
-    cost = subprocess.run([sys.executable, "-m", "aslexp.rl.noise_cost", str(sweep / "0"), "--betas", "0,2",
+    cost = subprocess.run([sys.executable, "-m", "aslexp.reports.noise_cost", str(sweep / "0"), "--betas", "0,2",
                            "--log-std", "-1.75", "--episodes", "2", "--steps", "12"],
                           capture_output=True, text=True, timeout=300)
     assert cost.returncode == 0, cost.stderr[-2000:]
@@ -458,7 +458,7 @@ def test_residual_base_smoothing_groups_must_name_joints(motion_a):
 def test_the_residual_baselines_ignore_a_smoothed_base(data_root, tmp_path):
     """The report's rows (controller, smoothed references, chance) are measured on the reference's own
     base for a smoothed-base variant too: the same rows, and the same cache entry."""
-    from aslexp.rl.residual_report import residual_baselines
+    from aslexp.reports.residual_report import residual_baselines
 
     small = {"eval_steps": 15, "eval_episodes": 2}
     settings = {"smoothing": [0.6], "smoothing_groups": ["chest", "neck", "shoulder", "elbow"],

@@ -55,7 +55,7 @@ def test_imitate_trains_writes_figures_and_resumes(tmp_path):
 
 def test_a_sweep_re_evaluated_by_job_number_reports_what_training_under_that_protocol_would(tmp_path):
     """docs/imitation_upper_body.md's re-evaluation command, small: resume=SWEEP/${hydra:job.num}."""
-    from aslexp.rl.report import learned
+    from aslexp.reports.report import learned
 
     def metrics(folder: Path) -> dict:
         return json.loads((folder / "metrics.json").read_text())

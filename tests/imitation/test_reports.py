@@ -6,8 +6,8 @@ import csv
 import json
 from pathlib import Path
 
-from aslexp.rl.report import summarize_letters
-from aslexp.rl.upper_body_report import summarize_signs
+from aslexp.reports.report import summarize_letters
+from aslexp.reports.upper_body_report import summarize_signs
 
 
 def _run(folder: Path, motion: str, seed: int, evals: list[tuple[int, float, float]], strong: float | None = None):

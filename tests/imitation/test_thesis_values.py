@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from aslexp.rl.thesis_report import THESIS_TABLE_6_7
+from aslexp.reports.thesis_report import THESIS_TABLE_6_7
 from . import thesis_values as T
 
 

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from aslexp.envs.multi_clip import MultiClipImitationEnv, evaluate_clips
+from aslexp.envs.multi_clip import MultiClipImitationEnv
+from aslexp.rl.evaluate import evaluate_clips
 from aslexp.rl.ppo import PPOConfig, PPOTrainer
 
 SIGNS = ("00433", "69318")

@@ -7,8 +7,7 @@ import multiprocessing as mp
 
 import pytest
 
-from aslexp.files import atomic_path
-from aslexp.runs.record import read_json, write_json
+from aslexp.files import atomic_path, read_json, write_json
 
 
 def _hammer(path: str, worker: int, rounds: int) -> None:

@@ -21,7 +21,7 @@ import pytest
 from optuna.trial import TrialState
 from sweep_helpers import load_study, run_cli, run_sweep, sweep_command, wait_for
 
-from aslexp.runs.process import process_identity, process_is_gone
+from aslexp.process import process_identity, process_is_gone
 from aslexp.tuning.storage import open_storage
 from aslexp.tuning.worker import (
     ATTR_ADOPTED,

@@ -19,7 +19,7 @@ import pytest
 from optuna.trial import TrialState
 from sweep_helpers import load_study, run_cli, run_sweep, sweep_command, wait_for
 
-from aslexp.runs.process import process_identity, process_is_gone
+from aslexp.process import process_identity, process_is_gone
 from aslexp.tuning.storage import StorageError, _lock_key, open_storage
 from aslexp.tuning.worker import ATTR_ERROR, ATTR_RUN_DIR, ATTR_STATE, INTERRUPTED
 

@@ -41,7 +41,7 @@ class MultiClipImitationEnv(gym.Env):
                                  f"{first.observation_space.shape}/{first.action_space.shape}; one body for all clips")
         self.names = [os.path.splitext(os.path.basename(str(c.motion.source)))[0] for c in self.clips]
         self.cycle = cycle
-        self.forced_clip: int | None = None  # evaluate_clips: every reset takes this clip
+        self.forced_clip: int | None = None  # aslexp.rl.evaluate.evaluate_clips: every reset takes this clip
         self.active = 0
         self._next = 0
         n = len(self.clips)
@@ -112,16 +112,3 @@ class MultiClipImitationEnv(gym.Env):
         for clip in self.clips:
             clip.close()
 
-
-def evaluate_clips(env: MultiClipImitationEnv, policy, steps: int | None = None) -> dict[str, float]:
-    """Deterministic evaluation of ``policy(obs, env)`` on every clip from phase 0: reward per clip."""
-    from aslexp.rl.evaluate import evaluate
-
-    out = {}
-    try:
-        for k, name in enumerate(env.names):
-            env.forced_clip = k
-            out[name] = evaluate(env, policy, steps).mean_reward
-    finally:
-        env.forced_clip = None
-    return out

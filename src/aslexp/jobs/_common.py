@@ -35,8 +35,8 @@ from omegaconf import DictConfig, OmegaConf
 from aslexp.errors import ConfigError, DataError
 from aslexp.files import describe_os_error
 from aslexp import paths
+from aslexp.process import Terminated, sigterm_raises, signals_held
 from aslexp.runs.logfmt import install_float_rounding, quiet_log_write_errors
-from aslexp.runs.process import Terminated, sigterm_raises, signals_held
 from aslexp.runs.record import (
     RUN_FILE,
     Run,

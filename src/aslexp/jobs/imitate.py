@@ -83,7 +83,7 @@ def _resume_path(resume: str | None, cfg: dict[str, Any]) -> Path | None:
     checkpoint = path / "checkpoints" / "last.pt" if path.is_dir() else path
     run_dir = checkpoint.parent.parent
     if (run_dir / ".hydra" / "config.yaml").is_file():
-        from aslexp.rl.report import run_config
+        from aslexp.reports.report import run_config
 
         run = run_config(run_dir)
         for key, theirs, ours in (("motion", (run.get("motion") or {}).get("name"), cfg["motion"]["name"]),
@@ -103,7 +103,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
 
     from aslexp.rl.evaluate import baselines, evaluate
     from aslexp.rl.ppo import PPOConfig, PPOTrainer
-    from aslexp.rl import report
+    from aslexp.reports import report
 
     data_root = resolve_data_root(cfg.get("data_root"))
     ppo = PPOConfig.from_dict(cfg["ppo"])
@@ -250,7 +250,7 @@ class LettersSummary(_MultirunSummary):
     kind = "letters"
 
     def summarize(self, sweep_dir: Path) -> dict:
-        from aslexp.rl.report import summarize_letters
+        from aslexp.reports.report import summarize_letters
 
         return summarize_letters(sweep_dir)
 
@@ -262,19 +262,19 @@ class ScratchSummary(_MultirunSummary):
     kind = "scratch"
 
     def summarize(self, sweep_dir: Path) -> dict:
-        from aslexp.rl.report import summarize_letters
+        from aslexp.reports.report import summarize_letters
 
         return summarize_letters(sweep_dir, targets="reference", stem="scratch", lines=("reference",))
 
 
 class ThesisSummary(_MultirunSummary):
     """The thesis overlays: per letter or sign, the thesis' number, every no-learning baseline and the
-    learned policies' last evaluation, all under the runs' reward (aslexp.rl.thesis_report)."""
+    learned policies' last evaluation, all under the runs' reward (aslexp.reports.thesis_report)."""
 
     kind = "thesis"
 
     def summarize(self, sweep_dir: Path) -> dict:
-        from aslexp.rl.thesis_report import summarize_thesis
+        from aslexp.reports.thesis_report import summarize_thesis
 
         return summarize_thesis(sweep_dir)
 
@@ -283,12 +283,12 @@ class ResidualSummary(_MultirunSummary):
     """A residual policy on a controller that loses reward for a physical reason
     (experiment=signs_free_residual): per sign the controller, the same on a pinned base, the
     smoothed-reference baselines and the learned last evaluation over seeds, with the verdict
-    (aslexp.rl.residual_report)."""
+    (aslexp.reports.residual_report)."""
 
     kind = "residual"
 
     def summarize(self, sweep_dir: Path) -> dict:
-        from aslexp.rl.residual_report import summarize_residual
+        from aslexp.reports.residual_report import summarize_residual
 
         return summarize_residual(sweep_dir)
 
@@ -299,7 +299,7 @@ class SignsSummary(_MultirunSummary):
     kind = "signs"
 
     def summarize(self, sweep_dir: Path) -> dict:
-        from aslexp.rl.upper_body_report import summarize_signs
+        from aslexp.reports.upper_body_report import summarize_signs
 
         return summarize_signs(sweep_dir)
 

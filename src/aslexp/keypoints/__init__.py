@@ -22,14 +22,11 @@ from aslexp.keypoints.registry import (
     open_source,
     register_layout,
     register_source,
-    register_subsets,
     resolve_layout,
     source_names,
-    subset_indices,
-    subset_layout,
-    subset_names,
 )
 from aslexp.keypoints.source import KeypointSource, SubsetSource, check_clip
+from aslexp.keypoints.subsets import register_subsets, subset_indices, subset_layout, subset_names
 
 # Sources register themselves on import.
 from aslexp.keypoints import arrays, posefile, published  # noqa: E402,F401  isort: skip

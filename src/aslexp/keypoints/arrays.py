@@ -26,7 +26,8 @@ from aslexp.files import atomic_write_text
 from aslexp.keypoints import hands
 from aslexp.keypoints.layout import KeypointLayout
 from aslexp.keypoints.layouts import MEDIAPIPE_HANDS, MEDIAPIPE_POSE
-from aslexp.keypoints.registry import register_source, register_subsets, resolve_layout
+from aslexp.keypoints.registry import register_source, resolve_layout
+from aslexp.keypoints.subsets import register_subsets
 
 log = logging.getLogger(__name__)
 

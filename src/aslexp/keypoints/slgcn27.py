@@ -46,7 +46,8 @@ from __future__ import annotations
 from aslexp.errors import DataError
 from aslexp.keypoints import holistic as H
 from aslexp.keypoints.layout import KeypointLayout
-from aslexp.keypoints.registry import register_layout, register_subset_builder
+from aslexp.keypoints.registry import register_layout
+from aslexp.keypoints.subsets import register_subset_builder
 
 NAME = "slgcn27"
 

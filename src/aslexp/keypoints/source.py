@@ -13,7 +13,7 @@ import numpy as np
 
 from aslexp.errors import DataError
 from aslexp.keypoints.layout import KeypointLayout
-from aslexp.keypoints.registry import subset_layout
+from aslexp.keypoints.subsets import subset_layout
 
 
 @runtime_checkable

@@ -11,15 +11,34 @@ import contextlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 
-if TYPE_CHECKING:  # rl takes any env with the ImitationEnv interface; no import at run time
-    from aslexp.envs.imitation import ImitationEnv
+
+class EvaluatedEnv(Protocol):
+    """What evaluation takes of an environment: any env with the interface of
+    :class:`aslexp.envs.imitation.ImitationEnv` (rl imports no environment; duck typing).
+
+    :func:`evaluate` uses these; the baseline policies also call the env's reference and action
+    helpers (``reference_action``, ``reference_targets``, ``residual_base``, ``normalize_action``, ...).
+    """
+
+    spec_env: Any  # the env's EnvSpec: episode_steps, action_mode, ...
+    sim: Any  # joint_state()
+    reference: Any  # joints(t), joint_velocities(t)
+    time: float
+    render_mode: str | None
+    action_space: Any
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]: ...
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]: ...
+
+    def render(self) -> Any: ...
 
 
-Policy = Callable[[np.ndarray, "ImitationEnv"], np.ndarray]
+Policy = Callable[[np.ndarray, "EvaluatedEnv"], np.ndarray]
 
 
 @dataclass
@@ -58,7 +77,7 @@ def even_phases(count: int) -> tuple[float, ...]:
     return tuple(k / count for k in range(count))
 
 
-def evaluate(env: ImitationEnv, policy: Policy, steps: int | None = None, record: bool = False,
+def evaluate(env: EvaluatedEnv, policy: Policy, steps: int | None = None, record: bool = False,
              frames_every: int = 0, phase: float = 0.0) -> Evaluation:
     """Run ``policy(obs, env) -> action`` for ``steps`` control steps from ``phase`` of the motion
     (0: its start), deterministically.
@@ -115,7 +134,7 @@ def _action_box(env) -> tuple[np.ndarray | None, np.ndarray | None]:
     return (low + high) / 2, (high - low) / 2
 
 
-def evaluate_phases(env: ImitationEnv, policy: Policy, steps: int | None = None,
+def evaluate_phases(env: EvaluatedEnv, policy: Policy, steps: int | None = None,
                     phases: tuple[float, ...] = (0.0,)) -> EvaluationSummary:
     """One deterministic episode of ``steps`` control steps from each start phase; their mean."""
     if not phases:
@@ -152,7 +171,7 @@ def smoothed_reference_policy(alpha: float, groups: tuple[str, ...] | None = Non
         raise ValueError(f"smoothing alpha must be in [0, 1), got {alpha}")
     state: dict[str, np.ndarray | None] = {"previous": None, "index": None}
 
-    def policy(obs: np.ndarray, env: ImitationEnv) -> np.ndarray:
+    def policy(obs: np.ndarray, env: EvaluatedEnv) -> np.ndarray:
         if state["index"] is None:
             state["index"] = env.joint_value_indices(groups, "smoothing")
         base = env.residual_base() if env.spec_env.action_mode == "residual" else None
@@ -186,7 +205,7 @@ def constant_correction_policy(rms: float, seed: int) -> Policy:
         raise ValueError(f"a correction's RMS must be >= 0, got {rms}")
     state: dict[str, np.ndarray] = {}
 
-    def policy(obs: np.ndarray, env: ImitationEnv) -> np.ndarray:
+    def policy(obs: np.ndarray, env: EvaluatedEnv) -> np.ndarray:
         if env.spec_env.action_mode != "residual":
             raise ValueError("constant random corrections need a residual action (env.action_mode=residual)")
         if "action" not in state:
@@ -198,7 +217,7 @@ def constant_correction_policy(rms: float, seed: int) -> Policy:
     return policy
 
 
-def baselines(env: ImitationEnv, steps: int | None = None, phases: tuple[float, ...] = (0.0,)) -> dict[str, float]:
+def baselines(env: EvaluatedEnv, steps: int | None = None, phases: tuple[float, ...] = (0.0,)) -> dict[str, float]:
     """Mean reward of the reference-tracking baselines, each evaluated as a policy is: one
     deterministic episode from each of ``phases``, averaged (pass the PPO config's phases).
 
@@ -219,4 +238,18 @@ def baselines(env: ImitationEnv, steps: int | None = None, phases: tuple[float, 
     if controller is not None and not controller.is_thesis_pd:
         lookahead = env.spec_env.reference_lookahead  # a zero correction in residual mode
         out["reference_velocity_pd"] = evaluate_phases(env, reference_policy(lookahead), steps, phases).mean_reward
+    return out
+
+
+def evaluate_clips(env: Any, policy: Policy, steps: int | None = None) -> dict[str, float]:
+    """Deterministic evaluation of ``policy(obs, env)`` on every clip of a multi-clip env
+    (:class:`aslexp.envs.multi_clip.MultiClipImitationEnv`: its ``names`` and ``forced_clip``)
+    from phase 0: reward per clip."""
+    out = {}
+    try:
+        for k, name in enumerate(env.names):
+            env.forced_clip = k
+            out[name] = evaluate(env, policy, steps).mean_reward
+    finally:
+        env.forced_clip = None
     return out

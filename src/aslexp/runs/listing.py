@@ -22,7 +22,7 @@ from typing import Any
 import yaml
 
 from aslexp.runs import read
-from aslexp.runs.process import process_is_gone
+from aslexp.process import process_is_gone
 from aslexp.runs.record import RUN_FILE
 
 log = logging.getLogger(__name__)

@@ -14,9 +14,7 @@ Layout of a run directory (the jobs fill it; tools under ``aslexp.runs`` only re
 
 from __future__ import annotations
 
-import datetime as _dt
 import functools
-import json
 import math
 import os
 import platform
@@ -30,10 +28,10 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from aslexp.files import atomic_path
-from aslexp.runs.process import process_identity, slurm_context
+from aslexp.files import read_json, write_json
+from aslexp.process import process_identity, slurm_context
+from aslexp.runfile import RUN_FILE, timestamp
 
-RUN_FILE = "run.json"
 METRICS_FILE = "metrics.json"
 
 _TRACKED_PACKAGES = (
@@ -120,13 +118,9 @@ def hold_run_folder(run_dir: str | os.PathLike) -> None:
         ) from None
     handle.seek(0)
     handle.truncate()
-    handle.write(f"pid {os.getpid()} on {socket.gethostname()} since {_now()}\n")
+    handle.write(f"pid {os.getpid()} on {socket.gethostname()} since {timestamp()}\n")
     handle.flush()
     _held_locks[key] = handle
-
-
-def _now() -> str:
-    return _dt.datetime.now().astimezone().isoformat(timespec="seconds")
 
 
 def git_state(cwd: str | os.PathLike | None = None) -> dict[str, Any]:
@@ -165,28 +159,6 @@ def command_line(argv: list[str] | None = None) -> str:
     return shlex.join(argv)
 
 
-def _json_default(obj: Any) -> Any:
-    if hasattr(obj, "item"):
-        return obj.item()
-    if hasattr(obj, "tolist"):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
-
-
-def write_json(path: str | os.PathLike, payload: Any) -> None:
-    """Write JSON atomically (a crash never leaves half a file)."""
-    with atomic_path(path, make_parents=False) as tmp, open(tmp, "w", encoding="utf-8") as fh:
-        json.dump(payload, fh, indent=2, default=_json_default, allow_nan=True)
-        fh.write("\n")
-
-
-def read_json(path: str | os.PathLike) -> Any:
-    with open(path, encoding="utf-8") as fh:
-        return json.load(fh)
-
-
 @dataclass
 class Run:
     """Handle on a run directory; created by :func:`start_run`."""
@@ -210,7 +182,7 @@ class Run:
     def finish(self, status: str = "completed", error: str | None = None,
                traceback_text: str | None = None) -> None:
         self.info["status"] = status
-        self.info["finished"] = _now()
+        self.info["finished"] = timestamp()
         if error is not None:
             self.info["error"] = error
         if traceback_text is not None:
@@ -259,7 +231,7 @@ def start_run(
         "slurm": slurm_context(),
         "platform": platform.platform(),
         "versions": dict(library_versions()),
-        "started": _now(),
+        "started": timestamp(),
         "finished": None,
         "status": "running",
         "error": None,
@@ -270,23 +242,6 @@ def start_run(
     run = Run(run_dir, info)
     run._save()
     return run
-
-
-def mark_interrupted(run_dir: str | os.PathLike, reason: str) -> bool:
-    """Record a run that never finished as interrupted (its process was killed or cancelled).
-
-    Only a run.json still saying "running" changes; returns whether it did.
-    """
-    path = Path(run_dir) / RUN_FILE
-    try:
-        info = read_json(path)
-    except (OSError, ValueError):
-        return False
-    if not isinstance(info, dict) or info.get("status") != "running":
-        return False
-    info.update(status="interrupted", finished=_now(), error=reason)
-    write_json(path, info)
-    return True
 
 
 def is_finite(value: Any) -> bool:

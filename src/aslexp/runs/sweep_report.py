@@ -8,19 +8,58 @@ dashboard: the study in optuna-dashboard (a web UI) on loopback.
 from __future__ import annotations
 
 import logging
+import shlex
 import warnings
 from pathlib import Path
 from typing import Any
 
 import optuna
-from optuna.trial import TrialState
+from optuna.trial import FrozenTrial, TrialState
 
-from aslexp.tuning.study import best_summary, status_summary
+from aslexp.runs import read
+from aslexp.runs.record import METRICS_FILE, RUN_FILE
+from aslexp.tuning.study import StudyError, SweepInfo, status_summary, trial_summary
+from aslexp.tuning.worker import ATTR_OVERRIDES, ATTR_RUN_DIR, run_dir_of
 
 log = logging.getLogger(__name__)
 
 REPORT_DIR = "report"
 _FAILED_SHOWN = 10
+
+
+def rerun_command(job: str, overrides: list[str], python_module: str | None = None) -> str:
+    """The command line that runs one trial's configuration again as a single run."""
+    head = ["python", "-m", python_module] if python_module else ["aslexp", job]
+    return shlex.join([*head, *overrides])
+
+
+def trial_overrides(trial: FrozenTrial, study_name: str | None = None) -> list[str]:
+    """The task overrides a trial's job got: from its run directory, else from the study."""
+    run_dir = run_dir_of(trial.user_attrs.get(ATTR_RUN_DIR), study_name)
+    if run_dir and (Path(run_dir) / ".hydra" / "overrides.yaml").exists():
+        loaded = read.read_overrides(run_dir, consequence="the overrides the study recorded are used")
+        if loaded is not None:
+            return loaded
+    return [str(x) for x in trial.user_attrs.get(ATTR_OVERRIDES) or []]
+
+
+def best_summary(study: optuna.Study, info: SweepInfo | None) -> dict[str, Any]:
+    completed = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
+    if not completed:
+        raise StudyError(f"study {study.study_name!r} has no completed trial yet")
+    best = study.best_trial
+    overrides = trial_overrides(best, study.study_name)
+    job = info.job if info else "JOB"
+    result = trial_summary(best, study.study_name)
+    result.update({
+        "job": job,
+        "direction": study.direction.name.lower(),
+        "overrides": overrides,
+        "command": rerun_command(job, overrides),
+        "python_command": rerun_command(job, overrides, info.task_module if info else None)
+        if info and info.task_module else None,
+    })
+    return result
 
 
 def format_status(summary: dict[str, Any], sweep_dir: Path) -> str:
@@ -82,8 +121,6 @@ def format_best(best: dict[str, Any]) -> str:
 
 
 def failed_trials(study: optuna.Study) -> list[dict[str, Any]]:
-    from aslexp.tuning.study import trial_summary
-
     return [trial_summary(t, study.study_name) for t in study.get_trials(deepcopy=False, states=(TrialState.FAIL,))]
 
 
@@ -145,10 +182,6 @@ def check_trial_files(study: optuna.Study) -> int:
     """Read every trial folder's run.json, metrics.json (of a completed trial) and overrides; each
     damaged file is named in one warning line (the study's own record is unaffected). Returns how
     many were damaged."""
-    from aslexp.runs import read
-    from aslexp.runs.record import METRICS_FILE, RUN_FILE
-    from aslexp.tuning.worker import ATTR_RUN_DIR, run_dir_of
-
     damaged = 0
     for trial in study.get_trials(deepcopy=False):
         run_dir = run_dir_of(trial.user_attrs.get(ATTR_RUN_DIR), study.study_name)

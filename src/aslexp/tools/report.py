@@ -46,8 +46,9 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+from aslexp.files import write_json
 from aslexp.runs import read
-from aslexp.runs.record import METRICS_FILE, RUN_FILE, write_json
+from aslexp.runs.record import METRICS_FILE, RUN_FILE
 
 log = logging.getLogger(__name__)
 

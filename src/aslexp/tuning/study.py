@@ -14,7 +14,6 @@ from __future__ import annotations
 import datetime as _dt
 import os
 import re
-import shlex
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -23,7 +22,7 @@ from typing import Any
 import optuna
 from optuna.trial import FrozenTrial, TrialState
 
-from aslexp.runs.record import read_json, write_json
+from aslexp.files import read_json, write_json
 from aslexp.tuning.storage import (
     default_storage,
     file_lock,
@@ -286,40 +285,3 @@ def status_summary(study: optuna.Study, info: SweepInfo | None,
     if completed:
         summary["best"] = trial_summary(study.best_trial, study.study_name)
     return summary
-
-
-def rerun_command(job: str, overrides: list[str], python_module: str | None = None) -> str:
-    """The command line that runs one trial's configuration again as a single run."""
-    head = ["python", "-m", python_module] if python_module else ["aslexp", job]
-    return shlex.join([*head, *overrides])
-
-
-def trial_overrides(trial: FrozenTrial, study_name: str | None = None) -> list[str]:
-    """The task overrides a trial's job got: from its run directory, else from the study."""
-    run_dir = run_dir_of(trial.user_attrs.get(ATTR_RUN_DIR), study_name)
-    if run_dir and (Path(run_dir) / ".hydra" / "overrides.yaml").exists():
-        from aslexp.runs.read import read_overrides  # a damaged file: one warning line naming it
-
-        loaded = read_overrides(run_dir, consequence="the overrides the study recorded are used")
-        if loaded is not None:
-            return loaded
-    return [str(x) for x in trial.user_attrs.get(ATTR_OVERRIDES) or []]
-
-
-def best_summary(study: optuna.Study, info: SweepInfo | None) -> dict[str, Any]:
-    completed = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-    if not completed:
-        raise StudyError(f"study {study.study_name!r} has no completed trial yet")
-    best = study.best_trial
-    overrides = trial_overrides(best, study.study_name)
-    job = info.job if info else "JOB"
-    result = trial_summary(best, study.study_name)
-    result.update({
-        "job": job,
-        "direction": study.direction.name.lower(),
-        "overrides": overrides,
-        "command": rerun_command(job, overrides),
-        "python_command": rerun_command(job, overrides, info.task_module if info else None)
-        if info and info.task_module else None,
-    })
-    return result

@@ -49,14 +49,15 @@ import yaml
 from optuna.distributions import BaseDistribution
 from optuna.trial import FrozenTrial, Trial, TrialState
 
-from aslexp.runs.process import (
+from aslexp.files import read_json
+from aslexp.process import (
     boot_id,
     process_identity,
     process_is_gone,
     sigterm_raises,
     signals_held,
 )
-from aslexp.runs.record import RUN_FILE, mark_interrupted, read_json
+from aslexp.runfile import RUN_FILE, mark_interrupted
 from aslexp.tuning.storage import budget_lock
 
 log = logging.getLogger(__name__)

@@ -8,7 +8,7 @@ learned policy's LAST evaluation as mean ± std over seeds (the best-so-far eval
 secondary column: a maximum over evaluations is biased upward). A row whose runs did not train
 (``ppo.total_steps=0``) shows its learned cells as pending.
 
-    python -m aslexp.rl.thesis_report outputs/imitate-multirun/<sweep>      # the table again
+    python -m aslexp.reports.thesis_report outputs/imitate-multirun/<sweep>      # the table again
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.rl.report import best_so_far, learned, mean_std, plot_curves, read_runs, run_config, write_table
+from aslexp.reports.report import best_so_far, learned, mean_std, plot_curves, read_runs, run_config, write_table
 
 # Thesis Table 6.7 (THESIS.md 4.8): sign -> (Run 1 mean, std, Run 2 mean, std), 10 seeds, 50 M steps.
 THESIS_TABLE_6_7 = {"00433": (0.827, 0.020, 0.868, 0.007), "52861": (0.832, 0.022, 0.853, 0.017),

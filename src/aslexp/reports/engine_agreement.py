@@ -1,6 +1,6 @@
 """How far the engines agree: the no-learning baselines in PyBullet and in MuJoCo, side by side.
 
-    python -m aslexp.rl.engine_agreement [--letters A,B,C,D,E] [--signs 00433,52861,69318,69546]
+    python -m aslexp.reports.engine_agreement [--letters A,B,C,D,E] [--signs 00433,52861,69318,69546]
                                          [--seconds 10] [--out outputs/engine_agreement]
 
 For each letter (the hand, the thesis reward ``hand_thesis``) and each sign (the upper body,
@@ -69,7 +69,7 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m aslexp.rl.engine_agreement", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m aslexp.reports.engine_agreement", description=__doc__.split("\n")[0])
     parser.add_argument("--letters", default="A,B,C,D,E")
     parser.add_argument("--signs", default="00433,52861,69318,69546", help="'' for none")
     parser.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per baseline")

@@ -27,7 +27,7 @@ control steps from each of ``ppo.phases``; deterministic):
 * the learned correction's size at the last evaluation beside the exploration noise, both in
   half-widths of the action box (metrics.json ``last_eval_action_rms``, ``exploration_std``).
 
-    python -m aslexp.rl.residual_report outputs/imitate-multirun/<sweep>      # the table again
+    python -m aslexp.reports.residual_report outputs/imitate-multirun/<sweep>      # the table again
 """
 
 from __future__ import annotations
@@ -40,9 +40,9 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.rl.report import (best_so_far, learned, mean_std, plot_curves, read_runs, run_config, run_env,
+from aslexp.reports.report import (best_so_far, learned, mean_std, plot_curves, read_runs, run_config, run_env,
                               write_table)
-from aslexp.rl.thesis_report import GLOSSES
+from aslexp.reports.thesis_report import GLOSSES
 
 log = logging.getLogger("aslexp.residual")
 

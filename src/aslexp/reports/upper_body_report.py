@@ -1,10 +1,10 @@
 """The sign experiment's summary: per sign, the learned reward beside the no-learning baselines
 and thesis Table 6.7 (a like-for-like comparison needs the thesis' reward, controller and rate:
-``experiment=signs_thesis_run1|run2`` and :mod:`aslexp.rl.thesis_report`).
+``experiment=signs_thesis_run1|run2`` and :mod:`aslexp.reports.thesis_report`).
 
-    python -m aslexp.rl.upper_body_report outputs/imitate-multirun/<sweep>
+    python -m aslexp.reports.upper_body_report outputs/imitate-multirun/<sweep>
 
-Reuses :func:`aslexp.rl.report.summarize_letters` (last and best evaluations, every baseline, curves)
+Reuses :func:`aslexp.reports.report.summarize_letters` (last and best evaluations, every baseline, curves)
 and adds the thesis column; writes ``signs_table.{md,csv}`` beside ``letters_curves.png``.
 """
 
@@ -13,8 +13,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from aslexp.rl.report import summarize_letters, write_table
-from aslexp.rl.thesis_report import GLOSSES, THESIS_TABLE_6_7
+from aslexp.reports.report import summarize_letters, write_table
+from aslexp.reports.thesis_report import GLOSSES, THESIS_TABLE_6_7
 
 
 def summarize_signs(sweep_dir: str | Path, out_dir: str | Path | None = None) -> dict[str, Any]:

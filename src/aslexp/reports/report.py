@@ -302,7 +302,7 @@ def finite_or_none(value: float | None) -> float | None:
     return None if value is None or not math.isfinite(value) else float(value)
 
 
-if __name__ == "__main__":  # python -m aslexp.rl.report SWEEP_DIR
+if __name__ == "__main__":  # python -m aslexp.reports.report SWEEP_DIR
     import sys
 
     print(summarize_letters(sys.argv[1])["table"])
