@@ -14,7 +14,9 @@ Tools take ordinary flags:
     aslexp extract VIDEO_OR_DIR... --out DIR
 
 ``aslexp <job> --help`` is answered from the config files alone (no job module, torch or Hydra
-is imported): the job's own config groups and options, its experiments and sweeps.
+is imported): the job's own config groups and options, its experiments (the catalogue of
+``conf/experiment/``, one line each from the overlay's first comment line, and a count of the
+archived probes of ``conf/experiment/archive/``) and sweeps.
 """
 
 from __future__ import annotations
@@ -93,7 +95,8 @@ def _options(group: str) -> list[str]:
 
 def _referenced(config: dict, group: str = "experiment", _seen: frozenset = frozenset()) -> set[str]:
     """Groups and top-level keys an overlay touches: its keys, its ``override /env: x`` (-> env),
-    the keys its sweeper sweeps, and those of the overlays of ``group`` it builds on."""
+    the keys its sweeper sweeps, and those of the overlays it builds on: ``name`` (an overlay of
+    ``group``) or ``/experiment/archive/name`` (absolute, as the archived overlays name theirs)."""
     keys = {k for k in config if k not in ("defaults", "hydra")}
     params = ((config.get("hydra") or {}).get("sweeper") or {}).get("params") or {}
     keys |= {str(k).lstrip("+~").split(".")[0] for k in params}
@@ -104,7 +107,11 @@ def _referenced(config: dict, group: str = "experiment", _seen: frozenset = froz
                 if name and not name.startswith("hydra"):
                     keys.add(name.split("/")[0])
         elif isinstance(entry, str) and entry != "_self_" and entry not in _seen:
-            keys |= _referenced(_yaml(_CONF / group / f"{entry}.yaml"), group, _seen | {entry})
+            path = entry[1:] if entry.startswith("/") else f"{group}/{entry}"
+            if path.split("/")[0] == group:  # another overlay of the group: its keys are global
+                keys |= _referenced(_yaml(_CONF / f"{path}.yaml"), group, _seen | {entry})
+            else:  # a config of another group, by its absolute path
+                keys.add(path.split("/")[0])
     return keys
 
 
@@ -118,22 +125,57 @@ def _job_keys(job: str) -> set[str]:
     return keys
 
 
-def experiments_of(job: str) -> list[str]:
-    """The overlays of ``conf/experiment`` written for ``job``: every group or key they touch
-    that some job knows is one of this job's, and one at least is this job's alone (``seed``
-    or ``logger`` alone says nothing). Keys no job has (an overlay's own ``report:``) are its
-    additions and do not count."""
+ARCHIVE = "archive"  # conf/experiment/archive/: the probes behind the catalogue, experiment=archive/NAME
+
+
+def experiments_of(job: str, archived: bool = False) -> list[str]:
+    """The overlays of ``conf/experiment`` written for ``job`` (the catalogue; with ``archived``,
+    those of ``conf/experiment/archive``, named ``archive/NAME`` as Hydra selects them): every
+    group or key they touch that some job knows is one of this job's, and one at least is this
+    job's alone (``seed`` or ``logger`` alone says nothing). Keys no job has (an overlay's own
+    ``report:``) are its additions and do not count."""
     jobs = {j: _job_keys(j) for j in _jobs() if j not in _UNLISTED_JOBS}
     known = set().union(*jobs.values())
     shared = set.intersection(*jobs.values())
     if job not in jobs or "experiment" not in jobs[job]:
         return []
+    folder, prefix = (_CONF / "experiment" / ARCHIVE, f"{ARCHIVE}/") if archived else (_CONF / "experiment", "")
     mine = []
-    for name in _options("experiment"):
-        touched = _referenced(_yaml(_CONF / "experiment" / f"{name}.yaml")) & known
+    for path in sorted(folder.glob("*.yaml")):
+        touched = _referenced(_yaml(path)) & known
         if touched <= jobs[job] and touched - shared:
-            mine.append(name)
+            mine.append(prefix + path.stem)
     return mine
+
+
+def experiment_description(name: str) -> str:
+    """An overlay's one-line description: its first comment line after the ``# @package`` header
+    (Hydra reads the header only while the lines are ``# @...``, so it stays first)."""
+    try:
+        text = (_CONF / "experiment" / f"{name}.yaml").read_text(encoding="utf-8")
+    except OSError:
+        return ""
+    for line in text.splitlines():
+        line = line.strip()
+        if not line or line.lstrip("#").strip().startswith("@"):
+            continue
+        return line.lstrip("#").strip() if line.startswith("#") else ""
+    return ""
+
+
+def _catalogue(job: str) -> list[str]:
+    """The help's experiments section: the catalogue one per line, the archive as a count."""
+    names = experiments_of(job)
+    if not names:
+        return []
+    width = max(len(n) for n in names)
+    lines = ["", "experiments (experiment=NAME, conf/experiment/; values on the command line cut a sweep):"]
+    lines += [f"  {name:<{width}}  {experiment_description(name)}" for name in names]
+    archived = experiments_of(job, archived=True)
+    if archived:
+        lines.append(f"  and {len(archived)} archived probe{'s' if len(archived) != 1 else ''}: "
+                     f"experiment={ARCHIVE}/NAME (one line each: conf/experiment/{ARCHIVE}/README.md)")
+    return lines
 
 
 def _sweeps_of(job: str, job_keys: set[str]) -> list[str]:
@@ -168,7 +210,7 @@ def job_help(job: str) -> str:
     for group, default in groups.items():
         options = _options(group)
         if group == "experiment":
-            options = experiments_of(job)
+            options = [f"one of the {len(experiments_of(job))} experiments below"]
         rest = [o for o in options if o != default]
         head = default if default is not None else "(none)"
         lines.append(f"  {group:<{width}}  {head}" + (f" | {', '.join(rest)}" if rest else ""))
@@ -177,6 +219,7 @@ def job_help(job: str) -> str:
         lines.append(f"  {'+sweeps':<{width}}  {', '.join(sweeps)}   (Optuna: -m +sweeps=NAME)")
     lines.append(f"  {'hydra/...':<{width}}  hydra/launcher=local|slurm, hydra/sweeper=optuna "
                  "(docs/sweeps.md)")
+    lines += _catalogue(job)
     scalars = [f"{k}={_short(v)}" for k, v in config.items()
                if k not in ("defaults", "hydra") and not isinstance(v, (dict, list))]
     if scalars:

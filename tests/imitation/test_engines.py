@@ -193,15 +193,18 @@ def test_the_engine_switch_composes_in_every_imitation_overlay():
     composed = {}
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         assert compose(config_name="imitate").engine.name == "pybullet"  # the thesis' engine by default
-        for path in sorted((CONF_DIR / "experiment").glob("*.yaml")):
+        folder = CONF_DIR / "experiment"  # the catalogue and the archived probes
+        for path in sorted([*folder.glob("*.yaml"), *folder.glob("archive/*.yaml")]):
+            name = path.relative_to(folder).with_suffix("").as_posix()
             try:
-                cfg = compose(config_name="imitate", overrides=[f"experiment={path.stem}", "engine=mujoco"])
+                cfg = compose(config_name="imitate", overrides=[f"experiment={name}", "engine=mujoco"])
             except Exception as exc:  # a recognition overlay: it overrides a group imitate does not have
                 group = re.search(r"Could not override '(\w+)'", str(exc))
-                assert group and group.group(1) in RECOGNITION_GROUPS, (path.stem, str(exc)[:300])
+                assert group and group.group(1) in RECOGNITION_GROUPS, (name, str(exc)[:300])
                 continue
-            composed[path.stem] = cfg
-    assert {"letters_thesis", "letters_scratch", "signs_thesis_run2", "signs_free_residual"} <= set(composed)
+            composed[name] = cfg
+    assert {"letters_thesis", "letters_scratch", "signs_thesis_run2", "signs_free_residual",
+            "archive/signs_free_residual_anneal_quiet"} <= set(composed)
     for overlay, cfg in composed.items():
         assert cfg.engine.name == "mujoco" and "motion" in cfg, overlay
         EngineSpec.from_dict(dict(cfg.engine))

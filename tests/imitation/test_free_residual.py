@@ -228,8 +228,8 @@ def test_signs_free_residual_composes_with_the_values_its_comments_claim():
 
 
 def test_the_root_variant_changes_only_what_its_name_says():
-    """experiment=signs_free_residual_root: the base experiment plus two named changes, nothing else."""
-    base, variant = _composed("signs_free_residual"), _composed("signs_free_residual_root")
+    """experiment=archive/signs_free_residual_root: the base experiment plus two named changes, nothing else."""
+    base, variant = _composed("signs_free_residual"), _composed("archive/signs_free_residual_root")
     assert variant["env"]["observe_reference_root"] is True and base["env"]["observe_reference_root"] is False
     assert variant["ppo"]["log_std_init"] == -1.75 and base["ppo"]["log_std_init"] == -1.0
     for cfg in (base, variant):
@@ -239,8 +239,8 @@ def test_the_root_variant_changes_only_what_its_name_says():
 
 
 def test_the_anneal_variant_adds_only_its_two_schedules():
-    """experiment=signs_free_residual_anneal: the root variant plus a noise and a learning-rate schedule."""
-    root, anneal = _composed("signs_free_residual_root"), _composed("signs_free_residual_anneal")
+    """experiment=archive/signs_free_residual_anneal: the root variant plus a noise and a learning-rate schedule."""
+    root, anneal = _composed("archive/signs_free_residual_root"), _composed("archive/signs_free_residual_anneal")
     assert (anneal["ppo"]["log_std_final"], anneal["ppo"]["learning_rate_final"]) == (-3.0, 0.0)
     assert (root["ppo"]["log_std_final"], root["ppo"]["learning_rate_final"]) == (None, None)
     for cfg in (root, anneal):
@@ -250,8 +250,8 @@ def test_the_anneal_variant_adds_only_its_two_schedules():
 
 
 def test_the_kl_variant_adds_only_a_trust_region_and_twice_the_budget():
-    """experiment=signs_free_residual_anneal_kl: the anneal variant, target_kl 0.02, 164 k steps."""
-    anneal, kl = _composed("signs_free_residual_anneal"), _composed("signs_free_residual_anneal_kl")
+    """experiment=archive/signs_free_residual_anneal_kl: the anneal variant, target_kl 0.02, 164 k steps."""
+    anneal, kl = _composed("archive/signs_free_residual_anneal"), _composed("archive/signs_free_residual_anneal_kl")
     assert (anneal["ppo"]["target_kl"], anneal["ppo"]["total_steps"]) == (None, 81920)
     assert (kl["ppo"]["target_kl"], kl["ppo"]["total_steps"], kl["ppo"]["max_minutes"]) == (0.02, 163840, 30)
     for cfg in (anneal, kl):
@@ -262,9 +262,9 @@ def test_the_kl_variant_adds_only_a_trust_region_and_twice_the_budget():
 
 
 def test_the_batch_variant_changes_only_the_samples_per_update_at_twice_the_budget():
-    """experiment=signs_free_residual_anneal_batch: the anneal variant, 8192 steps and minibatches of
+    """experiment=archive/signs_free_residual_anneal_batch: the anneal variant, 8192 steps and minibatches of
     1024 per update (the same 40 gradient steps per update), 164 k steps."""
-    anneal, batch = _composed("signs_free_residual_anneal"), _composed("signs_free_residual_anneal_batch")
+    anneal, batch = _composed("archive/signs_free_residual_anneal"), _composed("archive/signs_free_residual_anneal_batch")
     keys = ("steps_per_rollout", "minibatch_size", "epochs", "total_steps", "max_minutes")
     assert [anneal["ppo"][k] for k in keys] == [2048, 256, 5, 81920, 12]
     assert [batch["ppo"][k] for k in keys] == [8192, 1024, 5, 163840, 30]
@@ -276,11 +276,11 @@ def test_the_batch_variant_changes_only_the_samples_per_update_at_twice_the_budg
 
 
 def test_the_quiet_variant_is_the_probe_s_overrides_of_the_anneal_variant():
-    """experiment=signs_free_residual_anneal_quiet composes exactly what the documented probe ran:
+    """experiment=archive/signs_free_residual_anneal_quiet composes exactly what the documented probe ran:
     the anneal variant with ppo.total_steps=163840 ppo.max_minutes=30 ppo.log_std_final=-4."""
-    probe = _composed("signs_free_residual_anneal", "ppo.total_steps=163840", "ppo.max_minutes=30",
+    probe = _composed("archive/signs_free_residual_anneal", "ppo.total_steps=163840", "ppo.max_minutes=30",
                       "ppo.log_std_final=-4")
-    quiet = _composed("signs_free_residual_anneal_quiet")
+    quiet = _composed("archive/signs_free_residual_anneal_quiet")
     assert (quiet["ppo"]["log_std_init"], quiet["ppo"]["log_std_final"]) == (-1.75, -4.0)
     for cfg in (probe, quiet):
         _drop_run_sections(cfg)
@@ -288,9 +288,9 @@ def test_the_quiet_variant_is_the_probe_s_overrides_of_the_anneal_variant():
 
 
 def test_the_red_noise_variant_changes_only_the_colour_of_the_quiet_variant_s_noise():
-    """experiment=signs_free_residual_anneal_quiet_red: the quiet variant with ppo.noise_beta=2 over
+    """experiment=archive/signs_free_residual_anneal_quiet_red: the quiet variant with ppo.noise_beta=2 over
     the 300-step episode (its horizon), nothing else; white noise (0) is every other experiment's."""
-    quiet, red = _composed("signs_free_residual_anneal_quiet"), _composed("signs_free_residual_anneal_quiet_red")
+    quiet, red = _composed("archive/signs_free_residual_anneal_quiet"), _composed("archive/signs_free_residual_anneal_quiet_red")
     assert (quiet["ppo"]["noise_beta"], red["ppo"]["noise_beta"]) == (0.0, 2.0)
     assert red["ppo"]["noise_horizon"] == red["env"]["episode_steps"] == 300
     for cfg in (quiet, red):
@@ -325,10 +325,10 @@ def test_observe_reference_root_shows_the_turn_the_heading_frame_hides(data_root
 
 
 def test_the_heading_variant_changes_only_the_training_reward_of_the_quiet_variant():
-    """experiment=signs_free_residual_anneal_quiet_heading: the quiet variant with env.heading_shaping=10,
+    """experiment=archive/signs_free_residual_anneal_quiet_heading: the quiet variant with env.heading_shaping=10,
     nothing else; 0 (off) is every other experiment's."""
-    quiet = _composed("signs_free_residual_anneal_quiet")
-    heading = _composed("signs_free_residual_anneal_quiet_heading")
+    quiet = _composed("archive/signs_free_residual_anneal_quiet")
+    heading = _composed("archive/signs_free_residual_anneal_quiet_heading")
     assert (quiet["env"]["heading_shaping"], heading["env"]["heading_shaping"]) == (0.0, 10.0)
     assert quiet["env"]["offset_shaping"] == heading["env"]["offset_shaping"] == 0.0
     for cfg in (quiet, heading):
@@ -343,7 +343,7 @@ def test_drift_shaping_charges_the_turn_and_offset_in_training_envs_only(data_ro
     offset against the reference's; the evaluation env scores the reward alone."""
     from aslexp import quaternion
 
-    _, make_train_env, eval_env = _job_envs(data_root, "signs_free_residual_anneal_quiet_heading",
+    _, make_train_env, eval_env = _job_envs(data_root, "archive/signs_free_residual_anneal_quiet_heading",
                                             "motion='00433'", "env.offset_shaping=100")
     train_env = make_train_env()
     action = np.zeros(train_env.action_space.shape, np.float32)
@@ -379,8 +379,8 @@ def test_drift_shaping_scales_must_be_numbers_of_zero_or_more(name, value):
 
 
 def test_the_drift_variant_adds_only_the_offset_charge_to_the_heading_variant():
-    heading = _composed("signs_free_residual_anneal_quiet_heading")
-    drift = _composed("signs_free_residual_anneal_quiet_drift")
+    heading = _composed("archive/signs_free_residual_anneal_quiet_heading")
+    drift = _composed("archive/signs_free_residual_anneal_quiet_drift")
     assert (heading["env"]["offset_shaping"], drift["env"]["offset_shaping"]) == (0.0, 100.0)
     assert drift["env"]["heading_shaping"] == 10.0
     for cfg in (heading, drift):
@@ -392,7 +392,7 @@ def test_the_drift_variant_adds_only_the_offset_charge_to_the_heading_variant():
 def test_the_328k_variant_is_the_probe_s_overrides_of_the_quiet_variant():
     """experiment=signs_free_residual_anneal_quiet_328k composes what the 69318 probe ran:
     the quiet variant with ppo.total_steps=327680 ppo.max_minutes=60, schedules stretched over it."""
-    probe = _composed("signs_free_residual_anneal_quiet", "ppo.total_steps=327680", "ppo.max_minutes=60")
+    probe = _composed("archive/signs_free_residual_anneal_quiet", "ppo.total_steps=327680", "ppo.max_minutes=60")
     longer = _composed("signs_free_residual_anneal_quiet_328k")
     assert (longer["ppo"]["log_std_final"], longer["ppo"]["learning_rate_final"]) == (-4.0, 0.0)
     for cfg in (probe, longer):
@@ -401,7 +401,7 @@ def test_the_328k_variant_is_the_probe_s_overrides_of_the_quiet_variant():
 
 
 def _upper_body_residual_env(data_root, **env_overrides):
-    cfg, _, eval_env = _job_envs(data_root, "signs_free_residual_anneal_quiet", "motion='69546'",
+    cfg, _, eval_env = _job_envs(data_root, "archive/signs_free_residual_anneal_quiet", "motion='69546'",
                                  *(f"env.{k}={v}" for k, v in env_overrides.items()))
     return cfg, eval_env
 
@@ -478,8 +478,8 @@ def test_the_residual_baselines_ignore_a_smoothed_base(data_root, tmp_path):
 
 
 def test_the_smoothed_base_variant_changes_only_the_residual_s_base():
-    quiet = _composed("signs_free_residual_anneal_quiet")
-    smoothed = _composed("signs_free_residual_anneal_quiet_smoothed_base")
+    quiet = _composed("archive/signs_free_residual_anneal_quiet")
+    smoothed = _composed("archive/signs_free_residual_anneal_quiet_smoothed_base")
     assert (quiet["env"]["residual_base_smoothing"], smoothed["env"]["residual_base_smoothing"]) == (0.0, 0.6)
     assert smoothed["env"]["residual_base_smoothing_groups"] == smoothed["report"]["residual"]["smoothing_groups"]
     assert 0.6 in smoothed["report"]["residual"]["smoothing"]  # its zero correction is a row of the table

@@ -15,7 +15,7 @@ HEAVY = ("torch", "hydra", "optuna", "pybullet", "aslexp.jobs.recognize", "aslex
 
 @pytest.mark.parametrize("job, own, foreign", [
     ("recognize", {"classifier", "property", "split", "experiment", "classifier_mlp"}, {"motion", "ppo"}),
-    ("imitate", {"motion", "ppo", "reward", "experiment", "letters", "ppo_hand_thesis"}, {"classifier", "split"}),
+    ("imitate", {"motion", "ppo", "reward", "experiment", "letters_tracking", "ppo_hand_thesis"}, {"classifier", "split"}),
     ("tune_pd", {"controller", "pd_gains_10"}, {"classifier", "ppo", "experiment"}),
 ])
 def test_job_help_shows_the_job_s_own_groups_without_importing_it(job, own, foreign):
@@ -39,7 +39,7 @@ def test_the_job_list_hides_the_test_objective_which_still_runs(aslexp, tmp_path
 
 
 @pytest.mark.parametrize("job, experiment, key", [("recognize", "debug", "num_frames: 32"),
-                                                  ("imitate", "letters_quick", "name: fast")])
+                                                  ("imitate", "archive/letters_quick", "name: fast")])
 def test_experiment_without_plus_composes_for_both_jobs(aslexp, job, experiment, key):
     out = aslexp(job, f"experiment={experiment}", "--cfg", "job").stdout
     assert key in out

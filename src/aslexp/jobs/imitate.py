@@ -6,8 +6,9 @@
     aslexp imitate motion=A ppo.total_steps=0                 # baselines and plots only
     aslexp imitate hydra.run.dir=outputs/imitate/X resume=outputs/imitate/X   # continue a run
     aslexp imitate <the run's overrides> resume=RUN ppo.eval_episodes=16 hydra.run.dir=NEW   # re-evaluate it
-    aslexp imitate -m experiment=letters                     # letters x seeds (figure 5.9)
-    aslexp imitate -m experiment=letters_thesis              # the same as the thesis ran it, beside it
+    aslexp imitate -m experiment=letters_tracking            # letters x seeds (figure 5.9's task), aslexp's
+    aslexp imitate -m experiment=letters_thesis              # as the thesis ran it, beside figure 5.9
+    aslexp imitate --help                                    # the catalogue of experiments
 
 The run folder gets: metrics.json (baselines, last evaluation (the headline) and best, the
 evaluation protocol, steps, seconds, steps per
