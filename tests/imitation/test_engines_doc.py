@@ -51,3 +51,25 @@ def tiny(command: str, tmp: Path) -> list[str]:
 def test_every_engines_doc_command_runs(command, tmp_path):
     proc = subprocess.run(tiny(command, tmp_path), cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, f"{command}\n{proc.stderr[-3000:]}"
+
+
+def test_the_gpu_device_script_runs_on_the_cpu(tmp_path):
+    """bench/gpu_letters_thesis.sh (the lent GPU machine's check in docs/engines.md) on the CPU path:
+    one letter, one seed, seconds of training; its run folder and archive come back as on the GPU."""
+    import json
+    import os
+    import tarfile
+
+    out, runs = tmp_path / "out", tmp_path / "runs" / "letters_thesis_mujoco"
+    out.mkdir()
+    env = {**os.environ, "OUT": str(out), "RUNS": str(runs), "DEV": "cpu", "MIN": "0.02", "LETTERS": "A",
+           "SEEDS": "0", "BENCH": "0", "NOPIP": "1", "PY": sys.executable,
+           "EXTRA": "ppo.hidden_sizes=[32,32] ppo.eval_steps=30"}
+    proc = subprocess.run(["bash", "bench/gpu_letters_thesis.sh"], cwd=PROJECT_ROOT, env=env, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, (out / "log.txt").read_text()[-3000:]
+    metrics = json.loads((runs / "A_s0" / "metrics.json").read_text())
+    assert metrics["motion"] == "A" and metrics["steps"] > 0 and metrics["stopped"] == "max_minutes"
+    with tarfile.open(out / "letters_thesis_mujoco.tgz") as archive:
+        names = archive.getnames()
+    assert "letters_thesis_mujoco/A_s0/metrics.json" in names and not any("checkpoints" in n for n in names)

@@ -1,0 +1,63 @@
+#!/bin/bash
+# The device check of docs/engines.md ("The thesis' PPO setting on the letters, on a GPU"), one script for
+# a lent GPU machine (one command, everything it writes under $OUT):
+#   1. bench/engine.py's MuJoCo rows on every core, 2. the hand_thesis learner on the GPU (--ppo),
+#   3. experiment=letters_thesis on MuJoCo, letters x seeds all at once, MIN minutes of training each,
+#   4. the run folders (no checkpoints) as $OUT/letters_thesis_mujoco.tgz; the table is made afterwards with
+#      python -m aslexp.reports.thesis_report <folder>.
+# Before: wheels for the machine's Python in outputs/gpu/wheels (mujoco, mujoco-core, hydra-core, omegaconf,
+# gymnasium, farama-notifications, tensordict, torchrl, glfw, optuna, colorlog, pyvers), antlr4 (pure Python)
+# in outputs/gpu/pylib, ../shared/data/{motions,models} in outputs/gpu/data; carry outputs/gpu.
+# On the CPU (its test): OUT=/tmp/x DEV=cpu MIN=0.05 LETTERS=A SEEDS=0 BENCH=0 NOPIP=1 bash bench/gpu_letters_thesis.sh
+set -u
+OUT=${OUT:?set OUT to a folder}
+exec > >(tee "$OUT/log.txt") 2>&1
+date; uptime
+START=$(date +%s)
+el() { echo "[$(( $(date +%s) - START )) s] $*"; }
+R=$PWD
+export PYTHONPATH=$R/src:$R/outputs/gpu/pylib${PYTHONPATH:+:$PYTHONPATH}
+export ASLEXP_DATA_ROOT=${ASLEXP_DATA_ROOT:-$R/outputs/gpu/data} MUJOCO_GL=egl OMP_NUM_THREADS=1 MPLBACKEND=Agg
+MIN=${MIN:-6.0}; LETTERS=${LETTERS:-A B C D E}; SEEDS=${SEEDS:-0 1 2}; DEV=${DEV:-cuda}; PY=${PY:-python3}
+KILL=${KILL:-480}; BENCH=${BENCH:-1}
+if [ -z "${NOPIP:-}" ]; then
+  el "install"
+  $PY -m pip install --no-index --no-deps -q "$R"/outputs/gpu/wheels/*.whl > "$OUT/pip.log" 2>&1 || { el "pip failed"; tail -5 "$OUT/pip.log"; }
+fi
+nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null; nproc; $PY -V
+$PY - <<'PY' || { el "SMOKE FAILED"; exit 3; }
+import torch, mujoco, torchrl
+print("torch", torch.__version__, "cuda", torch.cuda.is_available(), "mujoco", mujoco.__version__, "torchrl", torchrl.__version__)
+from aslexp.envs.batched import BatchedImitationEnv
+env = BatchedImitationEnv(4, "motions/hand/A.txt", engine="mujoco", env="hand_thesis", reward="hand_thesis"); env.reset(seed=0); print("env ok")
+PY
+if [ "$BENCH" = 1 ]; then
+  el "engine bench"
+  timeout 120 $PY bench/engine.py --bodies "hand 240 Hz,hand 30 Hz" --sizes 64,256,1024 --seconds 1.4 --json "$OUT/engine.json" 2>&1 | tail -30
+  el "ppo split, learner on $DEV"
+  timeout 150 $PY bench/engine.py --bodies none --ppo 256 --ppo-updates 3 --device "$DEV" --rollout-device learner --json "$OUT/ppo_split.json" 2>&1 | tail -12
+fi
+el "letters_thesis on MuJoCo: letters $LETTERS x seeds $SEEDS at once, learner on $DEV, $MIN min each"
+RUNS=${RUNS:-$R/outputs/gpu_runs/letters_thesis_mujoco}; mkdir -p "$RUNS"
+SMI=
+if command -v nvidia-smi >/dev/null; then
+  nvidia-smi --query-gpu=timestamp,utilization.gpu,memory.used --format=csv -l 10 > "$RUNS/nvidia_smi.csv" 2>&1 &
+  SMI=$!
+fi
+PIDS=()
+for m in $LETTERS; do for s in $SEEDS; do
+  timeout -s INT "$KILL" $PY -m aslexp.cli imitate experiment=letters_thesis engine=mujoco engine.threads=1 motion=$m seed=$s \
+    ppo.device=$DEV ppo.rollout_device=learner ppo.vector_env=batched ppo.num_envs=64 ppo.torch_threads=1 \
+    ppo.max_minutes=$MIN ppo.eval_interval=256000 ppo.progress_interval=60 render.gif=false render.mp4=false \
+    ${EXTRA:-} hydra.run.dir="$RUNS/${m}_s${s}" > "$RUNS/${m}_s${s}.out" 2>&1 &
+  PIDS+=($!)
+done; done
+FAILED=0
+for pid in "${PIDS[@]}"; do wait "$pid" || FAILED=$((FAILED + 1)); done
+[ -n "$SMI" ] && kill "$SMI" 2>/dev/null
+el "runs done, $FAILED failed"
+for f in "$RUNS"/*.out; do echo "== $f"; tail -3 "$f"; done
+(cd "$(dirname "$RUNS")" && tar czf "$OUT/letters_thesis_mujoco.tgz" --exclude=checkpoints --exclude='tracking*.png' "$(basename "$RUNS")")
+ls -la "$OUT"
+el "end"
+exit $FAILED
