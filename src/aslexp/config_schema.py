@@ -286,6 +286,7 @@ PPO: dict[str, Key] = {
     "batched_workers": Int(0),
     "device": Text(),
     "rollout_device": Choice("cpu", "learner"),
+    "eval_device": Choice("cpu", "learner"),
     "torch_threads": Int(1),
     "progress_interval": Float(0),
 }

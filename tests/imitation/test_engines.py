@@ -280,8 +280,29 @@ def test_the_learner_and_the_batch_policy_on_a_gpu(data_root, tmp_path):
         result = trainer.train()
         assert trainer.steps == 2048 and np.isfinite(result.last_eval)
         assert trainer.device.type == "cuda" and trainer.rollout_agent is trainer.agent
+        # The evaluations ask a CPU copy with the learner's weights (eval_device: cpu, the default).
+        policy = trainer.evaluation_agent()
+        assert policy.device.type == "cpu" and policy is not trainer.agent
+        obs = np.zeros((1, trainer.eval_env.observation_space.shape[0]), np.float32)
+        np.testing.assert_allclose(policy.act(obs), trainer.agent.act(obs), atol=1e-5)
     finally:
         trainer.close()
+
+
+def test_evaluations_ask_the_learner_on_the_cpu_and_the_device_is_checked(data_root, tmp_path):
+    from aslexp.rl.ppo import PPOConfig, PPOTrainer
+
+    motion = data_root / "motions/hand/B.txt"
+    config = PPOConfig(hidden_sizes=(16,), steps_per_rollout=64, total_steps=64, eval_steps=10, device="cpu")
+    env = ImitationEnv(motion, engine="mujoco")
+    trainer = PPOTrainer(env, env, config, tmp_path / "run", seed=0)
+    try:
+        assert trainer.evaluation_agent() is trainer.agent  # a CPU learner is its own evaluator
+    finally:
+        trainer.close()
+        env.close()
+    with pytest.raises(ValueError, match="eval_device"):
+        PPOConfig(eval_device="gpu")
 
 
 def test_a_mujoco_env_renders_what_pybullet_renders_for_the_same_pose(data_root):

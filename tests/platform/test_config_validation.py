@@ -66,7 +66,7 @@ def test_every_shipped_config_passes():
 
     # Every experiment with its job, every trainer; each ppo file alone is read through the same
     # schema by tests/imitation/test_ppo_vector.py (PPOConfig.from_dict of every conf/ppo file).
-    experiments = stems("experiment")
+    experiments = stems("experiment") + [f"archive/{e}" for e in stems("experiment/archive")]
     choices = {
         "imitate": [[]] + [[f"experiment={e}"] for e in experiments if imitation(e)],
         "recognize": [[f"trainer={t}"] for t in stems("trainer")]
@@ -80,7 +80,9 @@ def test_every_shipped_config_passes():
             for overrides in override_sets:
                 check_config(job, compose(job, overrides=overrides))
                 checked += 1
-    assert checked == 1 + 21 + 5 + 7 + 2 + 1
+    composed = [o for sets in choices.values() for overrides in sets for o in overrides if o.startswith("experiment=")]
+    assert sorted(o.split("=", 1)[1] for o in composed) == sorted(experiments) and len(experiments) >= 28
+    assert checked == 1 + len(experiments) + len(stems("trainer")) + 2 + 1
 
 
 def test_the_schema_declares_every_key_its_readers_accept():

@@ -156,7 +156,8 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     # tracking plots and a side-by-side GIF.
     render = cfg.get("render") or {}
     frames_every = int(render.get("frames_every", 2)) if render.get("gif", True) else 0
-    final = evaluate(eval_env, lambda obs, env: trainer.agent.act(obs), ppo.eval_steps, record=True,
+    policy = trainer.evaluation_agent()
+    final = evaluate(eval_env, lambda obs, env: policy.act(obs), ppo.eval_steps, record=True,
                      frames_every=frames_every)
     look = evaluate(eval_env, lambda obs, env: env.reference_action(1), ppo.eval_steps, record=True)
     joint_names = [j.name for j in eval_env.layout.joints]
