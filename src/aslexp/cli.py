@@ -9,7 +9,7 @@ Hydra jobs (any module in aslexp.jobs with a ``main``) take Hydra overrides:
 Tools take ordinary flags:
 
     aslexp data fetch|check --root DIR
-    aslexp report RUN_OR_SWEEP_DIR... [--out DIR]
+    aslexp report RUN_OR_SWEEP_DIR... [--out DIR]     aslexp report --results   (docs/results.md)
     aslexp runs list|diff ...        aslexp sweep status|best|report|dashboard SWEEP_DIR
     aslexp extract VIDEO_OR_DIR... --out DIR
 
@@ -32,7 +32,8 @@ from aslexp.paths import CONF_DIR, SWEEPS_DIR
 
 _TOOLS = {
     "data": ("aslexp.tools.data", "data_main", "fetch or verify the data root"),
-    "report": ("aslexp.tools.report", "report_main", "runs into tables (recognition: intervals, comparisons)"),
+    "report": ("aslexp.tools.report", "report_main",
+               "runs into tables (recognition: intervals, comparisons); --results: docs/results.md"),
     "runs": ("aslexp.runs.cli", "runs_main", "list and diff run directories"),
     "sweep": ("aslexp.runs.cli", "sweep_main", "status, best trial, plots, dashboard of a sweep"),
     "extract": ("aslexp.pose.extract_cli", "extract_main", "videos -> keypoints (MediaPipe)"),

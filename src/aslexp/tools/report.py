@@ -1,4 +1,6 @@
 """`aslexp report RUN_OR_SWEEP_DIR... [--out DIR]`: recognition runs -> tables, comparisons, agreement.
+`aslexp report --results [--outputs DIR] [--render-only]`: the results page, docs/results.md
+(aslexp.reports.results_page: one table per result of conf/results.yaml, from snapshots made of run folders).
 
 Reads only run directories (run.json + metrics.json + predictions.csv) and writes, per keypoint
 layout and lexicon (a suffix names the group when a folder holds more than one):
@@ -551,13 +553,168 @@ def write_report(paths: list[Path], out_dir: Path) -> dict[str, Any]:
     return result
 
 
+# --------------------------------------------------------------------------- the results page
+
+
+def _selected(runs: list[dict[str, Any]], select: dict[str, list[Any]] | None) -> list[dict[str, Any]]:
+    """The runs whose context matches every ``key: [values]`` of ``select`` (split, property, classifier)."""
+    wanted = {key: {str(v) for v in values} for key, values in (select or {}).items()}
+    return [r for r in runs if all(str(r.get(key)) in values for key, values in wanted.items())]
+
+
+def _spread(values: list[float], spread: str, unit: str, wald: tuple[float, float] | None = None
+            ) -> tuple[float | None, float | None, str]:
+    """(mean, spread, what the spread is) of ``values`` over the units: ``std`` (sample std) or
+    ``ci95`` (the 95% t half-width; for one test set, its own Wald half-width where given)."""
+    from aslexp.recognition.metrics import mean_interval
+
+    interval = mean_interval(values)
+    mean = None if math.isnan(interval["mean"]) else interval["mean"]
+    if interval["n"] >= 2:
+        value = interval["std"] if spread == "std" else interval["half_width"]
+        return mean, value, f"{'std' if spread == 'std' else '95% t half-width'} over {unit}s"
+    if spread == "ci95" and wald is not None and all(math.isfinite(v) for v in wald):
+        return mean, (wald[1] - wald[0]) / 2, "95% Wald half-width of the one test set"
+    return mean, None, f"one {unit}: no spread"
+
+
+def _order(key: tuple[str, str]) -> tuple:
+    from aslexp.recognition.report import PROPERTY_ORDER, SPLIT_ORDER
+
+    split, second = key
+    return (SPLIT_ORDER.index(split) if split in SPLIT_ORDER else len(SPLIT_ORDER),
+            PROPERTY_ORDER.index(second) if second in PROPERTY_ORDER else len(PROPERTY_ORDER), key)
+
+
+def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any]:
+    """The results page's rows of recognition runs (``report: recognition``): per split and property,
+    the model chosen by validation among all (one run per split, model and property: the best by
+    validation), its test ``options.metric`` as mean ± ``options.spread`` over the units, the chance
+    baseline chosen by validation accuracy, and the strongest simple baseline (the best of rf, hgb,
+    logreg and svm by validation). Test numbers never choose."""
+    from aslexp.recognition.report import FEATURE_BASELINES, unit_values
+
+    options = entry.get("options") or {}
+    metric, spread = options.get("metric", "mcc"), options.get("spread", "ci95")
+    runs, _, skipped = find_runs(folders)
+    runs = _selected(runs, options.get("select"))
+    cells: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+    for run in best_by_validation(runs):
+        cells[(str(run["split"]), str(run["property"]))].append(run)
+    rows = []
+    for split, prop in sorted(cells, key=_order):
+        group = cells[(split, prop)]
+        best = max(group, key=_validation_key)
+        metrics, unit = best["metrics"], best["metrics"].get("statistics_unit", "seed")
+        per_seed = metrics.get("test_per_seed") or [{}]
+        wald = (_finite(per_seed[0].get(f"{metric}_ci_low"), math.nan),
+                _finite(per_seed[0].get(f"{metric}_ci_high"), math.nan))
+        mean, width, kind = _spread(unit_values(metrics, metric), spread, unit, wald)
+        simple = [r for r in group if r["classifier"] in FEATURE_BASELINES]
+        baselines = [{"label": "chance baseline (by validation)", "kind": "no-learning",
+                      "name": metrics["baseline"]["name"], "value": _spread(unit_values(metrics, metric, baseline=True), spread, unit)[0]}]
+        if simple:
+            strongest = max(simple, key=_validation_key)
+            baselines.append({"label": "strongest simple baseline (by validation)", "kind": "simple",
+                              "name": strongest["classifier"],
+                              "value": _spread(unit_values(strongest["metrics"], metric), spread, unit)[0]})
+        rows.append({"key": f"{split}/{prop}", "label": f"{split}, {prop}", "thesis": None, "baselines": baselines,
+                     "learned": {"what": f"test {metric} of the model chosen by validation", "mean": mean,
+                                 "spread": width, "spread_kind": kind, "n": len(unit_values(metrics, metric)),
+                                 "unit": f"{unit}s", "model": best["classifier"], "models_compared": len(group)},
+                     "steps": None})
+    return {"rows": rows, "run_dirs": [r["dir"] for r in runs], "skipped": skipped, "quantity": f"test {metric}",
+            "row_name": "split, property"}
+
+
+def _per_class_values(units: dict[Any, list[dict[str, Any]]], label: str, key: str) -> list[float]:
+    """Per unit (the runs of one split, or one run), the mean over its runs of ``key`` of class ``label``."""
+    out = []
+    for members in units.values():
+        found = [_finite(c.get(key), math.nan) for m in members for c in m.get("per_class", [])
+                 if str(c.get("label")) == label]
+        if found:
+            out.append(float(sum(found) / len(found)))
+    return out
+
+
+def results_per_class_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any]:
+    """The results page's rows of one model on one property per split (``report: recognition_per_class``,
+    Table 4.4's layout): per class the thesis' A = TP_c / N_test, precision and recall on the test
+    set, mean over the units (splits, else model seeds) ± ``options.spread``."""
+    options = entry.get("options") or {}
+    runs, _, skipped = find_runs(folders)
+    runs = _selected(runs, options.get("select"))
+    rows = []
+    for run in sorted(best_by_validation(runs), key=lambda r: (_order((str(r["split"]), str(r["property"]))),
+                                                               str(r["classifier"]))):
+        metrics = run["metrics"]
+        unit = metrics.get("statistics_unit", "seed")
+        units: dict[Any, list[dict[str, Any]]] = defaultdict(list)
+        for index, test in enumerate(metrics.get("test_per_seed") or []):
+            units[test.get("split") if unit == "split" else index].append(test)
+        for label in metrics.get("label_names") or []:
+            def values(key: str, label: str = str(label)) -> list[float]:
+                return _per_class_values(units, label, key)
+
+            mean, width, kind = _spread(values("thesis_a"), options.get("spread", "ci95"), unit)
+            rows.append({"key": f"{run['split']}/{label}", "label": f"{run['split']}, {label}", "thesis": None,
+                         "baselines": [],
+                         "learned": {"what": f"per-class A = TP_c / N_test, {run['classifier']} on {run['property']}",
+                                     "mean": mean, "spread": width, "spread_kind": kind, "n": len(values("thesis_a")),
+                                     "unit": f"{unit}s", "model": run["classifier"]},
+                         "extra": {"precision": _spread(values("precision"), "std", unit)[0],
+                                   "recall": _spread(values("recall"), "std", unit)[0]},
+                         "steps": None})
+    return {"rows": rows, "run_dirs": [r["dir"] for r in runs], "skipped": skipped,
+            "quantity": "per-class test numbers", "row_name": "split, class"}
+
+
+RESULTS_SUMMARIES = {"recognition": results_summary, "recognition_per_class": results_per_class_summary}
+
+
+def results_main(args: argparse.Namespace) -> int:
+    """``aslexp report --results``: the snapshots from the run folders, then docs/results.md."""
+    from aslexp.reports import results_page
+
+    if not args.catalogue.is_file():
+        print(f"aslexp report: {args.catalogue}: no such file", file=sys.stderr)
+        return 2
+    result = results_page.write_results(args.catalogue, args.outputs, args.snapshots, args.page,
+                                        RESULTS_SUMMARIES, render_only=args.render_only)
+    for entry_id, what in result["entries"].items():
+        print(f"{entry_id}: {what}")
+    print(f"-> {result['page']}")
+    return 0
+
+
 def report_main(argv: list[str]) -> int:
+    from aslexp.reports import results_page
+
     parser = argparse.ArgumentParser(prog="aslexp report", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("paths", nargs="+", type=Path, help="run or sweep directories")
+    parser.add_argument("paths", nargs="*", type=Path, help="run or sweep directories")
     parser.add_argument("--out", type=Path, default=None, help="output folder (default: first path)")
+    page = parser.add_argument_group("the results page (docs/results.md, from conf/results.yaml)")
+    page.add_argument("--results", action="store_true",
+                      help="summarise every result of the catalogue whose run folders are under --outputs into "
+                           "its snapshot (docs/results/<id>.json; others keep theirs) and render the page")
+    page.add_argument("--render-only", action="store_true", help="with --results: render the page from the snapshots")
+    page.add_argument("--outputs", type=Path, default=Path("outputs"),
+                      help="where the run folders are (default: outputs)")
+    page.add_argument("--catalogue", type=Path, default=results_page.CATALOGUE, help="default: conf/results.yaml")
+    page.add_argument("--snapshots", type=Path, default=results_page.SNAPSHOTS, help="default: docs/results")
+    page.add_argument("--page", type=Path, default=results_page.PAGE, help="default: docs/results.md")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(message)s")
+    if args.results:
+        if args.paths:
+            parser.error("--results reads the catalogue's folders: give no paths")
+        return results_main(args)
+    if args.render_only:
+        parser.error("--render-only goes with --results")
+    if not args.paths:
+        parser.error("give run or sweep directories, or --results")
     missing = [path for path in args.paths if not path.exists()]
     if missing:
         print(f"aslexp report: {missing[0]}: no such file or directory", file=sys.stderr)

@@ -1,0 +1,637 @@
+"""The results page, ``docs/results.md``: one table per result of the catalogue ``conf/results.yaml``,
+rendered from committed snapshots (``docs/results/<id>.json``) that are made from run folders.
+
+    aslexp report --results [--outputs outputs] [--render-only]
+
+For each entry of the catalogue, the first of its ``runs`` alternatives whose folders (under
+``--outputs``) hold completed runs is summarised by the entry's ``report``:
+
+* ``thesis``: per motion, the thesis' number (:func:`aslexp.reports.thesis_report.thesis_number`), every
+  no-learning baseline of the overlay's ``report.baselines`` (:func:`~aslexp.reports.thesis_report.motion_baselines`,
+  cached beside the runs as the thesis report caches them; aslexp's own controllers are the simple
+  baselines) and the learned policies' last evaluation over seeds;
+* ``scratch``: the same with the baselines each run measured (metrics.json ``baselines``);
+* ``residual``: the comparison rows of :func:`aslexp.reports.residual_report.residual_baselines`
+  (the controller and the same on a pinned base; the best smoothed reference and constant random
+  corrections as simple baselines);
+* ``recognition`` and ``recognition_per_class``: given by the caller (``aslexp.tools.report``, which
+  reads recognition runs).
+
+The snapshot holds numbers (fractions; the page prints percentages where the entry says so), the
+run folders it came from (relative to ``--outputs``), when the runs started and finished, where
+they ran (run.json's host and platform, metrics.json's device, the catalogue's machine label where
+the folders do not say), the engine and reward they composed (``.hydra/hydra.yaml``), their git
+commits and their overrides. An entry whose folders are gone keeps its snapshot; one with neither
+is "not run on this machine yet", with a link to where earlier numbers were typed. The page is a
+function of the catalogue and the snapshots alone: rendering twice gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import logging
+import math
+import re
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from aslexp.files import atomic_write_text
+from aslexp.paths import CONF_DIR
+from aslexp.runfile import RUN_FILE
+
+log = logging.getLogger(__name__)
+
+CATALOGUE = CONF_DIR / "results.yaml"
+PAGE = Path("docs") / "results.md"
+SNAPSHOTS = Path("docs") / "results"
+SNAPSHOT_SCHEMA = 1
+IMITATION_REPORTS = ("thesis", "scratch", "residual")
+RECOGNITION_REPORTS = ("recognition", "recognition_per_class")
+_REQUIRED = ("id", "title", "beside", "thesis", "overlay", "job", "command", "engine", "reward", "report",
+             "runs", "earlier")
+# Overrides that name where a run goes or how it is watched, not what it runs.
+_NOT_WHAT = ("hydra.", "hydra/")
+
+Summarizer = Callable[[dict[str, Any], list[Path]], dict[str, Any]]
+
+
+# --------------------------------------------------------------------------- the catalogue
+
+
+def load_catalogue(path: str | Path = CATALOGUE) -> list[dict[str, Any]]:
+    """The entries of ``conf/results.yaml``, checked: every key present, ids unique and usable as
+    file names, a known report, ``runs`` a list of ``{folders: [...], machine: ...}``."""
+    import yaml
+
+    data = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
+    entries = data.get("entries")
+    if not isinstance(entries, list) or not entries:
+        raise ValueError(f"{path}: no 'entries' list")
+    seen: set[str] = set()
+    for entry in entries:
+        missing = [key for key in _REQUIRED if key not in entry]
+        where = f"{path}: entry {entry.get('id', '?')}"
+        if missing:
+            raise ValueError(f"{where}: missing {missing}")
+        if not re.fullmatch(r"[a-z0-9_]+", str(entry["id"])) or entry["id"] in seen:
+            raise ValueError(f"{where}: the id must be unique, lower case, digits and _")
+        seen.add(entry["id"])
+        if entry["report"] not in IMITATION_REPORTS + RECOGNITION_REPORTS:
+            raise ValueError(f"{where}: unknown report {entry['report']!r}")
+        runs = entry["runs"]
+        if not isinstance(runs, list) or not all(isinstance(r, dict) and isinstance(r.get("folders"), list)
+                                                 for r in runs):
+            raise ValueError(f"{where}: runs must be a list of {{folders: [...], machine: ...}}")
+        earlier = entry["earlier"]
+        if not isinstance(earlier, dict) or not str(earlier.get("link", "")).startswith("docs/"):
+            raise ValueError(f"{where}: earlier must be {{link: docs/...#anchor, section: title}}")
+        entry["options"] = entry.get("options") or {}
+    return entries
+
+
+def command_overrides(command: str) -> tuple[str, list[str]]:
+    """(job, overrides) of ``aslexp JOB [-m] OVERRIDE...`` (shell words; ``-m`` dropped)."""
+    import shlex
+
+    words = shlex.split(command)
+    if len(words) < 2 or words[0] != "aslexp":
+        raise ValueError(f"not an aslexp command: {command!r}")
+    return words[1], [w for w in words[2:] if w not in ("-m", "--multirun")]
+
+
+def _split_values(value: str) -> list[str]:
+    """A sweep value's choices (``a,b,'c,d'`` -> a, b, c,d), quotes taken off; one value unchanged."""
+    parts, depth, quote, current = [], 0, "", ""
+    for char in value:
+        if quote:
+            if char == quote:
+                quote = ""
+            else:
+                current += char
+            continue
+        if char in "'\"":
+            quote = char
+        elif char in "[(" or char == "{":
+            depth += 1
+            current += char
+        elif char in "])}":
+            depth -= 1
+            current += char
+        elif char == "," and depth == 0:
+            parts.append(current)
+            current = ""
+        else:
+            current += char
+    parts.append(current)
+    return [p.strip() for p in parts]
+
+
+def _key_values(overrides: list[str]) -> dict[str, list[str]]:
+    out: dict[str, list[str]] = {}
+    for override in overrides:
+        key, _, value = override.partition("=")
+        key = key.lstrip("+~")
+        if key.startswith(_NOT_WHAT):
+            continue
+        out[key] = _split_values(value)
+    return out
+
+
+def uncovered_overrides(command: str, ran: dict[str, Any]) -> list[str]:
+    """The runs' overrides that the command does not give: a key it sets to other values (a key
+    it leaves to the overlay, as the swept motion and seed, is covered)."""
+    _, words = command_overrides(command)
+    given = _key_values(words)
+    missing = []
+    for override in ran.get("common", []):
+        key, _, value = override.partition("=")
+        key = key.lstrip("+~")
+        if key.startswith(_NOT_WHAT):
+            continue
+        if key not in given or _split_values(value) != given[key]:
+            missing.append(override)
+    for key, values in sorted((ran.get("varied") or {}).items()):
+        if key in given and not set(values) <= set(given[key]):
+            missing.append(f"{key}={','.join(values)}")
+    return missing
+
+
+# --------------------------------------------------------------------------- run folders
+
+
+def _read_json(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:
+        log.warning("warning: %s: %s; left out", path, err)
+        return None
+
+
+def entry_folders(entry: dict[str, Any], outputs: Path) -> tuple[list[Path], dict[str, Any]]:
+    """The folders of the first ``runs`` alternative under ``outputs`` that holds a completed run
+    (globs expanded, sorted), and that alternative; ([], {}) when none does."""
+    for alternative in entry["runs"]:
+        folders: list[Path] = []
+        for pattern in alternative["folders"]:
+            folders += sorted(p for p in Path(outputs).glob(str(pattern)) if p.is_dir())
+        folders = list(dict.fromkeys(folders))
+        if any(_completed(path.parent) for folder in folders for path in folder.rglob(RUN_FILE)):
+            return folders, alternative
+    return [], {}
+
+
+def _completed(run_dir: Path) -> bool:
+    info = _read_json(run_dir / RUN_FILE)
+    return isinstance(info, dict) and info.get("status") == "completed"
+
+
+def hydra_choices(run_dir: Path) -> dict[str, str]:
+    """The config group options a run composed (``.hydra/hydra.yaml``: hydra.runtime.choices)."""
+    import yaml
+
+    path = Path(run_dir) / ".hydra" / "hydra.yaml"
+    try:
+        loaded = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+    except (OSError, yaml.YAMLError):
+        return {}
+    choices = ((loaded.get("hydra") or {}).get("runtime") or {}).get("choices") or {}
+    return {str(k): str(v) for k, v in choices.items() if not str(k).startswith("hydra/")}
+
+
+def _utc(stamp: str | None) -> _dt.datetime | None:
+    try:
+        value = _dt.datetime.fromisoformat(str(stamp))
+    except (TypeError, ValueError):
+        return None
+    if value.tzinfo is None:
+        return None
+    return value.astimezone(_dt.timezone.utc)
+
+
+def provenance(run_dirs: list[Path], outputs: Path, folders: list[Path], alternative: dict[str, Any]) -> dict[str, Any]:
+    """Where and when the runs ran, from their run.json, metrics.json and .hydra/hydra.yaml: the
+    first start and last finish (UTC), hosts, platforms, devices, Python and torch versions, git
+    commits, the engine and reward they composed, and their overrides (those all runs share, and per
+    key the values of those that vary)."""
+    infos = [info for info in (_read_json(d / RUN_FILE) for d in run_dirs) if isinstance(info, dict)]
+    started = [t for t in (_utc(i.get("started")) for i in infos) if t]
+    finished = [t for t in (_utc(i.get("finished")) for i in infos) if t]
+    devices = set()
+    for run_dir in run_dirs:
+        metrics = _read_json(run_dir / "metrics.json") if (run_dir / "metrics.json").is_file() else None
+        device = (metrics or {}).get("device")
+        if isinstance(device, dict):
+            device = device.get("name") or device.get("type")
+        if device:
+            devices.add(str(device))
+    choices = [hydra_choices(d) for d in run_dirs]
+    overrides = [[o for o in (i.get("overrides") or []) if not o.startswith(_NOT_WHAT)] for i in infos]
+    common = sorted(set.intersection(*(set(o) for o in overrides))) if overrides else []
+    varied: dict[str, set[str]] = {}
+    for run in overrides:
+        for override in run:
+            if override not in common:
+                key, _, value = override.partition("=")
+                varied.setdefault(key, set()).add(value)
+
+    def values(key: str) -> list[str]:
+        return sorted({str(i.get("versions", {}).get(key)) for i in infos if (i.get("versions") or {}).get(key)})
+
+    def relative(path: Path) -> str:
+        try:
+            return path.resolve().relative_to(outputs.resolve()).as_posix()
+        except ValueError:
+            return path.as_posix()
+
+    return {
+        "folders": [relative(f) for f in folders],
+        "machine_label": alternative.get("machine"),
+        "runs": len(run_dirs),
+        "started": min(started).isoformat() if started else None,
+        "finished": max(finished).isoformat() if finished else None,
+        "hosts": sorted({str(i["host"]) for i in infos if i.get("host")}),
+        "platforms": sorted({str(i["platform"]) for i in infos if i.get("platform")}),
+        "devices": sorted(devices),
+        "versions": {"python": values("python"), "torch": values("torch")},
+        "git": sorted({f"{(i.get('git') or {}).get('commit', '')[:10]}{'+' if (i.get('git') or {}).get('dirty') else ''}"
+                       for i in infos if (i.get("git") or {}).get("commit")}),
+        "engine": sorted({c["engine"] for c in choices if "engine" in c}),
+        "reward": sorted({c["reward"] for c in choices if "reward" in c}),
+        "overrides": {"common": common, "varied": {k: sorted(v) for k, v in sorted(varied.items())}},
+    }
+
+
+# --------------------------------------------------------------------------- imitation snapshots
+
+
+def _round(value: Any, digits: int = 6) -> Any:
+    if value is None:
+        return None
+    value = float(value)
+    return round(value, digits) if math.isfinite(value) else None
+
+
+def _imitation_runs(folders: list[Path]) -> tuple[dict[str, list[dict[str, Any]]], dict[str, int]]:
+    """Completed imitation runs under ``folders`` by motion (:func:`aslexp.reports.report.read_runs`),
+    and what was left out."""
+    from aslexp.reports.report import read_runs
+
+    runs: dict[str, list[dict[str, Any]]] = {}
+    skipped: dict[str, int] = {}
+    for folder in folders:
+        try:
+            found = read_runs(folder)
+        except FileNotFoundError:
+            continue
+        for motion, items in found.items():
+            for metrics in items:
+                info = _read_json(Path(metrics["run_dir"]) / RUN_FILE) or {}
+                if info.get("status") != "completed":
+                    reason = f"status {info.get('status', 'unknown')}"
+                    skipped[reason] = skipped.get(reason, 0) + 1
+                    continue
+                runs.setdefault(motion, []).append(metrics)
+    return dict(sorted(runs.items())), skipped
+
+
+def _thesis_baselines(entry, cfg, motion, items, cache) -> tuple[list[dict[str, Any]], str, float | None]:
+    from aslexp.reports.thesis_report import baseline_column, motion_baselines, thesis_number
+
+    rows = motion_baselines(cfg, cache)
+    baselines = [{"label": re.sub(r"^aslexp: ", "aslexp's ", baseline_column(b)),
+                  "kind": "simple" if b["aslexp"] else "no-learning",
+                  "value": _round(b["reward"]), **({"note": "fell"} if b["fell"] else {})} for b in rows]
+    text, value = thesis_number((cfg.get("report") or {}).get("thesis", "letters"), motion)
+    return baselines, text, value
+
+
+def _scratch_baselines(entry, cfg, motion, items, cache) -> tuple[list[dict[str, Any]], str, float | None]:
+    labels = (entry.get("options") or {}).get("baselines") or {}
+    names = list(dict.fromkeys(k for m in items for k in m.get("baselines", {})))
+    baselines = [{"label": labels.get(k, k), "kind": "no-learning",
+                  "value": _round(np.mean([m["baselines"][k] for m in items if k in m["baselines"]]))} for k in names]
+    return baselines, "-", None
+
+
+def _residual_baselines(entry, cfg, motion, items, cache) -> tuple[list[dict[str, Any]], str, float | None]:
+    from aslexp.reports.residual_report import residual_baselines
+
+    base = residual_baselines(cfg, cache)
+    settings = (cfg.get("report") or {}).get("residual") or {}
+    rows = [{"label": "controller (zero correction)", "kind": "no-learning", "value": _round(base["controller"])}]
+    if base.get("compare") is not None:
+        rows.append({"label": f"same controller, {settings.get('compare_label', 'pinned base')} (nothing slips)",
+                     "kind": "no-learning", "value": _round(base["compare"])})
+    smoothed = base.get("smoothed") or {}
+    if smoothed:
+        alpha = max(smoothed, key=smoothed.get)
+        rows.append({"label": "smoothed reference, best alpha", "kind": "simple", "value": _round(smoothed[alpha]),
+                     "name": f"alpha {alpha}"})
+    chance = base.get("random_corrections")
+    if chance:
+        rows.append({"label": "constant random corrections, mean", "kind": "simple",
+                     "value": _round(np.mean(chance["scores"])),
+                     "name": f"RMS {chance['rms']:g}, n={len(chance['scores'])}"})
+    return rows, "-", None
+
+
+_BASELINES = {"thesis": _thesis_baselines, "scratch": _scratch_baselines, "residual": _residual_baselines}
+
+
+def imitation_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any]:
+    """Per motion: the thesis' number, the baselines (see the module docstring) and the learned
+    policies' last evaluation, mean ± std over seeds (population std, as the imitation reports);
+    the steps of the trained runs. Baselines are cached in ``<folder>/baselines/<motion>.json`` as
+    the thesis and residual reports cache theirs."""
+    from aslexp.reports.report import learned, run_config
+    from aslexp.reports.thesis_report import GLOSSES
+
+    runs, skipped = _imitation_runs(folders)
+    rows, run_dirs = [], []
+    for motion, items in runs.items():
+        run_dirs += [Path(m["run_dir"]) for m in items]
+        first = Path(items[0]["run_dir"])
+        folder = next(f for f in folders if first.resolve().is_relative_to(f.resolve()))
+        cfg = run_config(first)
+        baselines, thesis, thesis_value = _BASELINES[entry["report"]](entry, cfg, motion, items,
+                                                                     folder / "baselines" / f"{motion}.json")
+        trained = sorted((m for m in items if learned(m)), key=lambda m: (m.get("seed") is None, m.get("seed")))
+        last = [float(m["last_eval"]) for m in trained if m.get("last_eval") is not None]
+        rows.append({
+            "key": motion, "label": f"{motion} ({GLOSSES[motion]})" if motion in GLOSSES else motion,
+            "thesis": thesis, "thesis_value": _round(thesis_value),
+            "baselines": baselines,
+            "learned": {"what": "last evaluation", "mean": _round(np.mean(last)) if last else None,
+                        "spread": _round(np.std(last)) if last else None, "spread_kind": "std over seeds",
+                        "n": len(last), "unit": "seeds", "values": [_round(v) for v in last],
+                        "seeds": [m.get("seed") for m in trained]},
+            "steps": [int(min(m["steps"] for m in trained)), int(max(m["steps"] for m in trained))] if trained else None,
+        })
+    return {"rows": rows, "run_dirs": run_dirs, "skipped": skipped, "quantity": "mean reward per step",
+            "row_name": "motion"}
+
+
+# --------------------------------------------------------------------------- snapshots
+
+
+def build_snapshot(entry: dict[str, Any], outputs: Path, summarizers: dict[str, Summarizer]) -> dict[str, Any] | None:
+    """The snapshot of ``entry`` from its run folders under ``outputs``; None when it has none."""
+    folders, alternative = entry_folders(entry, outputs)
+    if not folders:
+        return None
+    if entry["report"] not in summarizers:
+        log.warning("warning: %s: no summary for report %r here; its snapshot is kept", entry["id"], entry["report"])
+        return None
+    summary = summarizers[entry["report"]](entry, folders)
+    if not summary["rows"]:
+        return None
+    run_dirs = sorted(set(summary.pop("run_dirs")))
+    snapshot = {"schema": SNAPSHOT_SCHEMA, "id": entry["id"], "report": entry["report"],
+                **provenance(run_dirs, outputs, folders, alternative)}
+    snapshot.update({"skipped": dict(sorted(summary.get("skipped", {}).items())), "quantity": summary.get("quantity"),
+                     "row_name": (entry.get("options") or {}).get("row_name", summary.get("row_name")),
+                     "rows": summary["rows"]})
+    return snapshot
+
+
+def snapshot_path(snapshots: Path, entry_id: str) -> Path:
+    return Path(snapshots) / f"{entry_id}.json"
+
+
+def write_snapshot(path: Path, snapshot: dict[str, Any]) -> None:
+    atomic_write_text(path, json.dumps(snapshot, indent=1, ensure_ascii=False) + "\n")
+
+
+def read_snapshot(path: Path) -> dict[str, Any] | None:
+    if not path.is_file():
+        return None
+    snapshot = json.loads(path.read_text(encoding="utf-8"))
+    if snapshot.get("schema") != SNAPSHOT_SCHEMA:
+        raise ValueError(f"{path}: snapshot schema {snapshot.get('schema')}, this aslexp writes {SNAPSHOT_SCHEMA}")
+    return snapshot
+
+
+def update(catalogue: list[dict[str, Any]], outputs: Path, snapshots: Path,
+           summarizers: dict[str, Summarizer]) -> dict[str, str]:
+    """Rewrite the snapshot of every entry whose run folders exist under ``outputs``; keep the others'.
+    Returns id -> what happened (``from runs``, ``kept``, ``not run``)."""
+    done = {}
+    for entry in catalogue:
+        snapshot = build_snapshot(entry, outputs, summarizers)
+        path = snapshot_path(snapshots, entry["id"])
+        if snapshot is not None:
+            write_snapshot(path, snapshot)
+            done[entry["id"]] = f"from runs ({', '.join(snapshot['folders'])})"
+        else:
+            done[entry["id"]] = "kept" if path.is_file() else "not run"
+    return done
+
+
+# --------------------------------------------------------------------------- the page
+
+
+def _cell(text: Any) -> str:
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def _number(value: float | None, percent: bool) -> str:
+    if value is None:
+        return "-"
+    return f"{100 * value:.1f}" if percent else f"{value:.3f}"
+
+
+def _learned(learned: dict[str, Any], percent: bool) -> str:
+    if learned.get("mean") is None:
+        return "pending (no trained run)"
+    text = _number(learned["mean"], percent)
+    one_seed = learned.get("n") == 1 and learned.get("spread") == 0  # a population std of one value
+    if learned.get("spread") is not None and not one_seed:
+        text += f" ± {_number(learned['spread'], percent)}"
+    model = f"{learned['model']}, " if learned.get("model") else ""
+    return f"{text} ({model}n={learned['n']})"
+
+
+def _baseline_cell(baseline: dict[str, Any] | None, percent: bool) -> str:
+    if baseline is None:
+        return "-"
+    text = _number(baseline.get("value"), percent)
+    extra = ", ".join(x for x in (baseline.get("name"), baseline.get("note")) if x)
+    return f"{text} ({extra})" if extra else text
+
+
+def _steps(steps: list[int] | None) -> str:
+    if not steps:
+        return "-"
+    low, high = steps
+    return f"{low:,}" if low == high else f"{low:,}-{high:,}"
+
+
+def _when(snapshot: dict[str, Any]) -> str:
+    start, end = _utc(snapshot.get("started")), _utc(snapshot.get("finished"))
+    if not start or not end:
+        return "not recorded"
+    if start.date() == end.date():
+        return f"{start:%Y-%m-%d %H:%M}-{end:%H:%M} UTC"
+    return f"{start:%Y-%m-%d %H:%M} to {end:%Y-%m-%d %H:%M} UTC"
+
+
+def _machine(snapshot: dict[str, Any]) -> str:
+    parts = []
+    if snapshot.get("machine_label"):
+        parts.append(snapshot["machine_label"])
+    recorded = []
+    if snapshot.get("hosts"):
+        recorded.append(f"host {', '.join(snapshot['hosts'])}")
+    if snapshot.get("platforms"):
+        recorded.append(", ".join(snapshot["platforms"]))
+    if snapshot.get("devices"):
+        recorded.append(f"device {', '.join(snapshot['devices'])}")
+    versions = snapshot.get("versions") or {}
+    if versions.get("python") or versions.get("torch"):
+        recorded.append("Python " + "/".join(versions.get("python") or ["?"]) + ", torch "
+                        + "/".join(versions.get("torch") or ["?"]))
+    if recorded:
+        parts.append("run.json: " + "; ".join(recorded))
+    return ". ".join(parts) if parts else "not recorded"
+
+
+def _link(earlier: dict[str, str], page_dir: Path = PAGE.parent) -> str:
+    """A link from the page to ``earlier``: {link: a repository path with an optional #anchor, section}."""
+    path, _, anchor = earlier["link"].partition("#")
+    relative = Path(path).relative_to(page_dir) if Path(path).is_relative_to(page_dir) else Path("..") / path
+    section = f', "{earlier["section"]}"' if earlier.get("section") else ""
+    return f"[{path}{section}]({relative.as_posix()}{'#' + anchor if anchor else ''})"
+
+
+def _engine_reward(entry: dict[str, Any]) -> str:
+    if entry["engine"] is None and entry["reward"] is None:
+        metric = (entry.get("options") or {}).get("metric")
+        return "no engine or reward (recognition" + (f"; the metric: test {metric})" if metric else ")")
+    return f"engine `engine={entry['engine']}`, reward `reward={entry['reward']}`"
+
+
+def _status(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> str:
+    if snapshot is None:
+        return "not run on this machine yet"
+    return f"{snapshot['runs']} runs, {_when(snapshot)}"
+
+
+def _thesis_cell(entry: dict[str, Any], row: dict[str, Any]) -> str:
+    """The thesis' number for a row: the snapshot's (imitation), else the catalogue's per-row value."""
+    if row.get("thesis") not in (None, "-"):
+        return str(row["thesis"])
+    rows = (entry.get("thesis") or {}).get("rows") or {}
+    known = rows.get(row["key"])
+    if not known:
+        return "-"
+    baseline = f"; thesis baseline {known['baseline']}" if known.get("baseline") else ""
+    return f"{known['value']} ({known['model']}{baseline})"
+
+
+def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list[str]:
+    options = entry.get("options") or {}
+    percent = bool(options.get("percent"))
+    beside = "T" + entry["beside"][1:] if entry["beside"].startswith("thesis") else entry["beside"]
+    lines = [f'<a id="{entry["id"]}"></a>', "", f"## {beside}: {entry['title']}", ""]
+    thesis = (entry.get("thesis") or {}).get("source", "-")
+    job, _ = command_overrides(entry["command"])
+    lines += [f"- **Beside**: {entry['beside']}; the thesis' number: {thesis}",
+              f"- **Overlay, engine, reward**: `experiment={entry['overlay']}` (`aslexp {job}`), {_engine_reward(entry)}",
+              f"- **Command** (re-runs it into the folder this page reads first): `{entry['command']}`"]
+    if snapshot is None:
+        lines += [f"- **Not run on this machine yet**: no run folders under outputs/ "
+                  f"({', '.join('outputs/' + f for alt in entry['runs'] for f in alt['folders'])}) and no snapshot. "
+                  f"Earlier numbers, typed before this page: {_link(entry['earlier'])}", ""]
+        return lines
+    ran_engine = ", ".join(snapshot.get("engine") or []) or "-"
+    ran_reward = ", ".join(snapshot.get("reward") or []) or "-"
+    differs = []
+    if entry["engine"] is not None and snapshot.get("engine") != [entry["engine"]]:
+        differs.append(f"engine {ran_engine}")
+    if entry["reward"] is not None and snapshot.get("reward") != [entry["reward"]]:
+        differs.append(f"reward {ran_reward}")
+    uncovered = uncovered_overrides(entry["command"], snapshot.get("overrides") or {})
+    steps = [r["steps"] for r in snapshot["rows"] if r.get("steps")]
+    budget = f"; {_steps([min(s[0] for s in steps), max(s[1] for s in steps)])} steps per trained run" if steps else ""
+    skipped = snapshot.get("skipped") or {}
+    left = f"; left out: {', '.join(f'{n} ({why})' for why, n in skipped.items())}" if skipped else ""
+    commits = ", ".join(snapshot.get("git") or ["-"])
+    lines += [f"- **Ran**: {snapshot['runs']} runs, {_when(snapshot)}{budget}; git {commits} (+: with uncommitted changes){left}",
+              f"- **Machine**: {_machine(snapshot)}",
+              f"- **Run folders**: {', '.join('outputs/' + f for f in snapshot['folders'])} "
+              f"(snapshot [docs/results/{entry['id']}.json](results/{entry['id']}.json))"]
+    if differs or uncovered:
+        lines.append(f"- **The runs differ from the command**: {'; '.join(differs + uncovered)}")
+    lines.append(f"- **Earlier numbers**, typed before this page: {_link(entry['earlier'])}")
+    lines.append("")
+    columns = list(dict.fromkeys((b["kind"], b["label"]) for r in snapshot["rows"] for b in r["baselines"]))
+    extras = list(dict.fromkeys(k for r in snapshot["rows"] for k in (r.get("extra") or {})))
+    learned = [r["learned"] for r in snapshot["rows"] if r.get("learned")]
+    whats = sorted({str(x.get("what")) for x in learned})
+    kinds = sorted({str(x.get("spread_kind")) for x in learned})
+    what = (f"aslexp, {whats[0] if len(whats) == 1 else 'per row'} "
+            f"(mean ± {kinds[0] if len(kinds) == 1 else 'spread: ' + '; '.join(kinds)})")
+    header = [snapshot.get("row_name") or "", "thesis", *[f"{kind}: {label}" for kind, label in columns], f"**{what}**",
+              *extras]
+    has_steps = any(r.get("steps") for r in snapshot["rows"])
+    if has_steps:
+        header.append("steps")
+    lines += ["| " + " | ".join(_cell(h) for h in header) + " |", "|" + "---|" * len(header)]
+    for row in snapshot["rows"]:
+        by_label = {(b["kind"], b["label"]): b for b in row["baselines"]}
+        cells = [row["label"], _thesis_cell(entry, row), *[_baseline_cell(by_label.get(c), percent) for c in columns],
+                 f"**{_learned(row['learned'], percent)}**",
+                 *[_number((row.get("extra") or {}).get(k), percent) for k in extras]]
+        if has_steps:
+            cells.append(_steps(row.get("steps")))
+        lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
+    quantity = snapshot.get("quantity") or ""
+    lines += ["", f"Numbers: {quantity}{' in %' if percent else ''}; the thesis' in its own units.", ""]
+    return lines
+
+
+HEADER = """# Results
+
+<!-- Generated by `aslexp report --results`: do not edit (edit conf/results.yaml or the generator). -->
+
+This page is generated, not typed: `aslexp report --results` (src/aslexp/reports/results_page.py)
+reads the catalogue [conf/results.yaml](../conf/results.yaml), summarises every result whose run folders
+are under `outputs/` into a snapshot `docs/results/<id>.json` (numbers, the folders, when and where they
+ran), keeps the snapshots of results whose folders are not here, and renders this page from the
+snapshots alone (`aslexp report --results --render-only` renders it again, byte for byte). Per result:
+the thesis' number, the no-learning and simple baselines under the same reward or metric, aslexp's
+number (the LAST evaluation of each trained policy, mean ± spread over seeds; for recognition the
+model chosen by validation, over splits or seeds), the engine and reward, the one command that re-runs
+it, and when and on what it ran. A result not run on this machine says so and links the numbers typed
+before this page.
+"""
+
+
+def render(catalogue: list[dict[str, Any]], snapshots: Path) -> str:
+    """The page from the catalogue and the snapshots (no run folder is read)."""
+    found = {entry["id"]: read_snapshot(snapshot_path(snapshots, entry["id"])) for entry in catalogue}
+    lines = [HEADER, "| result | beside | overlay | engine | reward | ran |", "|---|---|---|---|---|---|"]
+    for entry in catalogue:
+        snapshot = found[entry["id"]]
+        lines.append(f"| [{_cell(entry['title'])}](#{entry['id']}) | {_cell(entry['beside'])} | "
+                     f"`{entry['overlay']}` | {entry['engine'] or '-'} | {entry['reward'] or '-'} | "
+                     f"{_cell(_status(entry, snapshot))} |")
+    lines.append("")
+    for entry in catalogue:
+        lines += render_entry(entry, found[entry["id"]])
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def write_results(catalogue_path: Path, outputs: Path, snapshots: Path, page: Path,
+                  summarizers: dict[str, Summarizer] | None = None, render_only: bool = False) -> dict[str, Any]:
+    """Update the snapshots from ``outputs`` (unless ``render_only``) and write the page."""
+    catalogue = load_catalogue(catalogue_path)
+    summarizers = {**{kind: imitation_summary for kind in IMITATION_REPORTS}, **(summarizers or {})}
+    done = {} if render_only else update(catalogue, outputs, snapshots, summarizers)
+    text = render(catalogue, snapshots)
+    atomic_write_text(page, text)
+    return {"entries": done, "page": str(page), "text": text}
