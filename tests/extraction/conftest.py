@@ -89,23 +89,29 @@ SHORT_RANGES = {"book": {"68011": (20, 29), "68012": (40, 49), "70212": (75, 84)
                 "wheelchair": {"63048": (40, 49)}, "whistle": {"63185": (20, 29)}}
 
 
+def short_wlasl_json(path: Path) -> Path:
+    """SHORT_RANGES written in WLASL's JSON format, at ``path``."""
+    import json
+
+    path.write_text(json.dumps([
+        {"gloss": gloss, "instances": [{"video_id": vid, "frame_start": start, "frame_end": end}
+                                       for vid, (start, end) in clips.items()]}
+        for gloss, clips in SHORT_RANGES.items()
+    ]))  # fmt: skip
+    return path
+
+
 @pytest.fixture(scope="session")
 def wlasl6(worker_env, videos, tmp_path_factory):
     """`aslexp extract --wlasl JSON --videos DIR --workers 2 --format pose` on ten frames of each
     of the six clips: (out_dir, printed summary)."""
     import contextlib
     import io
-    import json
 
     from aslexp.pose.extract_cli import extract_main
 
     base = tmp_path_factory.mktemp("wlasl6")
-    wlasl_json = base / "wlasl_short.json"
-    wlasl_json.write_text(json.dumps([
-        {"gloss": gloss, "instances": [{"video_id": vid, "frame_start": start, "frame_end": end}
-                                       for vid, (start, end) in clips.items()]}
-        for gloss, clips in SHORT_RANGES.items()
-    ]))  # fmt: skip
+    wlasl_json = short_wlasl_json(base / "wlasl_short.json")
     out = base / "keypoints"
     printed = io.StringIO()
     with contextlib.redirect_stdout(printed):

@@ -78,7 +78,7 @@ def test_arrays_that_fit_no_layout_say_so(hand_folders, data_root):
 
 
 def test_recognize_on_a_folder_of_pose_files(wlasl6, data_root, tmp_path):
-    """The README's .pose route: `aslexp extract ... --format pose`, then
+    """docs/howto_keypoints.md's .pose route: `aslexp extract ... --format pose`, then
     `aslexp recognize pose=pose_format pose.path=DIR` (here on ten frames of the six clips)."""
     import json
     import os

@@ -103,7 +103,7 @@ def test_imitate_help_shows_the_thesis_overlays_and_not_recognition_ones():
 
 
 def test_an_overlay_is_cut_with_plain_overrides(tmp_path):
-    """README: values on the command line replace an overlay's swept lists (no nested quoting)."""
+    """docs/reference.md: values on the command line replace an overlay's swept lists (no nested quoting)."""
     import subprocess
     import sys
 

@@ -1,4 +1,5 @@
-"""Every command of docs/sweeps.md, and the README's sweep and run commands, runs (issue 11.7).
+"""Every command of docs/sweeps.md, and the sweep and run commands of the README and the how-to pages
+(docs/howto_*.md), runs (issues 11.7, 28.3).
 
 The commands are read from the documents' ```bash blocks, so a command that stops working, or a
 new one, is caught here. They run as written, on tiny budgets: counts, sizes and cluster
@@ -27,6 +28,7 @@ from slurm_helpers import PROJECT_ROOT, accounting, require_cluster, wait_for_jo
 
 DOC = PROJECT_ROOT / "docs" / "sweeps.md"
 README = PROJECT_ROOT / "README.md"
+HOWTOS = sorted((PROJECT_ROOT / "docs").glob("howto_*.md"))  # their other commands: tests/extraction
 SHARED = PROJECT_ROOT.parent / "shared" / "data"
 
 # Documented value -> test value, by override key (or sbatch option). The trial budget: one trial,
@@ -199,10 +201,10 @@ def test_the_sweeps_doc_slurm_recipes_run_on_a_real_cluster(workspace):
     assert len(runs) == 1 + 1 and all(r["status"] == "completed" and r["slurm"] for r in runs)
 
 
-def test_the_readme_sweep_and_run_commands_run(workspace):
+def test_the_readme_and_howto_sweep_and_run_commands_run(workspace):
     tmp, env = workspace
     keep = lambda line: "+sweeps=" in line or line.startswith(("aslexp sweep ", "aslexp runs "))  # noqa: E731
-    commands = documented(README, keep)
+    commands = [c for path in (README, *HOWTOS) for c in documented(path, keep)]
     assert len(commands) == 5, [c.text for c in commands]
     for command in commands:
         text = command.text
