@@ -10,7 +10,9 @@ import pytest
 
 from .test_jobs import run_job
 
-TINY = ["ppo.hidden_sizes=[32,32]", "ppo.steps_per_rollout=128", "ppo.minibatch_size=128", "ppo.epochs=1",
+# One environment in process: the overlays' 10 worker processes (the thesis' 10 environments) cost a
+# minute of start-up per run on 2 cores and change no number here (workers: tests/imitation/test_ppo_vector.py).
+TINY = ["ppo.num_envs=1", "ppo.hidden_sizes=[32,32]", "ppo.steps_per_rollout=128", "ppo.minibatch_size=128", "ppo.epochs=1",
         "ppo.total_steps=128", "ppo.eval_interval=128", "ppo.eval_steps=24", "report.baseline_seconds=0.1",
         "render.frames_every=8", "render.size=[48,48]"]
 
