@@ -17,7 +17,9 @@ START=$(date +%s)
 el() { echo "[$(( $(date +%s) - START )) s] $*"; }
 R=$PWD
 export PYTHONPATH=$R/src:$R/outputs/gpu/pylib${PYTHONPATH:+:$PYTHONPATH}
-export ASLEXP_DATA_ROOT=${ASLEXP_DATA_ROOT:-$R/outputs/gpu/data} MUJOCO_GL=egl OMP_NUM_THREADS=1 MPLBACKEND=Agg
+export MUJOCO_GL=egl OMP_NUM_THREADS=1 MPLBACKEND=Agg
+# The data: ASLEXP_DATA_ROOT, else the carried copy, else the configs' default (../shared/data).
+if [ -z "${ASLEXP_DATA_ROOT:-}" ] && [ -d "$R/outputs/gpu/data" ]; then export ASLEXP_DATA_ROOT=$R/outputs/gpu/data; fi
 MIN=${MIN:-6.0}; LETTERS=${LETTERS:-A B C D E}; SEEDS=${SEEDS:-0 1 2}; DEV=${DEV:-cuda}; PY=${PY:-python3}
 KILL=${KILL:-480}; BENCH=${BENCH:-1}
 if [ -z "${NOPIP:-}" ]; then

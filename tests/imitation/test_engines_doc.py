@@ -53,7 +53,7 @@ def test_every_engines_doc_command_runs(command, tmp_path):
     assert proc.returncode == 0, f"{command}\n{proc.stderr[-3000:]}"
 
 
-def test_the_gpu_device_script_runs_on_the_cpu(tmp_path):
+def test_the_gpu_device_script_runs_on_the_cpu(tmp_path, data_root):
     """bench/gpu_letters_thesis.sh (the lent GPU machine's check in docs/engines.md) on the CPU path:
     one letter, one seed, seconds of training; its run folder and archive come back as on the GPU."""
     import json
@@ -62,7 +62,7 @@ def test_the_gpu_device_script_runs_on_the_cpu(tmp_path):
 
     out, runs = tmp_path / "out", tmp_path / "runs" / "letters_thesis_mujoco"
     out.mkdir()
-    env = {**os.environ, "OUT": str(out), "RUNS": str(runs), "DEV": "cpu", "MIN": "0.02", "LETTERS": "A",
+    env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "OUT": str(out), "RUNS": str(runs), "DEV": "cpu", "MIN": "0.02", "LETTERS": "A",
            "SEEDS": "0", "BENCH": "0", "NOPIP": "1", "PY": sys.executable,
            "EXTRA": "ppo.hidden_sizes=[32,32] ppo.eval_steps=30"}
     proc = subprocess.run(["bash", "bench/gpu_letters_thesis.sh"], cwd=PROJECT_ROOT, env=env, capture_output=True,
