@@ -10,4 +10,6 @@ bash scripts/setup.sh
 # start, the Slurm tests fail under CI=true and skip elsewhere (they say why).
 [ -f scripts/ci_slurm.sh ] && { bash scripts/ci_slurm.sh || echo "test.sh: scripts/ci_slurm.sh failed (see above)"; }
 export MPLBACKEND=Agg
-exec .venv/bin/python -m pytest -q "$@"
+# One process per core (pytest-xdist; at most 8; ASLEXP_TEST_WORKERS=N to choose): tests sharing a
+# service or a fixture's files stay on one worker (tests/conftest.py). `-n 0` runs in one process.
+exec .venv/bin/python -m pytest -q -n "${ASLEXP_TEST_WORKERS:-auto}" --maxprocesses 8 --dist loadgroup "$@"

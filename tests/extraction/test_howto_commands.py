@@ -98,6 +98,9 @@ def tiny(command: str, ws: dict) -> list[str]:
     return words + [e for e in extra if e.split("=")[0] not in given]
 
 
+pytestmark = pytest.mark.xdist_group("howto")  # the imitate page reads what the keypoints page extracts
+
+
 def _cuda() -> bool:
     import torch
 

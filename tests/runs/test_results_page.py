@@ -300,6 +300,9 @@ def test_a_recognition_snapshot_takes_the_model_chosen_by_validation_and_both_ba
     assert total == pytest.approx(metrics["logreg"]["test"]["accuracy"])  # A_c sums to the accuracy
     page = (tmp_path / "results.md").read_text(encoding="utf-8")
     assert "9.9 (M; thesis baseline 1.1)" in page and "no engine or reward (recognition; the metric: test mcc)" in page
+    # two of the overlay's ten models ran, on one of its six properties: the page names the rest
+    unrun = re.search(r"\*\*Not run of what the command sweeps\*\*: (.*) \(the numbers", page).group(1)
+    assert "classifier=rf" in unrun and "classifier=logreg" not in unrun and "property=flexion" in unrun
 
 
 def test_the_cli_renders_the_page_from_snapshots_and_refuses_paths_with_results(tmp_path):
@@ -321,3 +324,15 @@ def test_overrides_the_command_does_not_give_are_named():
     assert results_page.uncovered_overrides(command, ran) == ["ppo.max_minutes=6.0", "seed=0,3"]
     assert results_page.uncovered_overrides("aslexp imitate -m experiment=a engine=mujoco ppo.max_minutes=6.0 "
                                             "\"motion='A','B'\" seed=0,3", ran) == []
+
+
+def test_values_the_command_sweeps_that_no_run_carries_are_named(tmp_path):
+    (tmp_path / "experiment").mkdir()
+    (tmp_path / "experiment" / "grid.yaml").write_text(
+        "hydra:\n  sweeper:\n    params:\n      classifier: mlp,lstm,slgcn\n      property: a,b\n      split: x,y\n")
+    ran = {"common": ["experiment=grid", "property=a"], "varied": {"classifier": ["mlp", "lstm"]}}
+    command = "aslexp recognize -m experiment=grid hydra.sweep.dir=x"
+    # split: the runs never set it (not judged); the command's own list replaces the overlay's
+    assert results_page.unrun_values(command, "grid", ran, tmp_path) == ["classifier=slgcn", "property=b"]
+    assert results_page.unrun_values(command + " property=a", "grid", ran, tmp_path) == ["classifier=slgcn"]
+    assert results_page.unrun_values(command + " classifier=mlp,lstm property=a", "grid", ran, tmp_path) == []

@@ -160,6 +160,42 @@ def uncovered_overrides(command: str, ran: dict[str, Any]) -> list[str]:
     return missing
 
 
+def swept_values(command: str, overlay: str, conf_dir: Path = CONF_DIR) -> dict[str, list[str]]:
+    """Per key the values the command sweeps: its own comma lists, else the overlay's
+    ``hydra.sweeper.params`` (read from ``conf/experiment/<overlay>.yaml``, no composition)."""
+    from omegaconf import OmegaConf
+
+    swept: dict[str, list[str]] = {}
+    path = Path(conf_dir) / "experiment" / f"{overlay}.yaml"
+    if path.is_file():
+        params = OmegaConf.select(OmegaConf.load(path), "hydra.sweeper.params", default=None) or {}
+        for key, value in OmegaConf.to_container(params).items():
+            values = _split_values(str(value))
+            if len(values) > 1:
+                swept[key] = values
+    _, words = command_overrides(command)
+    for key, values in _key_values(words).items():
+        if len(values) > 1:
+            swept[key] = values
+        else:
+            swept.pop(key, None)
+    return swept
+
+
+def unrun_values(command: str, overlay: str, ran: dict[str, Any], conf_dir: Path = CONF_DIR) -> list[str]:
+    """``key=value`` for each value the command sweeps that no run carries (the runs' overrides:
+    those all share and those that vary); a swept key the runs never set is not judged."""
+    common = _key_values(ran.get("common") or [])
+    varied = {k.lstrip("+~"): set(v) for k, v in (ran.get("varied") or {}).items()}
+    missing = []
+    for key, values in swept_values(command, overlay, conf_dir).items():
+        if key not in common and key not in varied:
+            continue
+        have = set(common.get(key, [])) | varied.get(key, set())
+        missing += [f"{key}={v}" for v in values if v not in have]
+    return missing
+
+
 # --------------------------------------------------------------------------- run folders
 
 
@@ -566,6 +602,10 @@ def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list
               f"(snapshot [docs/results/{entry['id']}.json](results/{entry['id']}.json))"]
     if differs or uncovered:
         lines.append(f"- **The runs differ from the command**: {'; '.join(differs + uncovered)}")
+    unrun = unrun_values(entry["command"], entry["overlay"], snapshot.get("overrides") or {})
+    if unrun:
+        lines.append(f"- **Not run of what the command sweeps**: {', '.join(unrun)} (the numbers below "
+                     f"are of the runs that were)")
     lines.append(f"- **Earlier numbers**, typed before this page: {_link(entry['earlier'])}")
     lines.append("")
     columns = list(dict.fromkeys((b["kind"], b["label"]) for r in snapshot["rows"] for b in r["baselines"]))
