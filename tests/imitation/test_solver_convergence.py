@@ -1,7 +1,9 @@
 """Solver settings: inner iterations reach PyBullet, and 10 x 10 gives a 200-iteration solve's rewards.
 
 The upper body defaults to the converged solve; the hand keeps the thesis' 10 plain iterations
-(docs/imitation.md and docs/imitation_upper_body.md, "Solver convergence").
+(docs/imitation_upper_body.md, "Solver convergence"; the measurements on both bodies:
+docs/archive/upper_body_notes.md, "Solver convergence", and docs/archive/hand_notes.md, "Solver convergence
+(found on the upper body, checked on the hand)").
 """
 
 from __future__ import annotations

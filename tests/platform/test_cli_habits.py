@@ -46,7 +46,7 @@ def test_experiment_without_plus_composes_for_both_jobs(aslexp, job, experiment,
 
 
 def test_docs_pick_experiments_with_experiment_not_plus_experiment():
-    for doc in [PROJECT_ROOT / "README.md", *(PROJECT_ROOT / "docs").glob("*.md"),
+    for doc in [PROJECT_ROOT / "README.md", *(PROJECT_ROOT / "docs").rglob("*.md"),
                 *(PROJECT_ROOT / "conf" / "experiment").glob("*.yaml")]:
         assert "+experiment=" not in doc.read_text(encoding="utf-8"), doc
 

@@ -8,7 +8,7 @@ its ratio are unchanged -- but correlates it over time: its power spectrum falls
 sequence of ``horizon`` steps (beta 0: white, 1: pink, 2: red, a random walk's). A new sequence
 starts with every episode. (On the standing upper body, red noise of the same size costs the
 controller less reward than white, but falls as often, and PPO learned worse under it:
-docs/imitation_upper_body.md, "Probes on 69318".)
+docs/archive/upper_body_notes.md, "Probes on 69318".)
 """
 
 from __future__ import annotations
