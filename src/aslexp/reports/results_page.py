@@ -89,6 +89,11 @@ def load_catalogue(path: str | Path = CATALOGUE) -> list[dict[str, Any]]:
         earlier = entry["earlier"]
         if not isinstance(earlier, dict) or not str(earlier.get("link", "")).startswith("docs/"):
             raise ValueError(f"{where}: earlier must be {{link: docs/...#anchor, section: title}}")
+        figures = entry.get("figures") or []
+        if not isinstance(figures, list) or not all(
+                isinstance(f, dict) and str(f.get("path", "")).startswith("docs/") and f.get("caption")
+                for f in figures):
+            raise ValueError(f"{where}: figures must be a list of {{path: docs/..., caption: text}}")
         entry["options"] = entry.get("options") or {}
     return entries
 
@@ -606,7 +611,7 @@ def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list
     if unrun:
         lines.append(f"- **Not run of what the command sweeps**: {', '.join(unrun)} (the numbers below "
                      f"are of the runs that were)")
-    lines.append(f"- **Earlier numbers**, typed before this page: {_link(entry['earlier'])}")
+    lines.append(f"- **How it was run, and what it shows**: {_link(entry['earlier'])}")
     lines.append("")
     columns = list(dict.fromkeys((b["kind"], b["label"]) for r in snapshot["rows"] for b in r["baselines"]))
     extras = list(dict.fromkeys(k for r in snapshot["rows"] for k in (r.get("extra") or {})))
@@ -631,7 +636,16 @@ def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list
         lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
     quantity = snapshot.get("quantity") or ""
     lines += ["", f"Numbers: {quantity}{' in %' if percent else ''}; the thesis' in its own units.", ""]
+    for figure in entry.get("figures") or []:  # drawn from the same run folders (its caption says how)
+        lines += [f"![{figure['caption']}]({_relative_to_page(figure['path'])})", ""]
     return lines
+
+
+def _relative_to_page(path: str, page_dir: Path = PAGE.parent) -> str:
+    """A repository path (docs/img/x.png) as the page links it (img/x.png)."""
+    import os
+
+    return Path(os.path.relpath(path, page_dir)).as_posix()
 
 
 HEADER = """# Results
