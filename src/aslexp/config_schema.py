@@ -271,6 +271,7 @@ PPO: dict[str, Key] = {
     "value_coef": Float(0),
     "max_grad_norm": Positive(),
     "target_kl": Positive(nullable=True),
+    "kl_stop": Choice("torchrl", "sb3"),
     "weight_decay": Float(0),
     "critic_warmup_steps": Int(0),
     "total_steps": Int(0),  # 0: baselines and plots only

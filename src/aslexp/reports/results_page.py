@@ -607,6 +607,8 @@ def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list
               f"(snapshot [docs/results/{entry['id']}.json](results/{entry['id']}.json))"]
     if differs or uncovered:
         lines.append(f"- **The runs differ from the command**: {'; '.join(differs + uncovered)}")
+    if entry.get("note"):  # what the folders cannot say, e.g. a default changed since they ran
+        lines.append(f"- **Note**: {entry['note']}")
     unrun = unrun_values(entry["command"], entry["overlay"], snapshot.get("overrides") or {})
     if unrun:
         lines.append(f"- **Not run of what the command sweeps**: {', '.join(unrun)} (the numbers below "

@@ -87,6 +87,10 @@ class PPOConfig:
     value_coef: float = 5.0
     max_grad_norm: float = 100.0
     target_kl: float | None = 0.05
+    # How the KL early stop reads the policy's move on each minibatch: "torchrl", mean(log pi_old -
+    # log pi), checked after the minibatch's step; "sb3", Stable-Baselines3 1.6's mean((r - 1) - log r)
+    # checked before it (the minibatch that passes the limit is not applied), as the authors' scripts ran.
+    kl_stop: str = "torchrl"
     log_std_init: float = -3.0
     # Colour of the exploration noise (aslexp.rl.noise): 0 white, independent at every step; > 0
     # correlated over time with a power spectrum ~ 1/f^beta (1: pink) over noise_horizon steps.
@@ -129,6 +133,7 @@ class PPOConfig:
                    "null or at least 0"),
                   ("rollout_device", self.rollout_device in ("cpu", "learner"), "cpu or learner"),
                   ("eval_device", self.eval_device in ("cpu", "learner"), "cpu or learner"),
+                  ("kl_stop", self.kl_stop in ("torchrl", "sb3"), "torchrl or sb3"),
                   ("eval_phases", self.eval_phases is None or (len(self.eval_phases) > 0 and all(
                       0.0 <= p < 1.0 for p in self.eval_phases)), "null or a non-empty list of phases in [0, 1)")]
         for key, ok, expected in checks:
@@ -515,8 +520,9 @@ class PPOTrainer:
         data = MinibatchData(flat["observation"], flat["action"], flat[LOG_PROB], flat["advantage"],
                              flat["value_target"])
         totals = torch.zeros(len(STAT_KEYS), device=self.device)
-        updates = 0
+        updates = seen = 0
         stop = False
+        limit = None if cfg.target_kl is None else 1.5 * cfg.target_kl  # both: SB3's 1.5 x target_kl
         params = list(self.loss.parameters())
         for _ in range(cfg.epochs):
             order = torch.from_numpy(self.rng.permutation(len(flat))).to(self.device)
@@ -529,20 +535,25 @@ class PPOTrainer:
                     total = losses["loss_objective"] + losses["loss_critic"]
                     if "loss_entropy" in losses:
                         total = total + losses["loss_entropy"]
+                totals += torch.stack([losses[k].detach() for k in STAT_KEYS])
+                seen += 1
+                # One device sync per minibatch, only when the early stop needs it; the epochs stop
+                # once the policy moved too far (SB3: before this minibatch's step, torchrl: after).
+                if limit is not None and cfg.kl_stop == "sb3" and float(losses["approx_kl"]) > limit:
+                    stop = True
+                    break
                 self.optimizer.zero_grad()
                 total.backward()
                 torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
                 self.optimizer.step()
-                totals += torch.stack([losses[k].detach() for k in STAT_KEYS])
                 updates += 1
-                # One device sync per minibatch, only when the early stop needs it.
-                if cfg.target_kl is not None and float(losses["kl"]) > 1.5 * cfg.target_kl:
-                    stop = True  # as Stable-Baselines3: stop the epochs when the policy moved too far
+                if limit is not None and cfg.kl_stop == "torchrl" and float(losses["kl"]) > limit:
+                    stop = True
                     break
             if stop:
                 break
         self._sync_rollout_agent()
-        means = (totals / max(updates, 1)).tolist()
+        means = (totals / max(seen, 1)).tolist()
         return dict(zip(STAT_KEYS, means)) | {"updates": updates}
 
     def evaluate(self) -> EvaluationSummary:
@@ -642,7 +653,7 @@ class PPOTrainer:
         return TrainResult(self.steps, self.elapsed, self.best_eval, self.last_eval(), self.history, stopped)
 
 
-STAT_KEYS = ("loss_objective", "loss_critic", "kl", "clip_fraction")
+STAT_KEYS = ("loss_objective", "loss_critic", "kl", "approx_kl", "clip_fraction")
 HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
 
@@ -684,6 +695,7 @@ def clipped_ppo_losses(agent: Agent, data: MinibatchData, clip_epsilon: float, v
         "loss_objective": -gain.mean(),
         "loss_critic": value_coef * torch.nn.functional.mse_loss(value, data.value_target),
         "kl": (data.log_prob - log_prob).mean().detach(),
+        "approx_kl": ((log_weight.exp() - 1) - log_weight).mean().detach(),  # SB3 1.6's estimator
         "clip_fraction": (clipped != log_weight).float().mean().detach(),
     }
     if entropy_coef > 0:
