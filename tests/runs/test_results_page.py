@@ -291,7 +291,9 @@ def test_a_recognition_snapshot_takes_the_model_chosen_by_validation_and_both_ba
                       thesis={"source": "made up", "rows": {"phoneme/sign_type": {"model": "M", "value": "9.9",
                                                                                    "baseline": "1.1"}}}),
                _entry("per_class", "recognition_per_class", ["recognition"], command, engine=None, reward=None,
-                      options={"percent": True, "select": {"classifier": ["logreg"]}})]
+                      options={"percent": True, "select": {"classifier": ["logreg"]}}),
+               _entry("protocol", "recognition", ["recognition"], command, engine=None, reward=None,
+                      options={"metric": "mcc", "spread": "ci95", "learned_models": ["svm"]})]
     catalogue = _catalogue(tmp_path / "results.yaml", entries)
     results_page.write_results(catalogue, outputs, tmp_path / "snapshots", tmp_path / "results.md", RESULTS_SUMMARIES)
     [row] = json.loads((tmp_path / "snapshots" / "table.json").read_text(encoding="utf-8"))["rows"]
@@ -306,6 +308,10 @@ def test_a_recognition_snapshot_takes_the_model_chosen_by_validation_and_both_ba
     assert labels == ["chance baseline (by validation)", "strongest simple baseline (by validation)"]
     assert row["baselines"][1]["name"] == chosen  # both are simple baselines: the strongest is the chosen
     assert row["baselines"][0]["name"] == metrics[chosen]["baseline"]["name"]
+    # learned_models: validation chooses among the protocol's models; the others stay simple baselines
+    [protocol] = json.loads((tmp_path / "snapshots" / "protocol.json").read_text(encoding="utf-8"))["rows"]
+    assert protocol["learned"]["model"] == "svm" and protocol["learned"]["models_compared"] == 1
+    assert protocol["baselines"][1]["name"] == chosen
     per_class = json.loads((tmp_path / "snapshots" / "per_class.json").read_text(encoding="utf-8"))
     names = metrics["logreg"]["label_names"]
     assert [r["key"] for r in per_class["rows"]] == [f"phoneme/{n}" for n in names]

@@ -588,10 +588,11 @@ def _order(key: tuple[str, str]) -> tuple:
 
 def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any]:
     """The results page's rows of recognition runs (``report: recognition``): per split and property,
-    the model chosen by validation among all (one run per split, model and property: the best by
-    validation), its test ``options.metric`` as mean ± ``options.spread`` over the units, the chance
-    baseline chosen by validation accuracy, and the strongest simple baseline (the best of rf, hgb,
-    logreg and svm by validation). Test numbers never choose."""
+    the model chosen by validation among all (or among ``options.learned_models``, a protocol's own
+    models; one run per split, model and property: the best by validation), its test
+    ``options.metric`` as mean ± ``options.spread`` over the units, the chance baseline chosen by
+    validation accuracy, and the strongest simple baseline (the best of rf, hgb, logreg and svm by
+    validation). Test numbers never choose."""
     from aslexp.recognition.report import FEATURE_BASELINES, unit_values
 
     options = entry.get("options") or {}
@@ -602,9 +603,13 @@ def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any
     for run in best_by_validation(runs):
         cells[(str(run["split"]), str(run["property"]))].append(run)
     rows = []
+    learned_models = options.get("learned_models")  # the protocol's models; None: every model that ran
     for split, prop in sorted(cells, key=_order):
         group = cells[(split, prop)]
-        best = max(group, key=_validation_key)
+        candidates = [r for r in group if learned_models is None or r["classifier"] in learned_models]
+        if not candidates:
+            continue
+        best = max(candidates, key=_validation_key)
         metrics, unit = best["metrics"], best["metrics"].get("statistics_unit", "seed")
         per_seed = metrics.get("test_per_seed") or [{}]
         wald = (_finite(per_seed[0].get(f"{metric}_ci_low"), math.nan),
@@ -621,7 +626,7 @@ def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any
         rows.append({"key": f"{split}/{prop}", "label": f"{split}, {prop}", "thesis": None, "baselines": baselines,
                      "learned": {"what": f"test {metric} of the model chosen by validation", "mean": mean,
                                  "spread": width, "spread_kind": kind, "n": len(unit_values(metrics, metric)),
-                                 "unit": f"{unit}s", "model": best["classifier"], "models_compared": len(group)},
+                                 "unit": f"{unit}s", "model": best["classifier"], "models_compared": len(candidates)},
                      "steps": None})
     return {"rows": rows, "run_dirs": [r["dir"] for r in runs], "skipped": skipped, "quantity": f"test {metric}",
             "row_name": "split, property"}
