@@ -36,7 +36,8 @@ IMITATE = PROJECT_ROOT / "docs" / "howto_imitate.md"
 README = PROJECT_ROOT / "README.md"
 POSE_DIR = "keypoints/wlasl-mediapipe-pose"
 
-pytestmark = [pytest.mark.usefixtures("worker_env"), pytest.mark.slow]  # about 4 + 1 min on 2 busy cores
+pytestmark = [pytest.mark.usefixtures("worker_env"), pytest.mark.slow,  # about 4 + 1 min on 2 busy cores
+              pytest.mark.xdist_group("howto")]  # one worker: the pages share one folder (ws)
 
 
 def documented(path: Path) -> list[str]:
@@ -98,9 +99,6 @@ def tiny(command: str, ws: dict) -> list[str]:
     return words + [e for e in extra if e.split("=")[0] not in given]
 
 
-pytestmark = pytest.mark.xdist_group("howto")  # the imitate page reads what the keypoints page extracts
-
-
 def _cuda() -> bool:
     import torch
 
@@ -116,7 +114,7 @@ def run(command: str, ws: dict) -> subprocess.CompletedProcess:
     return proc
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # xdist interleaves modules: a module fixture would be made twice
 def ws(data_root, tmp_path_factory) -> dict:
     """The folder the commands run in, the environment, the short WLASL JSON and the DIR folders."""
     from aslexp.data.wlasl import load_wlasl
@@ -161,7 +159,9 @@ def test_every_keypoints_howto_command_runs(ws):
 
 def test_every_imitate_howto_command_runs(ws):
     if not (ws["tmp"] / "outputs" / "keypoints" / "wlasl6" / "63185.pose").is_file():
-        pytest.skip("reads the .pose file the keypoints page extracts: run with the test above")
+        # The imitate page reads the .pose file the keypoints page extracts: make it if that test
+        # has not run here first (alone, or scheduled after this one).
+        run(next(c for c in documented(KEYPOINTS) if c.startswith("aslexp extract --wlasl")), ws)
     commands = documented(IMITATE)
     assert any("motion.file=" in c for c in commands) and any("--motions" in c for c in commands), commands
     before = set((ws["tmp"] / "outputs").rglob("metrics.json"))
