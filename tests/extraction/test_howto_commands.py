@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shlex
 import shutil
 import subprocess
@@ -25,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from doc_commands import bash_lines
 
 from aslexp.keypoints import holistic as H
 
@@ -43,13 +43,7 @@ pytestmark = [pytest.mark.usefixtures("worker_env"), pytest.mark.slow,  # about 
 def documented(path: Path) -> list[str]:
     """The `aslexp` commands of every ```bash block (continuations joined, comments dropped),
     less those tests/tuning/test_docs_commands.py runs."""
-    out = []
-    for block in re.findall(r"```bash\n(.*?)```", path.read_text(encoding="utf-8"), re.S):
-        for line in block.replace("\\\n", " ").splitlines():
-            line = re.split(r"\s+#\s", line.strip(), maxsplit=1)[0].strip()
-            if line.startswith("aslexp ") and not _elsewhere(line):
-                out.append(re.sub(r"\s+", " ", line))
-    return out
+    return [line for line in bash_lines(path) if line.startswith("aslexp ") and not _elsewhere(line)]
 
 
 def _elsewhere(line: str) -> bool:

@@ -3,13 +3,13 @@ so a command that stops working, or a new one, is caught here)."""
 
 from __future__ import annotations
 
-import re
 import shlex
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from doc_commands import bash_lines
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 DOC = PROJECT_ROOT / "docs" / "engines.md"
@@ -31,8 +31,7 @@ TINY = {
 
 
 def commands() -> list[str]:
-    blocks = re.findall(r"```bash\n(.*?)```", DOC.read_text(encoding="utf-8"), re.S)
-    return [line.split("#")[0].strip() for block in blocks for line in block.splitlines() if line.split("#")[0].strip()]
+    return bash_lines(DOC)
 
 
 def tiny(command: str, tmp: Path) -> list[str]:

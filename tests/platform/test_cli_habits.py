@@ -68,3 +68,19 @@ def test_postgres_storage_without_its_driver_names_the_extra():
         open_storage("postgresql+pg8000://u:secret@127.0.0.1:1/db")
     text = str(err.value)
     assert "pip install 'aslexp[postgres]'" in text and "secret" not in text and "\n" not in text
+
+
+@pytest.mark.parametrize("module", ["thesis_report", "residual_report", "report", "upper_body_report"])
+def test_a_report_module_on_a_folder_without_its_runs_is_one_line_and_exit_2(module, tmp_path):
+    """`python -m aslexp.reports.X FOLDER` (documented in docs/imitation*.md and BENCHMARKS.md): no
+    traceback for a missing argument or a folder without runs; --help says what it takes."""
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", f"aslexp.reports.{module}", *args], capture_output=True,
+                              text=True, timeout=120)
+
+    empty = run(str(tmp_path))
+    assert empty.returncode == 2 and empty.stdout == "", empty.stderr
+    assert len(empty.stderr.strip().splitlines()) == 1 and str(tmp_path) in empty.stderr, empty.stderr
+    missing = run()
+    assert missing.returncode == 2 and "Traceback" not in missing.stderr and "folder" in missing.stderr
+    assert "usage:" in run("--help").stdout

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from doc_commands import override_variants
 
 from aslexp import cli
 from aslexp.reports import results_page
@@ -37,21 +38,14 @@ def _ids(entries):
 @pytest.mark.parametrize("entry", CATALOGUE, ids=_ids(CATALOGUE))
 def test_every_rows_command_composes_for_its_job_with_its_overlay_engine_and_reward(entry):
     from hydra import compose, initialize_config_dir
-    from hydra.core.override_parser.overrides_parser import OverridesParser
 
     job, overrides = results_page.command_overrides(entry["command"])
     assert job == entry["job"] and entry["overlay"] in cli.experiments_of(job)  # the catalogue, not archive/
     assert f"experiment={entry['overlay']}" in overrides
     # it writes where the page looks first
     assert f"hydra.sweep.dir=outputs/{entry['runs'][0]['folders'][0]}" in overrides
-    parsed = OverridesParser.create().parse_overrides(overrides)
-    swept = {o.input_line: [f"{o.get_key_element()}={v}" for v in o.sweep_string_iterator()]
-             for o in parsed if o.is_sweep_override()}
-    first = [swept[line][0] if line in swept else line for line in overrides]
-    variants = [first] + [[value if line == sweep else chosen for line, chosen in zip(overrides, first)]
-                          for sweep, values in swept.items() for value in values[1:]]
     with initialize_config_dir(str(CONF), version_base="1.3"):
-        for variant in variants:
+        for variant in override_variants(overrides):
             cfg = compose(job, overrides=variant, return_hydra_config=True)
             choices = cfg.hydra.runtime.choices
             assert choices["experiment"] == entry["overlay"], variant

@@ -302,7 +302,7 @@ def finite_or_none(value: float | None) -> float | None:
     return None if value is None or not math.isfinite(value) else float(value)
 
 
-if __name__ == "__main__":  # python -m aslexp.reports.report SWEEP_DIR
-    import sys
+if __name__ == "__main__":  # python -m aslexp.reports.report FOLDER
+    from aslexp.reports.folder_main import folder_main
 
-    print(summarize_letters(sys.argv[1])["table"])
+    raise SystemExit(folder_main(summarize_letters, "aslexp.reports.report", __doc__))

@@ -213,7 +213,7 @@ def _chance_column(chance: dict[str, Any] | None) -> dict[str, str]:
             f"{mean_std(scores)} / {scores.max():.3f}"}
 
 
-if __name__ == "__main__":
-    import sys
+if __name__ == "__main__":  # python -m aslexp.reports.residual_report FOLDER
+    from aslexp.reports.folder_main import folder_main
 
-    print(summarize_residual(sys.argv[1])["table"])
+    raise SystemExit(folder_main(summarize_residual, "aslexp.reports.residual_report", __doc__))

@@ -106,7 +106,7 @@ def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -
     return {"rows": rows, "table": table}
 
 
-if __name__ == "__main__":
-    import sys
+if __name__ == "__main__":  # python -m aslexp.reports.thesis_report FOLDER
+    from aslexp.reports.folder_main import folder_main
 
-    print(summarize_thesis(sys.argv[1])["table"])
+    raise SystemExit(folder_main(summarize_thesis, "aslexp.reports.thesis_report", __doc__))

@@ -31,7 +31,7 @@ def summarize_signs(sweep_dir: str | Path, out_dir: str | Path | None = None) ->
     return {"rows": rows, "table": table}
 
 
-if __name__ == "__main__":
-    import sys
+if __name__ == "__main__":  # python -m aslexp.reports.upper_body_report FOLDER
+    from aslexp.reports.folder_main import folder_main
 
-    print(summarize_signs(sys.argv[1])["table"])
+    raise SystemExit(folder_main(summarize_signs, "aslexp.reports.upper_body_report", __doc__))
