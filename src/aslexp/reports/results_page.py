@@ -601,7 +601,8 @@ def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list
     skipped = snapshot.get("skipped") or {}
     left = f"; left out: {', '.join(f'{n} ({why})' for why, n in skipped.items())}" if skipped else ""
     commits = ", ".join(snapshot.get("git") or ["-"])
-    lines += [f"- **Ran**: {snapshot['runs']} runs, {_when(snapshot)}{budget}; git {commits} (+: with uncommitted changes){left}",
+    dirty = " (+: with uncommitted changes)" if "+" in commits else ""
+    lines += [f"- **Ran**: {snapshot['runs']} runs, {_when(snapshot)}{budget}; git {commits}{dirty}{left}",
               f"- **Machine**: {_machine(snapshot)}",
               f"- **Run folders**: {', '.join('outputs/' + f for f in snapshot['folders'])} "
               f"(snapshot [docs/results/{entry['id']}.json](results/{entry['id']}.json))"]
