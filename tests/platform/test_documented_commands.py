@@ -73,7 +73,7 @@ def parse_only(monkeypatch):
 
 
 def _words(command: str) -> list[str]:
-    words = shlex.split(command.replace("[", "").replace("]", ""))  # `[--option value]`: the option given
+    words = shlex.split(re.sub(r"\[(--[^\]]*)\]", r"\1", command))  # `[--option value]`: the option given
     while words and re.fullmatch(r"[A-Z_]+=\S*", words[0]):  # PYTHONPATH=src python ...
         words.pop(0)
     return [re.sub(r"<[^>/]+>", "FOLDER", w) for w in words]  # outputs/.../<sweep>

@@ -305,4 +305,4 @@ def finite_or_none(value: float | None) -> float | None:
 if __name__ == "__main__":  # python -m aslexp.reports.report FOLDER
     from aslexp.reports.folder_main import folder_main
 
-    raise SystemExit(folder_main(summarize_letters, "aslexp.reports.report", __doc__))
+    raise SystemExit(folder_main(summarize_letters, __spec__.name, __doc__))

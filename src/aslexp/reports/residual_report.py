@@ -216,4 +216,4 @@ def _chance_column(chance: dict[str, Any] | None) -> dict[str, str]:
 if __name__ == "__main__":  # python -m aslexp.reports.residual_report FOLDER
     from aslexp.reports.folder_main import folder_main
 
-    raise SystemExit(folder_main(summarize_residual, "aslexp.reports.residual_report", __doc__))
+    raise SystemExit(folder_main(summarize_residual, __spec__.name, __doc__))

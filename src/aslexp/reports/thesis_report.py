@@ -109,4 +109,4 @@ def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -
 if __name__ == "__main__":  # python -m aslexp.reports.thesis_report FOLDER
     from aslexp.reports.folder_main import folder_main
 
-    raise SystemExit(folder_main(summarize_thesis, "aslexp.reports.thesis_report", __doc__))
+    raise SystemExit(folder_main(summarize_thesis, __spec__.name, __doc__))

@@ -34,4 +34,4 @@ def summarize_signs(sweep_dir: str | Path, out_dir: str | Path | None = None) ->
 if __name__ == "__main__":  # python -m aslexp.reports.upper_body_report FOLDER
     from aslexp.reports.folder_main import folder_main
 
-    raise SystemExit(folder_main(summarize_signs, "aslexp.reports.upper_body_report", __doc__))
+    raise SystemExit(folder_main(summarize_signs, __spec__.name, __doc__))
