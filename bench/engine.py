@@ -16,7 +16,8 @@ With ``--ppo N``: two rollouts and updates of ``ppo=hand_thesis`` (Table D.1: 2 
 of time between collection (physics, observation, reward and the policy's inference) and learning,
 and what that gives for 50 M steps.
 Bodies: the hand (``env=hand_thesis``: 240 Hz, one physics step per action; and the 30 Hz
-``env=default``), the upper body (``upper_body_thesis`` URDF, stable PD, pinned base) at 240 Hz
+``env=default``), the upper body (``upper_body_thesis`` URDF, the authors' code's stable PD
+(``controller=upper_body_thesis_code``), pinned base) at 240 Hz
 (``env=upper_body_thesis``) and 30 Hz (the same at ``control_hz`` 30). Medians of 7 timed windows.
 """
 
@@ -43,10 +44,10 @@ BODIES = {
     "hand 30 Hz": dict(cls=ImitationEnv, motion="motions/hand/A.txt",
                        kwargs=dict(env="default", reward="hand_thesis")),
     "upper body 240 Hz": dict(cls=UpperBodyImitationEnv, motion="motions/upper_body/00433.txt",
-                              kwargs=dict(body={"base": "pinned"}, controller="upper_body_thesis",
+                              kwargs=dict(body={"base": "pinned"}, controller="upper_body_thesis_code",
                                           reward="upper_body_thesis", env="upper_body_thesis")),
     "upper body 30 Hz": dict(cls=UpperBodyImitationEnv, motion="motions/upper_body/00433.txt",
-                             kwargs=dict(body={"base": "pinned"}, controller="upper_body_thesis",
+                             kwargs=dict(body={"base": "pinned"}, controller="upper_body_thesis_code",
                                          reward="upper_body_thesis", env={"control_hz": 30, "physics_hz": 240})),
 }
 

@@ -9,6 +9,11 @@
 # gymnasium, farama-notifications, tensordict, torchrl, glfw, optuna, colorlog, pyvers), antlr4 (pure Python)
 # in outputs/gpu/pylib, ../shared/data/{motions,models} in outputs/gpu/data; carry outputs/gpu.
 # On the CPU (its test): OUT=/tmp/x DEV=cpu MIN=0.05 LETTERS=A SEEDS=0 BENCH=0 NOPIP=1 bash bench/gpu_letters_thesis.sh
+# All five letters x 3 seeds at 5 M steps each (issue 25's ask), one command on a 16-core H200 machine:
+#   OUT=... BENCH=0 MIN=60 KILL=3900 EXTRA="ppo.total_steps=5000000" bash bench/gpu_letters_thesis.sh
+# Estimate (BENCHMARKS.md, session 19's 15 runs at once: 1,800-2,600 steps/s per run with evaluations):
+# 32-46 minutes per run, the 15 at the same time, so about 50 minutes of machine time with start-up.
+# A lease of 15 minutes (10 per call) does not hold it: it needs a longer loan or a node of one's own.
 set -u
 OUT=${OUT:?set OUT to a folder}
 exec > >(tee "$OUT/log.txt") 2>&1
@@ -17,11 +22,12 @@ START=$(date +%s)
 el() { echo "[$(( $(date +%s) - START )) s] $*"; }
 R=$PWD
 export PYTHONPATH=$R/src:$R/outputs/gpu/pylib${PYTHONPATH:+:$PYTHONPATH}
-export MUJOCO_GL=egl OMP_NUM_THREADS=1 MPLBACKEND=Agg
+# MuJoCo renders nothing here (GIFs are drawn by PyBullet, and off): no OpenGL, whose EGL import fails without libEGL
+export MUJOCO_GL=disable OMP_NUM_THREADS=1 MPLBACKEND=Agg
 # The data: ASLEXP_DATA_ROOT, else the carried copy, else the configs' default (../shared/data).
 if [ -z "${ASLEXP_DATA_ROOT:-}" ] && [ -d "$R/outputs/gpu/data" ]; then export ASLEXP_DATA_ROOT=$R/outputs/gpu/data; fi
-MIN=${MIN:-6.0}; LETTERS=${LETTERS:-A B C D E}; SEEDS=${SEEDS:-0 1 2}; DEV=${DEV:-cuda}; PY=${PY:-python3}
-KILL=${KILL:-480}; BENCH=${BENCH:-1}
+MIN=${MIN:-5.5}; LETTERS=${LETTERS:-A B C D E}; SEEDS=${SEEDS:-0 1 2}; DEV=${DEV:-cuda}; PY=${PY:-python3}
+KILL=${KILL:-510}; BENCH=${BENCH:-1}
 if [ -z "${NOPIP:-}" ]; then
   el "install"
   $PY -m pip install --no-index --no-deps -q "$R"/outputs/gpu/wheels/*.whl > "$OUT/pip.log" 2>&1 || { el "pip failed"; tail -5 "$OUT/pip.log"; }

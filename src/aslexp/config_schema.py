@@ -256,6 +256,7 @@ PPO: dict[str, Key] = {
     "activation": Choice("relu", "tanh", "elu"),
     "ortho_init": Bool(),
     "log_std_init": Float(),
+    "action_mapping": Choice("box", "sb3"),
     "noise_beta": Float(0),
     "noise_horizon": Int(2),
     "learning_rate": Float(0),  # 0: a frozen policy
@@ -282,6 +283,7 @@ PPO: dict[str, Key] = {
     "eval_episodes": Int(1),
     "eval_phases": List(Float(0, 1, high_open=True), nonempty=True, nullable=True),
     "eval_last_k": Int(1),
+    "eval_at_start": Bool(),
     "num_envs": Int(1),
     "vector_env": Choice("auto", "sync", "async", "workers", "batched"),
     "batched_workers": Int(0),

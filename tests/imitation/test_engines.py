@@ -93,7 +93,7 @@ def test_the_reward_of_a_batch_is_the_reward_of_each_state(data_root):
 
 
 @pytest.mark.parametrize("env_name, kwargs", [
-    ("hand_thesis", {}),
+    ("hand_thesis", {"env": {"episode_steps": 100}}),  # random targets at 240 Hz: the speed clamp acts
     ("residual", {"env": {"normalize_actions": True, "early_termination": {"min_reward": 0.9, "patience": 2}}}),
 ], ids=["absolute-240Hz", "residual-normalized-early-end"])
 def test_a_batch_is_n_single_environments_step_for_step(data_root, env_name, kwargs):
@@ -127,6 +127,10 @@ def test_a_batch_is_n_single_environments_step_for_step(data_root, env_name, kwa
                 o, _ = singles[i].reset()
             np.testing.assert_array_equal(b_obs[i], o)
     assert ends >= 2
+    if env_name == "hand_thesis":  # PyBullet's joint-speed clamp, in the batch as in each single env
+        assert batch.body.clamped_steps > 0
+        assert batch.body.clamped_steps == sum(e.sim.body.clamped_steps for e in singles)
+        assert batch.call("counter_values")[0]["diverged"] == 0
     assert batch.call("counter_values")[0]["nan_actions"] == 1
     assert batch.call("counter_values")[0]["episodes"] == sum(e.counters["episodes"] for e in singles)
     batch.close()
@@ -250,10 +254,11 @@ def test_batched_workers_collect_the_batch_in_processes(data_root, tmp_path):
 
 
 def test_a_diverging_mujoco_simulation_is_counted_and_ended_not_silently_reset(data_root, tmp_path):
-    # The explicit integrator with the hand's motor gains is unstable: MuJoCo would reset such a
-    # state to the zero pose and go on; here the environment sees it diverge, ends and counts it.
+    # The explicit integrator with the hand's motor gains is unstable without the joint-speed clamp
+    # (which holds it): MuJoCo would reset such a state to the zero pose and go on; here the
+    # environment sees it diverge, ends and counts it.
     batch = BatchedImitationEnv(4, data_root / "motions/hand/A.txt", env="default", reward="hand_thesis",
-                                engine={"name": "mujoco", "integrator": "Euler"})
+                                engine={"name": "mujoco", "integrator": "Euler", "joint_speed_limit": None})
     batch.reset(seed=0)
     ended = 0
     for _ in range(10):

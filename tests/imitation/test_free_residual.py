@@ -212,8 +212,9 @@ def _drop_run_sections(cfg: dict) -> None:
 def test_signs_free_residual_composes_with_the_values_its_comments_claim():
     cfg = _composed("signs_free_residual")
     env, ppo, report = cfg["env"], cfg["ppo"], cfg["report"]["residual"]
-    # The authors' controller and Table 6.4 Run 3's reward on the standing body.
+    # The authors' code's controller (all stable PD, hands 50 / 0.5) and Table 6.4 Run 3's reward on the standing body.
     assert cfg["body"]["base"] == "free" and cfg["controller"]["mode"] == "stable_pd"
+    assert cfg["controller"]["name"] == "upper_body_thesis_code"
     assert cfg["reward"]["terms"]["pose_body"]["scale"] == 2.0 and cfg["reward"]["terms"]["root"]["scale"] == 10.0
     # A residual on the reference one step ahead, normalised to +-0.2, 30 Hz, RSI, falls end episodes.
     assert env["action_mode"] == "residual" and env["normalize_actions"] is True and env["residual_range"] == 0.2

@@ -89,3 +89,35 @@ def test_no_config_claims_to_be_thesis_without_being_tested():
     assert named == {"conf/ppo/hand_thesis.yaml", "conf/reward/hand_thesis.yaml", "conf/reward/upper_body_thesis.yaml",
                      "sweeps/ppo_hand_thesis.yaml", "sweeps/ppo_upper_body_thesis.yaml",
                      "sweeps/kfactors_upper_body_thesis.yaml"}
+
+
+def _composed(experiment: str) -> dict:
+    with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
+        return OmegaConf.to_container(compose(config_name="imitate", overrides=[f"experiment={experiment}"]),
+                                      resolve=True)
+
+
+def test_signs_thesis_runs_compose_with_the_texts_hand_gains():
+    """Table 6.7's overlays drive the body with DeepMimic's gains under stable PD and the hands' finger
+    joints with the chapter-5 hand's position control 0.22 / 0.87 (THESIS.md 4.9, the text; 10); the
+    authors' code's controller (hands 50 / 0.5 under stable PD, 10.1) is a labelled baseline row."""
+    for experiment in ("signs_thesis_run1", "signs_thesis_run2"):
+        cfg = _composed(experiment)
+        controller = cfg["controller"]
+        assert controller["name"] == "upper_body_thesis" and controller["mode"] == "stable_pd"
+        fingers = controller["groups"]["fingers"]
+        assert (fingers["mode"], fingers["kp"], fingers["kd"], fingers["max_force"]) == (
+            "position", *T.HAND_GAINS_TEXT, 100.0)
+        for group in ("chest", "neck", "shoulder", "elbow", "wrist"):
+            gains = controller["groups"][group]
+            assert gains.get("mode") is None and (gains["kp"], gains["kd"]) == T.UPPER_BODY_GAINS[group], group
+        assert cfg["body"]["base"] == "free" and cfg["env"]["control_hz"] == 240
+        rows = {row["label"]: row for row in cfg["report"]["baselines"]}
+        thesis = [r for r in rows.values() if r["controller"] == "upper_body_thesis"]
+        code = [r for r in rows.values() if r["controller"] == "upper_body_thesis_code"]
+        assert thesis and all(label.startswith("thesis PD") for label in (r["label"] for r in thesis))
+        assert code and all(r["label"].startswith("authors' code: stable PD, hands 50/0.5") for r in code)
+        assert not any("authors' stable PD" in label for label in rows)
+    code = resolve_group("controller", "upper_body_thesis_code")
+    assert code["mode"] == "stable_pd" and all(g.get("mode") is None for g in code["groups"].values())
+    assert {g: (v["kp"], v["kd"]) for g, v in code["groups"].items() if g != "default"} == T.UPPER_BODY_GAINS

@@ -51,8 +51,9 @@ def test_signs_thesis_overlays_run_end_to_end(tmp_path, overlay, thesis):
     assert "base: free" in resolved and "mode: stable_pd" in resolved and "control_hz: 240" in resolved
     [row] = table(sweep)
     assert row["motion"] == "69318 (father)" and row["thesis"] == thesis
-    assert float(row["authors' stable PD, pinned base, 240 Hz, 1 step ahead"]) > 0.5
-    assert "authors' stable PD, standing (free base), 240 Hz, reference" in row
+    assert float(row["thesis PD (body stable PD, hands position 0.22/0.87), pinned base, 240 Hz, 1 step ahead"]) > 0.5
+    assert "thesis PD (body stable PD, hands position 0.22/0.87), standing (free base), 240 Hz, reference" in row
+    assert float(row["authors' code: stable PD, hands 50/0.5, pinned base, 240 Hz, 1 step ahead"]) > 0.5
     assert any(k.startswith("aslexp: reference-velocity PD") for k in row)
     if extra:
         assert row["learned, last evaluation"] == "pending"

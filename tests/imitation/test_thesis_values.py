@@ -101,6 +101,26 @@ def test_authors_code_settings(thesis):
             assert f"{name} {kp:g} / {kd:g}" in section, group
 
 
+def test_the_texts_upper_body_controller(thesis):
+    """THESIS.md 4.9 (Table 6.7's controller) and 4.1: DeepMimic's body gains with the arms' kd re-tuned,
+    the chapter-5 hand's gains (3.1) for the hands; the code's body gains (10.1) carry the same arms' kd."""
+    kd = T.UPPER_BODY_ARM_KD_TEXT
+    kp_h, kd_h = T.HAND_GAINS_TEXT
+    run1, run2 = (next(r for r in table(thesis, "### 4.9 Which settings") if r[0].startswith(c))
+                  for c in ("Run 1", "Run 2"))
+    assert run1[3] == (f"DeepMimic body gains with shoulder k_d {kd['shoulder']:g}, elbow k_d {kd['elbow']:g}; "
+                       f"hand k_p {kp_h:g}, k_d {kd_h:g}")
+    assert run2[3] == "same"
+    s41 = thesis[thesis.index("### 4.1"):thesis.index("### 4.2")]
+    assert "**DeepMimic for the body**, of **chapter 5 for the hands**" in s41
+    assert f"shoulder k_d 40 → {kd['shoulder']:g}, elbow k_d 30 → {kd['elbow']:g}" in s41
+    assert f"best **k_p = {kp_h:g}, k_d = {kd_h:g}**" in thesis[thesis.index("### 3.1"):thesis.index("### 3.2")]
+    assert {g: T.UPPER_BODY_GAINS[g][1] for g in kd} == kd
+    # the wrists: neither the chapter-5 hand nor DeepMimic's body has an actuated one (the text is silent)
+    assert "wrist not mobile" in thesis[thesis.index("### 3.1"):thesis.index("### 3.2")]
+    assert "the original body has no actuated wrist" in thesis
+
+
 def test_table_6_7_in_the_report(thesis):
     rows = {r[0].split()[0]: r[1:] for r in table(thesis, "### 4.8 Table 6.7")}
     for sign, (run1, run1_std, run2, run2_std) in THESIS_TABLE_6_7.items():

@@ -35,6 +35,10 @@ K_GRID = {"k_p,h": [2, 1, 0.5, 0.2], "k_v,h": [1e-1, 1e-2, 1e-3, 1e-4]}
 # The authors' code (THESIS.md 10.1): 10 environments per update (train_ppo.py); the hand script's
 # count is not recorded in THESIS.md, so the hand uses the same 10.
 AUTHORS_ENVS_UPPER_BODY, AUTHORS_ENVS_HAND = 10, 10
-# Upper-body stable-PD gains (10.1): group -> (kp, kd).
+# Upper-body stable-PD gains of the authors' code (10.1): group -> (kp, kd).
 UPPER_BODY_GAINS = {"chest": (1000, 100), "neck": (100, 10), "shoulder": (400, 8), "elbow": (300, 6),
                     "wrist": (50, 0.5), "fingers": (50, 0.5)}
+# The text's upper-body controller (4.1, 4.9): DeepMimic's body gains, shoulder k_d 8 and elbow k_d 6
+# (as the code's above), and the chapter-5 hand's position-control gains for the hands (3.1): kp, kd.
+UPPER_BODY_ARM_KD_TEXT = {"shoulder": 8, "elbow": 6}
+HAND_GAINS_TEXT = (0.22, 0.87)

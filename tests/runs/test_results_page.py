@@ -212,7 +212,8 @@ def imitate_outputs(tmp_path_factory) -> Path:
 
 def test_a_snapshot_is_made_from_real_runs_then_kept_when_they_are_gone(imitate_outputs, tmp_path):
     command = "aslexp imitate -m experiment=letters_thesis seed=0,1 ppo.total_steps=128"
-    entries = [_entry("thesis_letters", "thesis", ["letters"], command),
+    entries = [_entry("thesis_letters", "thesis", ["letters"], command,
+                      thesis={"source": "none", "setting": "letters_thesis", "seeds": 10}),
                _entry("scratch_letters", "scratch", ["letters"], command,
                       options={"baselines": {"reference": "the reference as the target"}}),
                _entry("never_ran", "thesis", ["nowhere"], command)]
@@ -231,8 +232,23 @@ def test_a_snapshot_is_made_from_real_runs_then_kept_when_they_are_gone(imitate_
     assert row["learned"]["seeds"] == [0, 1] and row["steps"] == [min(m["steps"] for m in runs), max(m["steps"] for m in runs)]
     assert 128 <= row["steps"][0]
     stored = json.loads((imitate_outputs / "letters" / "thesis_baselines.json").read_text())["B"]
-    assert [b["value"] for b in row["baselines"]] == [round(b["reward"], 6) for b in stored]
-    assert {b["kind"] for b in row["baselines"]} == {"no-learning", "simple"}  # aslexp's controllers: simple
+    untrained, *measured = row["baselines"]  # the overlay evaluates the untrained policy first (step 0)
+    assert untrained["label"].startswith("the untrained policy") and untrained["kind"] == "no-learning"
+    firsts = [float(next(line for line in (imitate_outputs / "letters" / str(k) / "progress.csv").read_text().splitlines()[1:]
+                         if line.startswith("0,")).split(",")[
+        (imitate_outputs / "letters" / str(k) / "progress.csv").read_text().splitlines()[0].split(",").index("eval_reward")])
+              for k in (0, 1)]
+    assert untrained["value"] == pytest.approx(sum(firsts) / 2, abs=1e-6)
+    assert [b["value"] for b in measured] == [round(b["reward"], 6) for b in stored]
+    assert stored == runs[0]["report_baselines"]  # measured by the run, not simulated by the report
+    assert {b["kind"] for b in measured} == {"no-learning", "simple"}  # aslexp's controllers: simple
+    # how the runs differ from the thesis' setting, computed from their configs
+    assert snapshot["differences_from"] == "experiment=letters_thesis"
+    assert any(d.startswith("budget: ") and "of thesis' 50,000,000" in d for d in snapshot["differences"])
+    assert "seeds: 2 per motion (thesis: 10)" in snapshot["differences"]
+    assert any(d.startswith("learner: 32 x 32 MLP") for d in snapshot["differences"])
+    assert "evaluation: learned and baselines alike, 4 start phases x 24 control steps" in snapshot["differences"]
+    assert row["learned"]["diverged"] == 0 and set(row["learned"]["scores"]) == {"hand_code"}
     assert snapshot["folders"] == ["letters"] and snapshot["runs"] == 2
     assert snapshot["hosts"] == [socket.gethostname()] and snapshot["machine_label"] == "the test's machine"
     assert snapshot["started"] == min(results_page._utc(i["started"]) for i in infos).isoformat()
@@ -240,12 +256,15 @@ def test_a_snapshot_is_made_from_real_runs_then_kept_when_they_are_gone(imitate_
     assert snapshot["overrides"]["varied"] == {"seed": ["0", "1"]}
     assert "motion=B" in snapshot["overrides"]["common"]
     scratch = json.loads((snapshots / "scratch_letters.json").read_text(encoding="utf-8"))
-    assert [b["label"] for b in scratch["rows"][0]["baselines"]] == ["the reference as the target", "lookahead"]
-    assert scratch["rows"][0]["baselines"][0]["value"] == pytest.approx(runs[0]["baselines"]["reference"], abs=1e-6)
+    assert [b["label"] for b in scratch["rows"][0]["baselines"][1:]] == ["the reference as the target", "lookahead"]
+    assert scratch["rows"][0]["baselines"][1]["value"] == pytest.approx(runs[0]["baselines"]["reference"], abs=1e-6)
 
     text = page.read_text(encoding="utf-8")
     section = text.split('<a id="thesis_letters"></a>')[1].split("<a id=")[0]
     assert "(n=2)" in section and "0.8-0.95" in section and "2 runs" in section and f"{row['steps'][1]:,} steps" in section
+    assert "**Differences from the thesis' setting** (`experiment=letters_thesis` composed alone" in section
+    assert "Seeds whose last evaluation ends above each baseline:" in section
+    assert "The same episodes scored under `reward=hand_code`:" in section
     # the runs' own overrides the command leaves out are named: the tiny budget, the one letter (the
     # overlay sweeps five); not the seeds, which the command gives
     differs = section.split("The runs differ from the command")[1].split("\n")[0]
@@ -349,3 +368,50 @@ def test_values_the_command_sweeps_that_no_run_carries_are_named(tmp_path):
     assert results_page.unrun_values(command, "grid", ran, tmp_path) == ["classifier=slgcn", "property=b"]
     assert results_page.unrun_values(command + " property=a", "grid", ran, tmp_path) == ["classifier=slgcn"]
     assert results_page.unrun_values(command + " classifier=mlp,lstm property=a", "grid", ran, tmp_path) == []
+
+
+# --------------------------------------------------------------------------- differences from the thesis
+
+
+def test_the_generated_differences_change_when_a_runs_config_changes():
+    from aslexp.reports import differences
+
+    thesis = differences.compose_overlay("imitate", ["experiment=letters_thesis"])
+    runs = {"steps": [1_000_000], "seeds_per_motion": [1], "protocols": [((4, 2400), (4, 10.0))]}
+    same = differences.imitation_differences([thesis], thesis, runs, 10)
+    assert same == ["budget: 1,000,000 steps per run, 2% of thesis' 50,000,000", "seeds: 1 per motion (thesis: 10)",
+                    "evaluation: learned and baselines alike, 4 start phases x 2400 control steps"]
+    changed = differences.compose_overlay("imitate", ["experiment=letters_thesis", "engine=mujoco", "ppo.num_envs=64",
+                                                      "ppo.action_mapping=box", "ppo.kl_stop=torchrl", "env.control_hz=30"])
+    lines = differences.imitation_differences([changed], thesis, runs, 10)
+    keys = [line.split(":")[0] for line in lines]
+    assert keys[:5] == ["engine", "rate", "update", "KL stop", "action mapping"], lines
+    assert "joint speeds clamped at 100 rad/s as PyBullet's" in lines[0] and "(thesis: PyBullet)" in lines[0]
+    assert "64 environments x 160 steps = 10,240 per update" in lines[2]
+    unclamped = differences.compose_overlay("imitate", ["experiment=letters_thesis", "engine=mujoco",
+                                                        "engine.joint_speed_limit=null"])
+    assert "no joint-speed clamp" in differences.imitation_differences([unclamped], thesis, runs, 10)[0]
+    # a run from before an option existed: its behaviour then, said as such
+    old = json.loads(json.dumps(thesis))
+    del old["ppo"]["action_mapping"], old["ppo"]["kl_stop"]
+    lines = differences.imitation_differences([old], thesis, runs, 10)
+    assert any("the only one before ppo.action_mapping existed" in line for line in lines)
+    # baselines measured at report time from phase 0 (runs before session 19)
+    lines = differences.imitation_differences([thesis], thesis, {**runs, "protocols": [((4, 2400), None)]}, 10)
+    assert "from phase 0 only" in lines[-1]
+
+
+def test_a_kept_snapshot_gets_its_differences_from_its_runs_commit(tmp_path):
+    head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short=10", "HEAD"], capture_output=True, text=True)
+    if head.returncode != 0:
+        pytest.skip("not a git checkout: no commit to recompose at")
+    [entry] = [e for e in CATALOGUE if e["id"] == "letters_tracking"]
+    snapshot = {"git": [head.stdout.strip() + "+"], "overrides": {"common": ["experiment=letters_tracking"],
+                                                                   "varied": {"motion": ["A"], "seed": ["0"]}},
+                "rows": [{"steps": [98304, 98304], "learned": {"n": 3}}]}
+    extra = results_page.recomposed_differences(entry, snapshot, ROOT)
+    assert extra["differences_from"] == "experiment=letters_thesis"
+    assert head.stdout.strip() in extra["differences_source"]
+    assert any(d.startswith("controller: reference_velocity_tuned") for d in extra["differences"])
+    assert "evaluation: learned and baselines alike, 4 start phases x 300 control steps" in extra["differences"]
+    assert results_page.recomposed_differences(entry, {**snapshot, "git": []}, ROOT) == {}

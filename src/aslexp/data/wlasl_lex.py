@@ -28,6 +28,7 @@ import secrets
 import shutil
 import tempfile
 import time
+from typing import Any
 from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -102,6 +103,24 @@ class WlaslLexParams:
         values = dataclasses.asdict(self)
         values["channels"] = list(self.channels) if self.channels is not None else None
         return values
+
+
+def params_from_config(cfg: dict[str, Any]) -> WlaslLexParams:
+    """The build parameters gathered from a composed ``aslexp recognize`` config's data, pose,
+    property and split groups (plain containers: the jobs convert Hydra's)."""
+    data, pose, split = cfg["data"], cfg["pose"], cfg["split"]
+    options = dict(pose.get("options") or {})
+    # names: null (files named by video id, the default every pose config carries so that
+    # pose.options.names=... overrides) is left out, so builds made before the key existed keep their key
+    if options.get("names", 0) is None:
+        del options["names"]
+    return WlaslLexParams(
+        lexicon=data["lexicon"], property=cfg["property"]["name"], source=pose["source"],
+        source_path=pose.get("path"), source_options=options, subset=pose["subset"],
+        channels=pose.get("channels"), split=split["name"], length=int(data["num_frames"]),
+        padding=data["padding"], seed=int(split["seed"]), rare_classes=split["rare_classes"],
+        movement_none_as_missing=bool(data.get("movement_none_as_missing", False)),
+    )
 
 
 def build_wlasl_lex(

@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from aslexp.envs.config import deep_merge, resolve_group
 from aslexp.envs.imitation import ImitationEnv
 from aslexp.envs.tracking import reference_rollout
@@ -47,14 +49,19 @@ class Baseline:
 
 def no_learning_baselines(motion, body: dict, reward: dict, env: dict, rows: list[Baseline],
                           seconds: float = 10.0, data_root: str | os.PathLike | None = None,
-                          engine: str | dict | None = None) -> list[dict[str, Any]]:
-    """Mean reward per step of every row x lookahead over ``seconds`` of simulated time from phase 0
-    (an early end, e.g. a fall, scores 0 for the rest), under ``reward``; ``body`` and ``env`` are
-    complete group dicts (the run's), each row's overrides merged over them."""
+                          engine: str | dict | None = None, phases: tuple[float, ...] = (0.0,),
+                          score_rewards: dict[str, str | dict] | None = None) -> list[dict[str, Any]]:
+    """Mean reward per step of every row x lookahead over ``seconds`` of simulated time from each
+    start phase of ``phases`` (the learned policy's evaluation protocol; an early end, e.g. a fall,
+    scores 0 for the rest), averaged over the phases, under ``reward`` (and, in ``scores``, under each
+    of ``score_rewards``); ``body`` and ``env`` are complete group dicts (the run's), each row's
+    overrides merged over them. ``diverged``: episodes whose simulation blew up (never a score)."""
     out: list[dict[str, Any]] = []
-    # Progress: each row x lookahead is seconds of simulation (minutes at 240 Hz for all rows).
+    phases = tuple(float(p) for p in phases) or (0.0,)
+    # Progress: each row x lookahead is seconds of simulation per phase (minutes at 240 Hz for all rows).
     total = sum(len(r.lookahead) or 1 for r in rows)
     started = time.perf_counter()
+    simulated = 0
     for row in rows:
         controller = resolve_group("controller", row.controller)
         options = not ControllerSpec.from_dict(controller).is_thesis_pd
@@ -63,22 +70,31 @@ def no_learning_baselines(motion, body: dict, reward: dict, env: dict, rows: lis
                                        "early_termination": {"min_reward": None},
                                        **({"action_mode": "residual"} if options else {})})
         instance = ImitationEnv(motion, body=deep_merge(body, row.body), controller=controller, reward=reward,
-                                env=env_cfg, data_root=data_root, complete_configs=True, engine=engine)
+                                env=env_cfg, data_root=data_root, complete_configs=True, engine=engine,
+                                score_rewards=score_rewards)
         try:
             steps = max(1, int(round(seconds * instance.spec_env.control_hz)))
             lookaheads = (instance.spec_env.reference_lookahead,) if options else row.lookahead
             for k in lookaheads:
-                run = reference_rollout(instance, steps, k)
+                runs = [reference_rollout(instance, steps, k, start_time=p * instance.reference.duration)
+                        for p in phases]
+                simulated += sum(len(run.rewards) for run in runs)
+                terms = {name: float(np.mean([run.terms.get(name, 0.0) for run in runs])) for name in runs[0].terms}
                 out.append({"label": row.label, "controller": row.controller, "lookahead": k,
-                            "aslexp": row.aslexp, "reward": run.mean_reward, "steps": len(run.rewards),
-                            "planned_steps": steps, "fell": run.fell, "diverged": run.diverged,
+                            "aslexp": row.aslexp, "reward": float(np.mean([run.mean_reward for run in runs])),
+                            "per_phase": [run.mean_reward for run in runs], "phases": list(phases),
+                            "steps": int(np.mean([len(run.rewards) for run in runs])),
+                            "planned_steps": steps, "fell": any(run.fell for run in runs),
+                            "diverged": sum(run.diverged for run in runs),
                             "control_hz": instance.spec_env.control_hz, "base": instance.body_spec.base,
-                            "terms": run.terms})
+                            "terms": terms,
+                            **({"scores": {name: float(np.mean([run.scores.get(name, 0.0) for run in runs]))
+                                           for name in score_rewards}} if score_rewards else {})})
                 done = len(out)
                 spent = time.perf_counter() - started
                 _log.info("baselines of %s: %d/%d (%s, lookahead %d) reward %.4f; %.1f s, %.0f steps/s, "
                           "ETA %.0f s", Path(str(motion)).stem, done, max(total, done), row.label, k,
-                          run.mean_reward, spent, done * steps / max(spent, 1e-9),
+                          out[-1]["reward"], spent, simulated / max(spent, 1e-9),
                           spent / done * max(total - done, 0))
         finally:
             instance.close()

@@ -17,7 +17,8 @@ One control step (``1 / control_hz`` seconds):
      followed by the same options.
 
 Episodes end when ``episode_steps`` have passed (truncated), and are terminated on a NaN action,
-a diverging simulation (non-finite state or joint speed above ``max_joint_velocity``) or, if
+a diverging simulation (non-finite state or a joint speed above ``max_joint_velocity``, 1,000 rad/s:
+far above the engines' 100 rad/s clamp, so only a simulation that blew up trips it) or, if
 configured, a step reward below ``early_termination.min_reward`` (for ``early_termination.patience``
 consecutive control steps: 1 by default; more lets a policy recover from a moment every policy
 loses, such as a looping motion's jump back to its first frame) or a fall
@@ -77,7 +78,10 @@ class EnvSpec:
     episode_steps: int = 300
     reference_state_init: bool = True
     early_termination: dict[str, Any] = field(default_factory=lambda: {"min_reward": None})
-    max_joint_velocity: float = 100.0
+    # rad/s: a joint faster than this (or any non-finite state) is a simulation that blew up. Far
+    # above the 100 rad/s both engines clamp every joint speed to (engine.joint_speed_limit): a
+    # transient the clamp absorbs is physics, not divergence.
+    max_joint_velocity: float = 1000.0
     action_mode: str = "absolute"
     residual_range: float = 0.5
     reference_lookahead: int = 1
@@ -244,13 +248,17 @@ class ImitationEnv(gym.Env):
         complete_configs: bool = False,
         shape_reward: bool = False,
         engine: str | dict | None = None,
+        score_rewards: dict[str, str | dict] | None = None,
     ) -> None:
         """Group values are names, partial dicts merged over the group default, or None; with
         ``complete_configs`` dicts are taken as they are (the jobs pass Hydra-composed groups,
         which merged over another body's default file would gain its keys and reward terms).
         ``engine``: ``conf/engine`` (a name or a dict; None: PyBullet, the thesis' engine).
         ``shape_reward``: a training env, whose returned reward carries the env's training-only
-        shaping (``heading_shaping``, ``offset_shaping``); every other env returns the reward config's reward."""
+        shaping (``heading_shaping``, ``offset_shaping``); every other env returns the reward config's reward.
+        ``score_rewards``: name -> reward config (a name or a complete dict) under which every step is
+        also scored, as ``info["score_<name>"]`` (reporting only: the same trajectory under another
+        reward scale, e.g. the authors' code weights beside the thesis' Table 5.2)."""
         super().__init__()
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
@@ -343,6 +351,9 @@ class ImitationEnv(gym.Env):
         self._plain_base = False  # set by thesis_pd(): the base is the reference itself
         self._default_controller: PDController | None = None
         self.reward_fn = ImitationReward(self.reward_spec, self.layout)
+        self.score_fns = {str(name): ImitationReward(RewardSpec.from_dict(
+            value if isinstance(value, dict) else resolve_group("reward", value)), self.layout)
+            for name, value in (score_rewards or {}).items()}
 
         # -- spaces ---------------------------------------------------------------------------
         lower, upper = [], []
@@ -642,7 +653,8 @@ class ImitationEnv(gym.Env):
             self.counters["falls"] += fell
         truncated = self.steps >= self.spec_env.episode_steps and not early
         info = {"nan_action": False, "diverged": False, "early_termination": early, "fall": fell,
-                **{f"r_{k}": v for k, v in terms.items()}, **{f"e_{k}": v for k, v in errors.items()}}
+                **{f"r_{k}": v for k, v in terms.items()}, **{f"e_{k}": v for k, v in errors.items()},
+                **{f"score_{name}": fn(sim_state, ref_state)[0] for name, fn in self.score_fns.items()}}
         yaw_scale, position_scale = self.spec_env.heading_shaping, self.spec_env.offset_shaping
         if self.shape_reward and (yaw_scale > 0 or position_scale > 0):
             yaw = quaternion.twist_angle(ref_state.root_rot, sim_state.root_rot, UP_AXIS)

@@ -23,6 +23,7 @@ class Rollout:
     fell: bool = False
     diverged: bool = False
     terms: dict[str, float] = field(default_factory=dict)  # mean per-term rewards over the steps run
+    score_sums: dict[str, float] = field(default_factory=dict)  # the env's score_rewards, summed over the steps
     pose_errors: list[np.ndarray] = field(default_factory=list)  # per step, per joint (see record)
     velocity_errors: list[np.ndarray] = field(default_factory=list)
 
@@ -30,6 +31,11 @@ class Rollout:
     def mean_reward(self) -> float:
         """Sum of step rewards / planned steps: an early end scores 0 for the rest (as evaluations)."""
         return float(np.sum(self.rewards) / max(self.planned_steps, 1))
+
+    @property
+    def scores(self) -> dict[str, float]:
+        """The env's ``score_rewards`` as :attr:`mean_reward` (per planned step)."""
+        return {k: v / max(self.planned_steps, 1) for k, v in self.score_sums.items()}
 
 
 def reference_rollout(env: ImitationEnv, steps: int, lookahead: int = 1, start_time: float = 0.0,
@@ -50,6 +56,8 @@ def reference_rollout(env: ImitationEnv, steps: int, lookahead: int = 1, start_t
         for name, value in info.items():
             if name.startswith("r_"):
                 sums[name[2:]] = sums.get(name[2:], 0.0) + value
+            elif name.startswith("score_"):
+                out.score_sums[name[6:]] = out.score_sums.get(name[6:], 0.0) + value
         if record_errors:
             pose_sq, vel_sq = env.reward_fn.joint_errors(env.last_sim_state, env.last_reference_state)
             out.pose_errors.append(np.sqrt(pose_sq))

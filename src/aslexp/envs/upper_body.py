@@ -4,7 +4,8 @@ The same environment as the hand's (:class:`~aslexp.envs.imitation.ImitationEnv`
 upper body's config groups as defaults: ``body=upper_body`` (built model; ``upper_body_thesis``
 loads the thesis' URDF), ``controller=upper_body`` (position control, fixed base),
 ``reward=upper_body_thesis`` (Eqs. 6.1-6.3, summed errors, Table 6.5 Run 4) and ``env=upper_body``
-(30 Hz). The authors' setting is ``controller=upper_body_thesis`` (stable PD) with
+(30 Hz). The thesis' setting is ``controller=upper_body_thesis`` (the text's: body stable PD, hands
+position control 0.22 / 0.87; the authors' code's all-stable-PD gains: ``upper_body_thesis_code``) with
 ``body.base=pinned`` (or ``free``) and ``env=upper_body_thesis`` (240 Hz). Registered as ``aslexp/UpperBodyImitation-v0``::
 
     gym.make("aslexp/UpperBodyImitation-v0", motion="motions/upper_body/00433.txt")

@@ -41,9 +41,19 @@ from aslexp.tuning.context import trial_reporter
 log = logging.getLogger("aslexp.imitate")
 
 
+def score_rewards(cfg: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """``report.score_rewards`` (reward config names) -> their configs: the other reward scales every
+    evaluation and baseline of the run is also scored under (e.g. the authors' code weights)."""
+    from aslexp.envs.config import resolve_group
+
+    names = (cfg.get("report") or {}).get("score_rewards") or []
+    return {str(name): resolve_group("reward", str(name)) for name in names}
+
+
 def build_envs(cfg: dict[str, Any], data_root: Path, vector_env: str = "auto"):
     """A factory of training envs (picklable: PPO may build them in worker processes) and the
-    evaluation env (no early termination: evaluations score whole episodes). With
+    evaluation env (no early termination: evaluations score whole episodes; also scored under
+    ``report.score_rewards``). With
     ``vector_env: batched`` (engine=mujoco) the factory takes the number of environments and
     builds one :class:`~aslexp.envs.batched.BatchedImitationEnv` of them."""
     import functools
@@ -64,7 +74,8 @@ def build_envs(cfg: dict[str, Any], data_root: Path, vector_env: str = "auto"):
     eval_cfg = deep_merge(cfg["env"], {"early_termination": {"min_reward": None}})
     render = cfg.get("render") or {}
     eval_env = ImitationEnv(cfg["motion"]["file"], env=eval_cfg, render_mode="rgb_array",
-                            render_size=tuple(render.get("size", (240, 240))), **common)
+                            render_size=tuple(render.get("size", (240, 240))), score_rewards=score_rewards(cfg),
+                            **common)
     return make_train_env, eval_env
 
 
@@ -113,6 +124,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     make_train_env, eval_env = build_envs(cfg, data_root, ppo.vector_env)
     base = baselines(eval_env, ppo.eval_steps, ppo.phases)  # the policy's evaluation protocol
     log.info("motion %s: baselines %s", cfg["motion"]["name"], {k: round(v, 4) for k, v in base.items()})
+    report_baselines = measure_report_baselines(cfg, eval_env, ppo, data_root)
 
     history_logger: HistoryLogger | None = None
 
@@ -136,6 +148,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     if result is None:  # nothing to train: evaluate the policy as it is, under this config's protocol
         summary = trainer.evaluate()
         result_eval, action_rms = round(summary.mean_reward, 5), summary.action_rms  # rounded as the trainer's are
+        last_scores, last_diverged = {k: round(v, 5) for k, v in summary.scores.items()}, summary.diverged
         # A resumed checkpoint with no steps left is re-evaluated ("evaluated": e.g. a finished run
         # under more start phases); with total_steps=0 only the baselines were measured.
         stopped = "evaluated" if trainer.steps > 0 else "no_training"
@@ -144,6 +157,9 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         best_eval, last_eval, stopped = result.best_eval, result.last_eval, result.stopped
         action_rms = next((h["eval_action_rms"] for h in reversed(trainer.history) if "eval_action_rms" in h),
                           float("nan"))
+        last_row = next((h for h in reversed(trainer.history) if "eval_reward" in h), {})
+        last_scores = {k[len("eval_score_"):]: v for k, v in last_row.items() if k.startswith("eval_score_")}
+        last_diverged = last_row.get("eval_diverged", 0)
 
     # When did the evaluation first pass each baseline?
     passed: dict[str, Any] = {}
@@ -186,6 +202,10 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     metrics = {
         "motion": cfg["motion"]["name"], "seed": cfg.get("seed"), "baselines": base,
         "last_eval": last_eval, "best_eval": best_eval, "eval_protocol": ppo.eval_protocol,
+        # The last evaluation's episodes that blew up (a number they touched is not a score), and the
+        # last evaluation under report.score_rewards (the same episodes under another reward scale).
+        "last_eval_diverged": int(last_diverged), "last_eval_scores": last_scores,
+        **({"report_baselines": report_baselines} if report_baselines is not None else {}),
         "final_eval_terms": final.terms, "num_envs": ppo.num_envs, "device": str(trainer.device),
         "steps": trainer.steps, "seconds": trainer.elapsed, "stopped": stopped,
         "steps_per_s": float(np.mean([h["steps_per_s"] for h in rows])) if rows else None,
@@ -199,6 +219,24 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     }
     eval_env.close()
     return metrics
+
+
+def measure_report_baselines(cfg: dict[str, Any], eval_env, ppo, data_root: Path) -> list[dict[str, Any]] | None:
+    """The overlay's ``report.baselines`` (aslexp.envs.baselines), measured now under the run's own
+    evaluation protocol (its start phases, ``ppo.eval_steps`` at the run's control rate), reward and
+    ``report.score_rewards``: a report reads them from metrics.json and simulates nothing. None when
+    the overlay names none."""
+    rows = (cfg.get("report") or {}).get("baselines")
+    if not rows:
+        return None
+    from aslexp.envs.baselines import Baseline, no_learning_baselines
+    from aslexp.envs.imitation import resolve_motion_path
+
+    seconds = ppo.eval_steps / eval_env.spec_env.control_hz
+    measured = no_learning_baselines(resolve_motion_path(cfg["motion"]["file"], data_root), cfg["body"], cfg["reward"], cfg["env"],
+                                     [Baseline.from_dict(dict(b)) for b in rows], seconds, data_root,
+                                     engine=cfg.get("engine"), phases=ppo.phases, score_rewards=score_rewards(cfg))
+    return [{**row, "seconds": seconds} for row in measured]
 
 
 def _imitate_run(cfg: DictConfig, run: Run) -> float:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from aslexp.data.wlasl_lex import WlaslLexParams, build_or_load
+from aslexp.data.wlasl_lex import WlaslLexParams, build_or_load, params_from_config
 from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
 from aslexp.jobs.validation import check_config
 from aslexp.recognition.experiment import run_recognition
@@ -23,32 +23,8 @@ log = logging.getLogger("aslexp.recognize")
 
 
 def dataset_params(cfg: DictConfig) -> WlaslLexParams:
-    """The WLASL-Lex build parameters, gathered from the data/pose/property/split groups."""
-    return WlaslLexParams(
-        lexicon=cfg.data.lexicon,
-        property=cfg.property.name,
-        source=cfg.pose.source,
-        source_path=cfg.pose.get("path"),
-        source_options=source_options(cfg.pose.get("options")),
-        subset=cfg.pose.subset,
-        channels=to_dict(cfg.pose.get("channels")),
-        split=cfg.split.name,
-        length=int(cfg.data.num_frames),
-        padding=cfg.data.padding,
-        seed=int(cfg.split.seed),
-        rare_classes=cfg.split.rare_classes,
-        movement_none_as_missing=bool(cfg.data.get("movement_none_as_missing", False)),
-    )
-
-
-def source_options(options) -> dict:
-    """``pose.options`` for the build; ``names: null`` (files named by video id, the default every
-    pose config carries so that ``pose.options.names=...`` overrides) is left out, so builds made
-    before the key existed keep their cache key."""
-    options = to_dict(options) or {}
-    if options.get("names", 0) is None:
-        del options["names"]
-    return options
+    """The WLASL-Lex build parameters of a composed config (:func:`aslexp.data.wlasl_lex.params_from_config`)."""
+    return params_from_config(to_dict(cfg))
 
 
 def recognize(cfg: DictConfig, run) -> float:

@@ -6,8 +6,11 @@
 For each letter (the hand, the thesis reward ``hand_thesis``) and each sign (the upper body,
 ``upper_body_thesis``), every controller is driven by the reference (lookahead 0: the reference as
 the PD target; 1: one control step ahead) for ``seconds`` of simulated time from phase 0, in both
-engines, scored by the same reward code. Writes ``agreement.json`` and ``agreement.md`` (the table
-docs/engines.md shows) with the difference MuJoCo - PyBullet per row.
+engines, scored by the same reward code. MuJoCo runs with PyBullet's joint-speed clamp (100 rad/s,
+``engine.joint_speed_limit``, the default) and, in one more column, without it, so the table shows
+what the clamp changes. A row that fell or blew up (diverged) says so beside its number. Writes
+``agreement.json`` and ``agreement.md`` (the table docs/engines.md shows) with the difference
+MuJoCo - PyBullet per row.
 """
 
 from __future__ import annotations
@@ -27,10 +30,15 @@ HAND_ROWS = [
     ("thesis controller (position, kp 0.22, kd 0.87), 240 Hz", "thesis", {}, "hand_thesis"),
     ("thesis controller, 30 Hz", "thesis", {}, "default"),
     ("reference-velocity PD (tuned), 30 Hz", "reference_velocity_tuned", {}, "default"),
+    ("reference-velocity PD (tuned), 240 Hz", "reference_velocity_tuned", {}, "hand_thesis"),
 ]
+# MuJoCo as configured (PyBullet's clamp reproduced) and MuJoCo's own semantics (no clamp).
+ENGINES = {"pybullet": "pybullet", "mujoco": {"name": "mujoco"},
+           "mujoco_unclamped": {"name": "mujoco", "joint_speed_limit": None}}
 UPPER_ROWS = [
-    ("authors' stable PD, pinned base, 240 Hz", "upper_body_thesis", {"base": "pinned"}, "upper_body_thesis"),
-    ("authors' stable PD, standing (free base), 240 Hz", "upper_body_thesis", {"base": "free"}, "upper_body_thesis"),
+    # the authors' code's controller (stable PD everywhere, hands 50 / 0.5): one mode, comparable across engines
+    ("authors' code: stable PD, pinned base, 240 Hz", "upper_body_thesis_code", {"base": "pinned"}, "upper_body_thesis"),
+    ("authors' code: stable PD, standing (free base), 240 Hz", "upper_body_thesis_code", {"base": "free"}, "upper_body_thesis"),
     ("position control (kp 0.22, kd 0.87), fixed base, 30 Hz", "upper_body", {"base": "fixed"}, "upper_body"),
 ]
 
@@ -48,23 +56,30 @@ def measure(kind: str, name: str, seconds: float, data_root: Path) -> list[dict[
         env = resolve_group("env", env_name)
         row = Baseline.from_dict({"label": label, "controller": controller, "body": body_overrides})
         measured = {}
-        for engine in ("pybullet", "mujoco"):
+        for engine, config in ENGINES.items():
             measured[engine] = no_learning_baselines(motion, body, reward, env, [row], seconds, data_root,
-                                                     engine=engine)
-        for pb, mj in zip(measured["pybullet"], measured["mujoco"]):
+                                                     engine=config)
+        for pb, mj, free in zip(measured["pybullet"], measured["mujoco"], measured["mujoco_unclamped"]):
             out.append({"body": kind, "motion": name, "label": label, "lookahead": pb["lookahead"],
                         "pybullet": pb["reward"], "mujoco": mj["reward"], "difference": mj["reward"] - pb["reward"],
-                        "pybullet_fell": pb["fell"], "mujoco_fell": mj["fell"]})
+                        "mujoco_unclamped": free["reward"],
+                        **{f"{engine}_{end}": run[end] for engine, run in
+                           (("pybullet", pb), ("mujoco", mj), ("mujoco_unclamped", free)) for end in ("fell", "diverged")}})
     return out
 
 
+def _mark(row: dict[str, Any], engine: str) -> str:
+    """A row's number with how its episode ended, if it ended early."""
+    ends = [end for end in ("diverged", "fell") if row.get(f"{engine}_{end}")]
+    return f"{row[engine]:.3f}" + (f" ({', '.join(ends)})" if ends else "")
+
+
 def table(rows: list[dict[str, Any]]) -> str:
-    lines = ["| body | motion | controller | lookahead | PyBullet | MuJoCo | MuJoCo - PyBullet |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| body | motion | controller | lookahead | PyBullet | MuJoCo | MuJoCo - PyBullet | MuJoCo, no speed clamp |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        fell = lambda engine: " (fell)" if r[f"{engine}_fell"] else ""  # noqa: E731
-        lines.append(f"| {r['body']} | {r['motion']} | {r['label']} | {r['lookahead']} | "
-                     f"{r['pybullet']:.3f}{fell('pybullet')} | {r['mujoco']:.3f}{fell('mujoco')} | {r['difference']:+.3f} |")
+        lines.append(f"| {r['body']} | {r['motion']} | {r['label']} | {r['lookahead']} | {_mark(r, 'pybullet')} | "
+                     f"{_mark(r, 'mujoco')} | {r['difference']:+.3f} | {_mark(r, 'mujoco_unclamped')} |")
     return "\n".join(lines) + "\n"
 
 

@@ -15,7 +15,8 @@ For each entry of the catalogue, the first of its ``runs`` alternatives whose fo
   (the controller and the same on a pinned base; the best smoothed reference and constant random
   corrections as simple baselines);
 * ``recognition`` and ``recognition_per_class``: given by the caller (``aslexp.tools.report``, which
-  reads recognition runs).
+  reads recognition runs); :mod:`aslexp.reports.results_recognition` adds each row's test clips, its
+  interval, the "no better than chance" mark and the line "Differences from the thesis".
 
 The snapshot holds numbers (fractions; the page prints percentages where the entry says so), the
 run folders it came from (relative to ``--outputs``), when the runs started and finished, where
@@ -41,6 +42,8 @@ import numpy as np
 
 from aslexp.files import atomic_write_text
 from aslexp.paths import CONF_DIR
+from aslexp.reports import results_recognition
+from aslexp.reports.commands import command_overrides  # noqa: F401 - part of this module's interface
 from aslexp.runfile import RUN_FILE
 
 log = logging.getLogger(__name__)
@@ -96,16 +99,6 @@ def load_catalogue(path: str | Path = CATALOGUE) -> list[dict[str, Any]]:
             raise ValueError(f"{where}: figures must be a list of {{path: docs/..., caption: text}}")
         entry["options"] = entry.get("options") or {}
     return entries
-
-
-def command_overrides(command: str) -> tuple[str, list[str]]:
-    """(job, overrides) of ``aslexp JOB [-m] OVERRIDE...`` (shell words; ``-m`` dropped)."""
-    import shlex
-
-    words = shlex.split(command)
-    if len(words) < 2 or words[0] != "aslexp":
-        raise ValueError(f"not an aslexp command: {command!r}")
-    return words[1], [w for w in words[2:] if w not in ("-m", "--multirun")]
 
 
 def _split_values(value: str) -> list[str]:
@@ -339,13 +332,23 @@ def _imitation_runs(folders: list[Path]) -> tuple[dict[str, list[dict[str, Any]]
     return dict(sorted(runs.items())), skipped
 
 
+def _ended(row: dict[str, Any]) -> dict[str, str]:
+    """A baseline's note when some of its episodes ended early: blew up (diverged) or fell."""
+    ends = [end for end in ("diverged", "fell") if row.get(end)]
+    return {"note": ", ".join(ends)} if ends else {}
+
+
 def _thesis_baselines(entry, cfg, motion, items, cache) -> tuple[list[dict[str, Any]], str, float | None]:
     from aslexp.reports.thesis_report import baseline_column, motion_baselines, thesis_number
 
-    rows = motion_baselines(cfg, cache)
+    # Measured by the runs under their own evaluation protocol (metrics.json report_baselines); runs
+    # from before session 19 did not, and are simulated here from phase 0 as they always were.
+    rows = next((m["report_baselines"] for m in items if m.get("report_baselines")), None) or motion_baselines(cfg, cache)
     baselines = [{"label": re.sub(r"^aslexp: ", "aslexp's ", baseline_column(b)),
                   "kind": "simple" if b["aslexp"] else "no-learning",
-                  "value": _round(b["reward"]), **({"note": "fell"} if b["fell"] else {})} for b in rows]
+                  "value": _round(b["reward"]), **_ended(b),
+                  **({"scores": {k: _round(v) for k, v in b["scores"].items()}} if b.get("scores") else {})}
+                 for b in rows]
     text, value = thesis_number((cfg.get("report") or {}).get("thesis", "letters"), motion)
     return baselines, text, value
 
@@ -392,9 +395,10 @@ def imitation_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, A
     from aslexp.reports.thesis_report import GLOSSES
 
     runs, skipped = _imitation_runs(folders)
-    rows, run_dirs = [], []
+    rows, run_dirs, configs = [], [], []
     for motion, items in runs.items():
         run_dirs += [Path(m["run_dir"]) for m in items]
+        configs += [run_config(Path(m["run_dir"])) for m in items]
         first = Path(items[0]["run_dir"])
         folder = next(f for f in folders if first.resolve().is_relative_to(f.resolve()))
         cfg = run_config(first)
@@ -402,6 +406,15 @@ def imitation_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, A
                                                                      folder / "baselines" / f"{motion}.json")
         trained = sorted((m for m in items if learned(m)), key=lambda m: (m.get("seed") is None, m.get("seed")))
         last = [float(m["last_eval"]) for m in trained if m.get("last_eval") is not None]
+        # The policies before any update (ppo.eval_at_start: the curve's step 0): the level learning starts from.
+        untrained = [float(p["eval_reward"]) for m in trained for p in m.get("progress") or []
+                     if p.get("step") == 0 and p.get("eval_reward") is not None]
+        if untrained:
+            baselines = [{"label": "the untrained policy (step 0 of these runs, mean over seeds)", "kind": "no-learning",
+                          "value": _round(np.mean(untrained))}, *baselines]
+        names = list(dict.fromkeys(k for m in trained for k in m.get("last_eval_scores") or {}))
+        scores = {name: [float(m["last_eval_scores"][name]) for m in trained if name in (m.get("last_eval_scores") or {})]
+                  for name in names}
         rows.append({
             "key": motion, "label": f"{motion} ({GLOSSES[motion]})" if motion in GLOSSES else motion,
             "thesis": thesis, "thesis_value": _round(thesis_value),
@@ -409,11 +422,33 @@ def imitation_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, A
             "learned": {"what": "last evaluation", "mean": _round(np.mean(last)) if last else None,
                         "spread": _round(np.std(last)) if last else None, "spread_kind": "std over seeds",
                         "n": len(last), "unit": "seeds", "values": [_round(v) for v in last],
-                        "seeds": [m.get("seed") for m in trained]},
+                        "seeds": [m.get("seed") for m in trained],
+                        # the last evaluations' episodes that blew up, summed over seeds (None: not recorded)
+                        "diverged": (sum(int(m["last_eval_diverged"]) for m in trained)
+                                     if trained and all("last_eval_diverged" in m for m in trained) else None),
+                        **({"scores": {name: {"mean": _round(np.mean(v)), "spread": _round(np.std(v)), "n": len(v)}
+                                       for name, v in scores.items()}} if scores else {})},
             "steps": [int(min(m["steps"] for m in trained)), int(max(m["steps"] for m in trained))] if trained else None,
         })
     return {"rows": rows, "run_dirs": run_dirs, "skipped": skipped, "quantity": "mean reward per step",
-            "row_name": "motion"}
+            "row_name": "motion", **thesis_differences(entry, configs, [m for items in runs.values() for m in items])}
+
+
+def thesis_differences(entry: dict[str, Any], configs: list[dict[str, Any]], metrics: list[dict[str, Any]],
+                       runs: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The snapshot's ``differences``: how the runs differ from the thesis' setting the catalogue
+    names (``thesis.setting``: the overlay that composes it; ``thesis.seeds``), from their composed
+    configs (:mod:`aslexp.reports.differences`). Empty for an entry that names no setting."""
+    from aslexp.reports import differences
+
+    thesis = entry.get("thesis") or {}
+    if not thesis.get("setting") or not configs:
+        return {}
+    reference = differences.compose_overlay(command_overrides(entry["command"])[0],
+                                            [f"experiment={thesis['setting']}"])
+    runs = runs if runs is not None else differences.run_facts(metrics)
+    return {"differences": differences.imitation_differences(configs, reference, runs, thesis.get("seeds")),
+            "differences_from": f"experiment={thesis['setting']}"}
 
 
 # --------------------------------------------------------------------------- snapshots
@@ -436,6 +471,9 @@ def build_snapshot(entry: dict[str, Any], outputs: Path, summarizers: dict[str, 
     snapshot.update({"skipped": dict(sorted(summary.get("skipped", {}).items())), "quantity": summary.get("quantity"),
                      "row_name": (entry.get("options") or {}).get("row_name", summary.get("row_name")),
                      "rows": summary["rows"]})
+    for key in ("differences", "differences_from", "differences_source"):
+        if key in summary:
+            snapshot[key] = summary[key]
     return snapshot
 
 
@@ -467,9 +505,54 @@ def update(catalogue: list[dict[str, Any]], outputs: Path, snapshots: Path,
         if snapshot is not None:
             write_snapshot(path, snapshot)
             done[entry["id"]] = f"from runs ({', '.join(snapshot['folders'])})"
+        elif path.is_file():
+            done[entry["id"]] = "kept"
+            kept = read_snapshot(path)
+            if kept is not None and entry["report"] in IMITATION_REPORTS and "differences" not in kept:
+                extra = recomposed_differences(entry, kept)
+                if extra:
+                    write_snapshot(path, {**kept, **extra})
+                    done[entry["id"]] = "kept; differences recomposed from its commits"
         else:
-            done[entry["id"]] = "kept" if path.is_file() else "not run"
+            done[entry["id"]] = "not run"
     return done
+
+
+def recomposed_differences(entry: dict[str, Any], snapshot: dict[str, Any],
+                           root: Path | None = None) -> dict[str, Any]:
+    """For a kept imitation snapshot made before snapshots carried ``differences`` (its run folders
+    gone): the runs' configs recomposed from ``conf/`` at their git commits with their recorded
+    overrides (:func:`aslexp.reports.differences.configs_at_commits`), the budget and seeds from its
+    rows, and the evaluation protocol from the recomposed config (the runs' ``report: scratch`` and
+    ``residual`` baselines were measured by the runs under it; ``thesis`` ones at report time from
+    phase 0). {} when it cannot be done (no commit, no git)."""
+    import subprocess
+
+    from aslexp.reports import differences
+
+    commits = [c for c in snapshot.get("git") or [] if c and c != "-"]
+    if not (entry.get("thesis") or {}).get("setting") or not commits:
+        return {}
+    root = root or Path(__file__).resolve().parents[3]
+    job, _ = command_overrides(entry["command"])
+    try:
+        configs = differences.configs_at_commits(job, snapshot.get("overrides") or {}, commits, root)
+    except (subprocess.CalledProcessError, OSError, ValueError) as err:
+        log.warning("warning: %s: its runs' configs cannot be recomposed (%s); no differences", entry["id"], err)
+        return {}
+    ppo, env = configs[0]["ppo"], configs[0]["env"]
+    phases = len(ppo.get("eval_phases") or []) or int(ppo.get("eval_episodes", 4))
+    steps = [s for r in snapshot["rows"] if r.get("steps") for s in r["steps"]]
+    measured_by_runs = entry["report"] in ("scratch", "residual")
+    runs = {"steps": steps, "seeds_per_motion": sorted({r["learned"]["n"] for r in snapshot["rows"] if r["learned"].get("n")}),
+            "protocols": [((phases, ppo.get("eval_steps")),
+                           (phases, ppo.get("eval_steps") / env.get("control_hz", 30)) if measured_by_runs else None)]}
+    extra = thesis_differences(entry, configs, [], runs)
+    if extra:
+        extra["differences_source"] = ("the run folders are gone: their configs recomposed from conf/ at their "
+                                       f"commits ({', '.join(sorted({c.rstrip('+') for c in commits}))}) "
+                                       "with their overrides")
+    return extra
 
 
 # --------------------------------------------------------------------------- the page
@@ -486,6 +569,8 @@ def _number(value: float | None, percent: bool) -> str:
 
 
 def _learned(learned: dict[str, Any], percent: bool) -> str:
+    if learned.get("cell"):  # a recognition row, rendered by aslexp.reports.results_recognition
+        return learned["cell"]
     if learned.get("mean") is None:
         return "pending (no trained run)"
     text = _number(learned["mean"], percent)
@@ -493,7 +578,8 @@ def _learned(learned: dict[str, Any], percent: bool) -> str:
     if learned.get("spread") is not None and not one_seed:
         text += f" ± {_number(learned['spread'], percent)}"
     model = f"{learned['model']}, " if learned.get("model") else ""
-    return f"{text} ({model}n={learned['n']})"
+    diverged = f"; {learned['diverged']} episode(s) diverged" if learned.get("diverged") else ""
+    return f"{text} ({model}n={learned['n']}{diverged})"
 
 
 def _baseline_cell(baseline: dict[str, Any] | None, percent: bool) -> str:
@@ -608,6 +694,10 @@ def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list
               f"(snapshot [docs/results/{entry['id']}.json](results/{entry['id']}.json))"]
     if differs or uncovered:
         lines.append(f"- **The runs differ from the command**: {'; '.join(differs + uncovered)}")
+    if snapshot.get("differences"):  # computed when the snapshot was made (aslexp.reports.differences)
+        source = f"; {snapshot['differences_source']}" if snapshot.get("differences_source") else ""
+        lines.append(f"- **Differences from the thesis' setting** (`{snapshot['differences_from']}` composed alone; "
+                     f"generated from the runs' configs{source}): " + "; ".join(snapshot["differences"]))
     if entry.get("note"):  # what the folders cannot say, e.g. a default changed since they ran
         lines.append(f"- **Note**: {entry['note']}")
     unrun = unrun_values(entry["command"], entry["overlay"], snapshot.get("overrides") or {})
@@ -623,6 +713,7 @@ def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list
     kinds = sorted({str(x.get("spread_kind")) for x in learned})
     what = (f"aslexp, {whats[0] if len(whats) == 1 else 'per row'} "
             f"(mean ± {kinds[0] if len(kinds) == 1 else 'spread: ' + '; '.join(kinds)})")
+    what = next((x["header"] for x in learned if x.get("header")), what)  # recognition: results_recognition
     header = [snapshot.get("row_name") or "", "thesis", *[f"{kind}: {label}" for kind, label in columns], f"**{what}**",
               *extras]
     has_steps = any(r.get("steps") for r in snapshot["rows"])
@@ -639,8 +730,50 @@ def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list
         lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
     quantity = snapshot.get("quantity") or ""
     lines += ["", f"Numbers: {quantity}{' in %' if percent else ''}; the thesis' in its own units.", ""]
+    lines += _seeds_above(snapshot, columns)
+    lines += _score_tables(snapshot, columns, percent)
     for figure in entry.get("figures") or []:  # drawn from the same run folders (its caption says how)
         lines += [f"![{figure['caption']}]({_relative_to_page(figure['path'])})", ""]
+    return lines
+
+
+def _seeds_above(snapshot: dict[str, Any], columns: list[tuple[str, str]]) -> list[str]:
+    """Per row and baseline, how many seeds' last evaluations end above it (k/n): which baselines
+    the learned policies pass, and which they fall below, seed by seed."""
+    rows = [r for r in snapshot["rows"] if (r.get("learned") or {}).get("values")]
+    if not rows or not columns:
+        return []
+    header = [snapshot.get("row_name") or "", *[f"{kind}: {label}" for kind, label in columns]]
+    lines = ["Seeds whose last evaluation ends above each baseline:", "",
+             "| " + " | ".join(_cell(h) for h in header) + " |", "|" + "---|" * len(header)]
+    for row in rows:
+        values = [v for v in row["learned"]["values"] if v is not None]
+        by_label = {(b["kind"], b["label"]): b for b in row["baselines"]}
+        cells = [row["label"]]
+        for column in columns:
+            base = (by_label.get(column) or {}).get("value")
+            cells.append("-" if base is None else f"{sum(v > base for v in values)}/{len(values)}")
+        lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
+    return lines + [""]
+
+
+def _score_tables(snapshot: dict[str, Any], columns: list[tuple[str, str]], percent: bool) -> list[str]:
+    """The same rows scored under each other reward the runs also scored (``report.score_rewards``:
+    the same episodes, e.g. under the authors' code weights beside Table 5.2)."""
+    names = list(dict.fromkeys(k for r in snapshot["rows"] for k in (r["learned"].get("scores") or {})))
+    lines = []
+    for name in names:
+        header = [snapshot.get("row_name") or "", *[f"{kind}: {label}" for kind, label in columns],
+                  f"**aslexp, last evaluation under `reward={name}` (mean ± std over seeds)**"]
+        lines += [f"The same episodes scored under `reward={name}`:", "",
+                  "| " + " | ".join(_cell(h) for h in header) + " |", "|" + "---|" * len(header)]
+        for row in snapshot["rows"]:
+            by_label = {(b["kind"], b["label"]): b for b in row["baselines"]}
+            score = (row["learned"].get("scores") or {}).get(name)
+            cells = [row["label"], *[_number((by_label.get(c) or {}).get("scores", {}).get(name), percent) for c in columns],
+                     f"**{_learned(score, percent)}**" if score else "-"]
+            lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
+        lines.append("")
     return lines
 
 
@@ -679,7 +812,7 @@ def render(catalogue: list[dict[str, Any]], snapshots: Path) -> str:
                      f"{_cell(_status(entry, snapshot))} |")
     lines.append("")
     for entry in catalogue:
-        lines += render_entry(entry, found[entry["id"]])
+        lines += results_recognition.render(entry, found[entry["id"]], render_entry)  # others: render_entry
     return "\n".join(lines).rstrip("\n") + "\n"
 
 

@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.reports.report import best_so_far, learned, mean_std, plot_curves, read_runs, run_config, write_table
+from aslexp.reports.report import _pyplot, best_so_far, learned, mean_std, read_runs, run_config, write_table
+from aslexp.files import naming_errors
 
 # Thesis Table 6.7 (THESIS.md 4.8): sign -> (Run 1 mean, std, Run 2 mean, std), 10 seeds, 50 M steps.
 THESIS_TABLE_6_7 = {"00433": (0.827, 0.020, 0.868, 0.007), "52861": (0.832, 0.022, 0.853, 0.017),
@@ -66,9 +67,64 @@ def motion_baselines(cfg: dict[str, Any], cache: Path) -> list[dict[str, Any]]:
     return rows
 
 
+def _marked(row: dict[str, Any]) -> float | str:
+    """A baseline's reward, with how its episodes ended where one ended early."""
+    ends = [end for end in ("diverged", "fell") if row.get(end)]
+    return round(row["reward"], 3) if not ends else f"{row['reward']:.3f} ({', '.join(ends)})"
+
+
 def baseline_column(row: dict[str, Any]) -> str:
     where = "reference" if row["lookahead"] == 0 else f"{row['lookahead']} step ahead"
     return f"{'aslexp: ' if row['aslexp'] else ''}{row['label']}, {where}"
+
+
+def plot_panels(runs: dict[str, list[dict[str, Any]]], lines: dict[str, dict[str, float]], path: Path,
+                title: str) -> Path:
+    """One panel per motion: the evaluation curve over seeds (mean ± std; a run's step-0 evaluation is
+    the untrained level, marked) and every named line (the thesis' number, each baseline) labelled."""
+    plt = _pyplot()
+    motions = sorted(runs)
+    columns = min(len(motions), 3)
+    rows = -(-len(motions) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.2 * rows), squeeze=False)
+    styles = ("--", ":", "-.", (0, (1, 3)), (0, (5, 2, 1, 2)), (0, (3, 1, 1, 1, 1, 1)), (0, (6, 2)))
+    for ax, motion in zip(axes.flat, motions):
+        curves = [[(p["step"], p["eval_reward"]) for p in m["progress"] if "eval_reward" in p] for m in runs[motion]]
+        curves = [c for c in curves if c]
+        if curves:
+            length = min(len(c) for c in curves)
+            steps = np.asarray([st for st, _ in curves[0][:length]], dtype=float)
+            values = np.asarray([[v for _, v in c[:length]] for c in curves], dtype=float)
+            mean, std = values.mean(0), values.std(0)
+            ax.plot(steps, mean, color="k", marker="o", ms=3, label=f"PPO evaluations, mean ± std (n={len(curves)} seeds)")
+            ax.fill_between(steps, mean - std, mean + std, color="k", alpha=0.15)
+            if steps[0] == 0:
+                ax.plot([0], [mean[0]], marker="s", ms=7, color="C3", ls="none", label="untrained policy")
+        for k, ((name, value), style) in enumerate(zip(lines.get(motion, {}).items(), styles)):
+            ax.axhline(value, color=f"C{k % 10}", ls=style, lw=1.2, label=name)
+        ax.set_ylim(0, 1.02)
+        ax.set_title(motion, fontsize=9)
+        ax.set_xlabel("environment steps", fontsize=8)
+        ax.set_ylabel("mean reward per step", fontsize=8)
+        ax.tick_params(labelsize=7)
+    # One legend for all panels (the same lines in each; their values are in the table), in a spare
+    # panel when there is one, else below the panels.
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    spare = list(axes.flat)[len(motions):]
+    for ax in spare:
+        ax.axis("off")
+    if spare:
+        spare[0].legend(handles, labels, fontsize=7, loc="center")
+        fig.suptitle(title, fontsize=9)
+        fig.tight_layout()
+    else:
+        fig.suptitle(title, fontsize=9)
+        fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=2)
+        fig.tight_layout(rect=(0, 0.06 + 0.035 * (len(labels) // 2), 1, 1))
+    with naming_errors(path):
+        fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
 
 
 def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -> dict[str, Any]:
@@ -81,16 +137,26 @@ def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -
     for motion, items in sorted(runs.items()):
         cfg = run_config(items[0]["run_dir"])
         kind = (cfg.get("report") or {}).get("thesis", "letters")
-        baselines = motion_baselines(cfg, out_dir / "baselines" / f"{motion}.json")
+        # Runs since session 19 measured their baselines under their own evaluation protocol (metrics.json
+        # report_baselines); older ones are simulated here, from phase 0, as they always were.
+        measured = next((m["report_baselines"] for m in items if m.get("report_baselines")), None)
+        baselines = measured if measured is not None else motion_baselines(cfg, out_dir / "baselines" / f"{motion}.json")
         all_baselines[motion] = baselines
         text, value = thesis_number(kind, motion)
         trained = [m for m in items if learned(m)]
         last = [m.get("last_eval") for m in trained]
         row = {"motion": f"{motion} ({GLOSSES[motion]})" if motion in GLOSSES else motion, "thesis": text,
-               **{baseline_column(b): round(b["reward"], 3) if not b["fell"] else f"{b['reward']:.3f} (fell)"
-                  for b in baselines},
+               **{baseline_column(b): _marked(b) for b in baselines},
                "learned, last evaluation": f"{mean_std(last)} (n={len(trained)})" if trained else "pending",
                "learned, best so far (secondary)": best_so_far(trained) if trained else "pending"}
+        for name in dict.fromkeys(k for m in trained for k in m.get("last_eval_scores") or {}):
+            values = [m["last_eval_scores"][name] for m in trained if name in (m.get("last_eval_scores") or {})]
+            row[f"learned, last evaluation under reward={name}"] = f"{mean_std(values)} (n={len(values)})"
+            row[f"strongest baseline under reward={name}"] = round(max(b["scores"][name] for b in baselines), 3) \
+                if baselines and all(name in (b.get("scores") or {}) for b in baselines) else "-"
+        diverged = [m.get("last_eval_diverged") for m in trained]
+        if any(diverged):
+            row["episodes diverged (last evaluations)"] = sum(int(d or 0) for d in diverged)
         if trained and baselines:
             strongest = max(baselines, key=lambda b: b["reward"])
             row["strongest baseline"] = baseline_column(strongest)
@@ -98,10 +164,11 @@ def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -
             row["seeds above every baseline"] = f"{sum(1 for v in last if v > strongest['reward'])}/{len(trained)}"
         rows.append(row)
         lines[motion] = {**({"thesis": value} if value is not None else {}),
-                         **({"strongest baseline": max(b["reward"] for b in baselines)} if baselines else {})}
+                         **{baseline_column(b): b["reward"] for b in baselines}}
     (out_dir / "thesis_baselines.json").write_text(json.dumps(all_baselines, indent=1))
-    plot_curves(runs, out_dir / "thesis_curves.png",
-                "last evaluations per motion (dotted: thesis, dashed: strongest no-learning baseline)", lines)
+    plot_panels(runs, lines, out_dir / "thesis_curves.png",
+                "evaluation reward over training (mean ± std over seeds; step 0: the untrained policy) "
+                "beside every no-learning baseline")
     table = write_table(rows, out_dir, "thesis_table")
     return {"rows": rows, "table": table}
 

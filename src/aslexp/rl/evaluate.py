@@ -50,6 +50,8 @@ class Evaluation:
     terms: dict[str, float]
     ended_early: bool
     trajectory: dict[str, np.ndarray] = field(default_factory=dict)
+    diverged: bool = False  # ended because the simulation blew up (a NaN action counts too): an error, not a score
+    scores: dict[str, float] = field(default_factory=dict)  # the env's score_rewards, as mean_reward
     phase: float = 0.0  # of the motion at the start
     # RMS of the actions over steps and values, each as (action - box centre) / box half-width: 0 is
     # the centre (for a residual action: no correction, the controller), 1 the box's edge. In the
@@ -68,6 +70,8 @@ class EvaluationSummary:
     terms: dict[str, float]  # per-term means over the episodes
     ended_early: int  # episodes that ended before their planned steps
     action_rms: float = float("nan")  # over every step of every episode (see Evaluation)
+    diverged: int = 0  # episodes whose simulation blew up (or got a NaN action): their numbers are not scores
+    scores: dict[str, float] = field(default_factory=dict)  # the env's score_rewards, means over the episodes
 
 
 def even_phases(count: int) -> tuple[float, ...]:
@@ -87,10 +91,10 @@ def evaluate(env: EvaluatedEnv, policy: Policy, steps: int | None = None, record
     """
     steps = steps or env.spec_env.episode_steps
     obs, _ = env.reset(options={"phase": float(phase)})
-    rewards, term_sums = [], {}
+    rewards, term_sums, score_sums = [], {}, {}
     traj: dict[str, list] = {"time": [], "q_sim": [], "q_ref": [], "qd_sim": [], "qd_ref": [], "reward": [],
                              "frames": []}
-    ended_early = False
+    ended_early = diverged = False
     centre, half = _action_box(env)
     squares = 0.0
     for k in range(steps):
@@ -102,6 +106,8 @@ def evaluate(env: EvaluatedEnv, policy: Policy, steps: int | None = None, record
         for name, value in info.items():
             if name.startswith("r_"):
                 term_sums[name[2:]] = term_sums.get(name[2:], 0.0) + value
+            elif name.startswith("score_"):
+                score_sums[name[6:]] = score_sums.get(name[6:], 0.0) + value
         if record:
             q, qd = env.sim.joint_state()
             traj["time"].append(env.time)
@@ -114,6 +120,7 @@ def evaluate(env: EvaluatedEnv, policy: Policy, steps: int | None = None, record
                 traj["frames"].append(env.render())
         if terminated:
             ended_early = True
+            diverged = bool(info.get("diverged") or info.get("nan_action"))
             break
     n = max(len(rewards), 1)
     trajectory = {k: np.asarray(v) for k, v in traj.items() if len(v)} if record else {}
@@ -121,6 +128,7 @@ def evaluate(env: EvaluatedEnv, policy: Policy, steps: int | None = None, record
         mean_reward=float(np.sum(rewards) / steps), steps=len(rewards),
         terms={k: v / n for k, v in term_sums.items()}, ended_early=ended_early, trajectory=trajectory,
         phase=float(phase), action_rms=math.sqrt(squares / n) if centre is not None else float("nan"),
+        diverged=diverged, scores={k: v / steps for k, v in score_sums.items()},
     )
 
 
@@ -146,7 +154,8 @@ def evaluate_phases(env: EvaluatedEnv, policy: Policy, steps: int | None = None,
         mean_reward=float(np.mean(rewards)), std=float(np.std(rewards)), rewards=rewards,
         phases=tuple(float(p) for p in phases),
         terms={k: float(np.mean([e.terms[k] for e in episodes if k in e.terms])) for k in names},
-        ended_early=sum(e.ended_early for e in episodes),
+        ended_early=sum(e.ended_early for e in episodes), diverged=sum(e.diverged for e in episodes),
+        scores={k: float(np.mean([e.scores.get(k, 0.0) for e in episodes])) for k in episodes[0].scores},
         action_rms=math.sqrt(sum(e.action_rms ** 2 * e.steps for e in episodes)
                              / max(sum(e.steps for e in episodes), 1)),
     )

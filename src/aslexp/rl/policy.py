@@ -1,8 +1,12 @@
 """The agent's model: observation normaliser, Gaussian MLP actor, MLP critic (torchrl modules).
 
-The actor acts in a normalised action space: the environment action is
-``center + half_range * a`` with ``a ~ Normal(mlp(obs), exp(log_std))`` and a state-independent,
-learned log standard deviation (as in the thesis' Stable-Baselines3 policy). Observations are
+The actor samples ``a ~ Normal(mlp(obs), exp(log_std))`` with a state-independent, learned log
+standard deviation (as in the thesis' Stable-Baselines3 policy), and ``action_mapping`` turns it into
+the environment's action: ``box`` (aslexp's) maps the unit Gaussian affinely onto the action box,
+``center + half_range * a`` (a fresh policy's targets sit at the box's centre, ~1 rad for the hand's
+joints); ``sb3`` does what SB3 1.6 does with a Box action space, the authors' library: ``a`` is in
+the action's own units and clipped to the box (a fresh policy's targets sit near 0: an open hand).
+The log-probability is always the unclipped sample's, as in SB3. Observations are
 normalised by running statistics held in the agent (the learner), updated from each rollout's
 observations of all environments at once: merging per-worker statistics would give the same
 mean and variance (the parallel-variance update is exact); rollout workers receive them, frozen
@@ -20,6 +24,7 @@ from torch import nn
 from torchrl.modules import IndependentNormal, ProbabilisticActor, ValueOperator
 
 ACTIVATIONS = {"relu": nn.ReLU, "tanh": nn.Tanh, "elu": nn.ELU}
+ACTION_MAPPINGS = ("box", "sb3")
 
 
 class RunningNormalizer(nn.Module):
@@ -92,6 +97,7 @@ class ModelSpec:
     log_std_init: float = -3.0
     # The actor's own hidden sizes (None: hidden_sizes; (): a linear policy, the critic keeps its MLP).
     actor_hidden_sizes: tuple[int, ...] | None = None
+    action_mapping: str = "box"  # box (aslexp: affine onto the box) | sb3 (SB3 1.6: raw units, clipped)
 
 
 class Agent(nn.Module):
@@ -112,6 +118,8 @@ class Agent(nn.Module):
         )
         self.critic = ValueOperator(mlp(obs_size, hidden, 1, spec.activation, spec.ortho_init, 1.0),
                                     in_keys=["observation"])
+        if spec.action_mapping not in ACTION_MAPPINGS:
+            raise ValueError(f"ppo config: action_mapping must be one of {ACTION_MAPPINGS}, got {spec.action_mapping!r}")
         self.register_buffer("action_center", torch.as_tensor(action_center, dtype=torch.float32))
         self.register_buffer("action_half_range", torch.as_tensor(action_half_range, dtype=torch.float32))
 
@@ -124,8 +132,12 @@ class Agent(nn.Module):
     def device(self) -> torch.device:
         return self.action_center.device
 
-    def to_env_action(self, normalised: torch.Tensor) -> torch.Tensor:
-        return self.action_center + self.action_half_range * normalised
+    def to_env_action(self, sample: torch.Tensor) -> torch.Tensor:
+        """The environment's action for a policy sample (module docstring: ``action_mapping``)."""
+        if self.spec.action_mapping == "sb3":
+            return torch.clamp(sample, self.action_center - self.action_half_range,
+                               self.action_center + self.action_half_range)
+        return self.action_center + self.action_half_range * sample
 
     @torch.no_grad()
     def act(self, obs: np.ndarray, deterministic: bool = True) -> np.ndarray:

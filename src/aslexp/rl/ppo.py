@@ -69,6 +69,9 @@ class PPOConfig:
     name: str = "custom"
     hidden_sizes: tuple[int, ...] = (1024, 1024)
     actor_hidden_sizes: tuple[int, ...] | None = None  # None: hidden_sizes; []: a linear policy
+    # How a policy sample becomes the env's action (aslexp.rl.policy): box (aslexp's, affine onto the
+    # action box) | sb3 (SB3 1.6, the authors' library: the sample in the action's units, clipped).
+    action_mapping: str = "box"
     activation: str = "relu"
     learning_rate: float = 3e-4
     # Linear schedules over total_steps, set before each rollout (None: constant learning rate; a
@@ -104,6 +107,9 @@ class PPOConfig:
     eval_episodes: int = 4  # deterministic episodes per evaluation, from phases 0, 1/n, 2/n, ...
     eval_phases: tuple[float, ...] | None = None  # explicit start phases (then eval_episodes is unused)
     eval_last_k: int = 1  # the headline last_eval is the mean of the last k evaluations
+    # Evaluate the untrained policy before the first update (a curve's step 0: the level learning
+    # starts from); never part of last_eval or best_eval.
+    eval_at_start: bool = False
     max_minutes: float | None = None
     target_reward: float | None = None  # stop once the headline evaluation reward exceeds this
     # Environment steps during which only the critic learns: a policy that starts near a good
@@ -160,7 +166,7 @@ class PPOConfig:
     @property
     def model(self) -> ModelSpec:
         return ModelSpec(self.hidden_sizes, self.activation, self.ortho_init, self.log_std_init,
-                         self.actor_hidden_sizes)
+                         self.actor_hidden_sizes, self.action_mapping)
 
     def scheduled(self, steps: int) -> tuple[float, float | None]:
         """(learning rate, log-std or None: learned) at ``steps`` environment steps."""
@@ -576,9 +582,19 @@ class PPOTrainer:
         self._eval_agent.load_state_dict(self.agent.state_dict())
         return self._eval_agent
 
+    @staticmethod
+    def _evaluation_row(summary: EvaluationSummary) -> dict[str, Any]:
+        return {"eval_reward": round(summary.mean_reward, 5), "eval_reward_std": round(summary.std, 5),
+                "eval_reward_min": round(min(summary.rewards), 5), "eval_action_rms": round(summary.action_rms, 5),
+                # episodes that blew up: never a score (the results page marks them)
+                "eval_diverged": int(summary.diverged),
+                **{f"eval_score_{k}": round(v, 5) for k, v in summary.scores.items()},
+                **{f"eval_{k}": round(v, 5) for k, v in summary.terms.items()}}
+
     def last_eval(self) -> float:
         """The headline: mean of the last ``eval_last_k`` evaluations (NaN before the first)."""
-        values = [h["eval_reward"] for h in self.history if "eval_reward" in h][-self.config.eval_last_k:]
+        values = [h["eval_reward"] for h in self.history
+                  if "eval_reward" in h and h["step"] > 0][-self.config.eval_last_k:]
         return float(np.mean(values)) if values else float("nan")
 
     # -- the loop ---------------------------------------------------------------------------
@@ -591,6 +607,11 @@ class PPOTrainer:
         log.info("PPO %s: %d environment(s) (%s), %d steps per update, learner on %s, rollout on %s",
                  cfg.name, self.num_envs, self.mode, cfg.batch_size,
                  self.device, self.rollout_agent.device)
+        if cfg.eval_at_start and self.steps == 0 and self.eval_env is not None and not self.history:
+            row = {"step": 0, "seconds": 0.0, **self._evaluation_row(self.evaluate())}
+            self.history.append(row)
+            csv_file.append(row)
+            log.info("untrained policy: eval %.4f", row["eval_reward"])
         while self.steps < cfg.total_steps:
             scheduled = self.apply_schedules()
             t0 = time.perf_counter()
@@ -618,11 +639,7 @@ class PPOTrainer:
                                                        or time_up)
             if evaluated:
                 next_eval = (self.steps // cfg.eval_interval + 1) * cfg.eval_interval
-                summary = self.evaluate()
-                row.update({"eval_reward": round(summary.mean_reward, 5), "eval_reward_std": round(summary.std, 5),
-                            "eval_reward_min": round(min(summary.rewards), 5),
-                            "eval_action_rms": round(summary.action_rms, 5),
-                            **{f"eval_{k}": round(v, 5) for k, v in summary.terms.items()}})
+                row.update(self._evaluation_row(self.evaluate()))
             self.history.append(row)
             if evaluated:
                 self.elapsed = elapsed

@@ -31,6 +31,12 @@ class EngineSpec:
     motor_gain_scale: float = 2.0
     # MuJoCo: threads stepping a batch of environments (0: every core this process may use).
     threads: int = 0
+    # MuJoCo: every generalised velocity (the joints' and a free base's six) clamped to +-this after
+    # each physics step, and the step's positions integrated with the clamped velocity: PyBullet's
+    # btMultiBody does exactly this whenever it applies a velocity change (maxJointVelocity, 100 rad/s
+    # by default, which aslexp never changes), so both engines share one joint-speed semantics.
+    # null: MuJoCo's own, no clamp (a transient PyBullet cannot produce, e.g. at a looping motion's seam).
+    joint_speed_limit: float | None = 100.0
 
     @classmethod
     def from_dict(cls, values: dict[str, Any] | None) -> "EngineSpec":
@@ -49,6 +55,9 @@ class EngineSpec:
         scale = spec.motor_gain_scale
         if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
             raise ValueError(f"engine config: motor_gain_scale must be a number > 0, got {scale!r}")
+        limit = spec.joint_speed_limit
+        if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, float)) or not limit > 0):
+            raise ValueError(f"engine config: joint_speed_limit must be a number > 0 (rad/s) or null, got {limit!r}")
         for key in ("iterations", "threads"):
             value = getattr(spec, key)
             if isinstance(value, bool) or not isinstance(value, int) or value < (1 if key == "iterations" else 0):

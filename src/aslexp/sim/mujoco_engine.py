@@ -213,6 +213,7 @@ class MujocoBody:
         self._data = mujoco.MjData(m)
         self.set_gains(controller)
         self._runner = None
+        self.clamped_steps = 0  # physics steps of one environment where the joint-speed clamp acted
 
     # -- control ------------------------------------------------------------------------------------
     def set_gains(self, controller) -> None:
@@ -225,13 +226,15 @@ class MujocoBody:
             dt = m.opt.timestep
             spec = controller.spec
             groups = spec.mujoco_groups or spec.groups
-            physical = spec.mode == "stable_pd" or bool(spec.mujoco_groups)
             inertia = self.joint_inertia()
             i = 0
             for joint in self.layout.joints:
                 gains = groups.get(joint.group, groups.get("default"))
                 if gains is None:
                     raise ValueError(f"controller {spec.name}: no gains for joint group {joint.group!r} and no `default`")
+                # Per group: stable-PD groups (the group's `mode`, else the controller's) and every
+                # mujoco_groups entry carry physical gains; position groups get the motor's stand-in.
+                physical = bool(spec.mujoco_groups) or spec.mode_of(gains) == "stable_pd"
                 for k in range(1 if joint.dof == 1 else 3):
                     if physical:  # stable PD: kp (q* - q - dt qd) + kd (qd* - qd)
                         kp[i], kv[i], kv_target[i] = gains.kp, gains.kd + gains.kp * dt, gains.kd
@@ -383,8 +386,41 @@ class MujocoBody:
                        state=out, sensordata=sensordata, skip_checks=True)
         if sensors:
             return sensordata[:, 0].copy()
+        limit = self.engine.joint_speed_limit
+        if limit is not None:
+            # The fast path checks every substep of the whole batch at once; only an environment
+            # that passed the limit somewhere is stepped again, one substep at a time, clamped.
+            fast = np.abs(out[:, :, self.slices["qvel"]]) > limit
+            for row in np.flatnonzero(fast.any(axis=(1, 2))):
+                out[row, -1] = self._clamped_steps(model, initial[row], inputs[row], nstep, float(limit))
         states[:, :self.physics_size] = out[:, -1]
         return states
+
+    def _clamped_steps(self, model, initial: np.ndarray, inputs: np.ndarray, nstep: int, limit: float) -> np.ndarray:
+        """One environment's ``nstep`` physics steps with PyBullet's joint-speed clamp: after each
+        step every generalised velocity is clipped to +-``limit`` and the positions are integrated
+        from the step's start with the clipped velocity (btMultiBody clamps the velocity before it
+        steps the positions). Returns the final physics state."""
+        mujoco, qpos, qvel = self.mujoco, self.slices["qpos"], self.slices["qvel"]
+        runner = self._single
+        data = self._datas[id(model)][:1]
+        state = initial[None].copy()
+        control = np.ascontiguousarray(inputs[None, None, :])
+        step = np.empty((1, 1, self.physics_size))
+        dt = float(model.opt.timestep)
+        for _ in range(nstep):
+            runner.rollout([model], data, state, control, control_spec=self.control_spec, nstep=1, state=step,
+                           skip_checks=True)
+            new = step[0, 0].copy()
+            velocity = new[qvel]
+            if np.any(np.abs(velocity) > limit):
+                self.clamped_steps += 1
+                clipped = np.clip(velocity, -limit, limit)
+                position = state[0, qpos].copy()
+                mujoco.mj_integratePos(model, position, clipped, dt)
+                new[qpos], new[qvel] = position, clipped
+            state[0] = new
+        return state[0]
 
     def contacts(self, state: np.ndarray) -> set[int]:
         """Link indices (-1: the root) touching the ground in one state."""

@@ -5,12 +5,19 @@ Two modes (``mode`` in ``conf/controller/*.yaml``):
   constraint, ``kp * (q* - q) + kd * (qd* - qd)`` limited by ``max_force``; its gains are
   dimensionless (the thesis' hand: kp 0.22, kd 0.87). The motor persists across physics steps.
 * ``stable_pd``: PyBullet's STABLE_PD_CONTROL (Tan et al.'s stable PD: torques from physical
-  gains, N m/rad and N m s/rad, computed implicitly over the next step), the authors' upper-body
-  controller. Two PyBullet 3.2.7 facts shape it: the command is cleared after every physics step,
+  gains, N m/rad and N m s/rad, computed implicitly over the next step), the upper-body controller
+  of the authors' code (THESIS.md 10.1; the thesis text's for the body joints only). Two PyBullet
+  3.2.7 facts shape it: the command is cleared after every physics step,
   so :meth:`PDController.drive` re-sends it before each substep (sent once per 30 Hz control step
   the joints would be driven 1 substep in 8); and on a fixed-base body the server reads each
   joint's state 7 slots off, so the body must be loaded with a free base, pinned or standing
   (``body.base: pinned | free``; a fixed base is refused).
+
+A joint group may carry its own ``mode`` (``groups: {fingers: {kp: 0.22, kd: 0.87, mode: position}}``;
+absent or null: the controller's ``mode``): the thesis' upper body drives its body joints with stable
+PD and its hands with the chapter-5 hand's position motor (conf/controller/upper_body_thesis.yaml).
+:meth:`PDController.apply` then sends one PyBullet motor call per mode with that mode's joints; the
+stable-PD rules above (re-sent every substep, no fixed base) hold as soon as one joint is stable PD.
 
 Two agent-side options shape the targets the environment gives the motors (defaults: the thesis
 controller): ``target_velocity: reference`` feeds the reference joint velocity (times
@@ -36,11 +43,33 @@ TARGET_VELOCITIES = ("zero", "reference")
 TARGET_RATES = ("control", "physics")
 
 
+GAIN_KEYS = ("kp", "kd", "max_force", "mode")
+
+
 @dataclass(frozen=True)
 class Gains:
     kp: float
     kd: float
     max_force: float = 100.0
+    mode: str | None = None  # position | stable_pd; None: the controller's mode
+
+    @classmethod
+    def from_dict(cls, values: dict[str, Any], where: str, allow_mode: bool = True) -> "Gains":
+        if not isinstance(values, dict):
+            raise ValueError(f"controller config: {where} must be a mapping of {GAIN_KEYS}, got {values!r}")
+        keys = GAIN_KEYS if allow_mode else GAIN_KEYS[:3]
+        unknown = set(values) - set(keys)
+        if unknown:
+            extra = " (mujoco_groups are physical gains: no mode)" if "mode" in unknown and not allow_mode else ""
+            raise ValueError(f"controller config: {where}: unknown keys {sorted(unknown)}{extra}")
+        missing = {"kp", "kd"} - set(values)
+        if missing:
+            raise ValueError(f"controller config: {where}: missing {sorted(missing)}")
+        mode = values.get("mode")
+        if mode is not None and mode not in MODES:
+            raise ValueError(f"controller config: {where}: mode must be one of {MODES} or null, got {mode!r}")
+        return cls(kp=float(values["kp"]), kd=float(values["kd"]),
+                   max_force=float(values.get("max_force", 100.0)), mode=mode)
 
 
 @dataclass(frozen=True)
@@ -57,6 +86,10 @@ class ControllerSpec:
     # physical for stable_pd, translated from PyBullet's motor for position: sim/mujoco_engine.py)
     mujoco_groups: dict[str, Gains] | None = None
 
+    def mode_of(self, gains: Gains) -> str:
+        """The mode a group's gains are applied with: its own ``mode``, else the controller's."""
+        return gains.mode or self.mode
+
     @property
     def is_thesis_pd(self) -> bool:
         """True when the targets are the thesis' (held positions, zero velocity)."""
@@ -71,7 +104,8 @@ class ControllerSpec:
         mode = values.get("mode", "position")
         if mode not in MODES:
             raise ValueError(f"controller config: mode must be one of {MODES}, got {mode!r}")
-        groups = {name: Gains(**gains) for name, gains in (values.get("groups") or {}).items()}
+        groups = {name: Gains.from_dict(gains, f"groups.{name}")
+                  for name, gains in (values.get("groups") or {}).items()}
         if not groups:
             raise ValueError("controller config: `groups` must give gains for at least `default`")
         target_velocity = values.get("target_velocity", "zero")
@@ -83,7 +117,8 @@ class ControllerSpec:
             raise ValueError(f"controller config: target_rate must be one of {TARGET_RATES}, got {target_rate!r}")
         mujoco_groups = values.get("mujoco_groups")
         if mujoco_groups is not None:
-            mujoco_groups = {name: Gains(**gains) for name, gains in mujoco_groups.items()}
+            mujoco_groups = {name: Gains.from_dict(gains, f"mujoco_groups.{name}", allow_mode=False)
+                             for name, gains in mujoco_groups.items()}
         return cls(name=values.get("name", "custom"), mode=mode, groups=groups, target_velocity=target_velocity,
                    velocity_scale=float(values.get("velocity_scale", 1.0)), target_rate=target_rate,
                    mujoco_groups=mujoco_groups or None)
@@ -106,26 +141,44 @@ class PDController:
         self.kp = [g.kp for g in per_joint]
         self.kd = [g.kd for g in per_joint]
         self.max_force = [g.max_force for g in per_joint]
-        self.commands_sent = 0  # motor commands given to PyBullet (a test counts them per substep)
+        self.modes = [spec.mode_of(g) for g in per_joint]  # per joint: position | stable_pd
+        # Per mode, in layout order: the joints (layout positions) and where each one's target and
+        # target velocity start in the motion-layout vectors.
+        self._by_mode: dict[str, list[int]] = {}
+        for k, mode in enumerate(self.modes):
+            self._by_mode.setdefault(mode, []).append(k)
+        self._offsets, self._voffsets = [], []
+        offset = voffset = 0
+        for joint in layout.joints:
+            self._offsets.append(offset)
+            self._voffsets.append(voffset)
+            offset += joint.dof
+            voffset += 1 if joint.dof == 1 else 3
+        self.commands_sent = 0  # apply() calls: motor commands given (a test counts them per substep)
+        self.motor_calls = {mode: 0 for mode in MODES}  # PyBullet motor calls per mode
 
     @property
     def resend_every_substep(self) -> bool:
-        """True for stable PD, whose command PyBullet clears after each physics step."""
-        return self.spec.mode == "stable_pd"
+        """True when a joint is stable PD, whose command PyBullet clears after each physics step."""
+        return "stable_pd" in self._by_mode
 
     def check_body(self, character: Character) -> None:
         """Refuse stable PD on a fixed-base body (PyBullet 3.2.7 misreads its joint states)."""
         if getattr(character, "engine", "pybullet") == "mujoco":
             return  # MuJoCo reads every base right
-        if self.spec.mode == "stable_pd" and character.base == "fixed":
+        if "stable_pd" in self._by_mode and character.base == "fixed":
+            groups = sorted({self.layout.joints[k].group for k in self._by_mode["stable_pd"]})
             raise ValueError(
                 f"controller {self.spec.name}: stable PD needs a free base (body.base=pinned or free); "
-                f"on a fixed base PyBullet 3.2.7 reads the joint states 7 slots off (body {character.spec.name})")
+                f"on a fixed base PyBullet 3.2.7 reads the joint states 7 slots off (body {character.spec.name}, "
+                f"stable-PD groups {groups})")
 
     def drive(self, character: Character, targets: np.ndarray, target_velocities: np.ndarray | None,
               substeps: int) -> None:
         """Hold ``targets`` for ``substeps`` physics steps: a position motor is set once, a stable-PD
-        command is re-sent before every step (a MuJoCo actuator holds its input: set once)."""
+        command is re-sent before every step (a MuJoCo actuator holds its input: set once). A mixed
+        controller re-sends both: the position motors' command is the same, so sending it again
+        changes nothing."""
         if not self.resend_every_substep or getattr(character, "engine", "pybullet") == "mujoco":
             self.apply(character, targets, target_velocities)
             character.world.step(substeps)
@@ -136,41 +189,45 @@ class PDController:
 
     def apply(self, character: Character, targets: np.ndarray,
               target_velocities: np.ndarray | None = None) -> None:
-        """Drive ``character`` towards ``targets`` (motion-layout joint vector) until the next call."""
+        """Drive ``character`` towards ``targets`` (motion-layout joint vector) until the next call:
+        one PyBullet motor call per mode, with that mode's joints."""
         self.commands_sent += 1
         if getattr(character, "engine", "pybullet") == "mujoco":
             character.set_targets(self, np.asarray(targets, dtype=np.float64), target_velocities)
             return
         pb = character.world.client
-        mode = pb.POSITION_CONTROL if self.spec.mode == "position" else pb.STABLE_PD_CONTROL
-        if self.layout.all_revolute and mode == pb.POSITION_CONTROL:
-            velocities = [0.0] * len(targets) if target_velocities is None else list(target_velocities)
-            pb.setJointMotorControlArray(
-                character.id, character.joint_indices, pb.POSITION_CONTROL,
-                targetPositions=[float(t) for t in targets], targetVelocities=velocities,
-                forces=self.max_force, positionGains=self.kp, velocityGains=self.kd,
+        for mode, joints in self._by_mode.items():
+            self.motor_calls[mode] += 1
+            ids = [character.joint_indices[k] for k in joints]
+            kp = [self.kp[k] for k in joints]
+            kd = [self.kd[k] for k in joints]
+            if mode == "position" and all(self.layout.joints[k].dof == 1 for k in joints):
+                pb.setJointMotorControlArray(
+                    character.id, ids, pb.POSITION_CONTROL,
+                    targetPositions=[float(targets[self._offsets[k]]) for k in joints],
+                    targetVelocities=[0.0 if target_velocities is None else float(target_velocities[self._voffsets[k]])
+                                      for k in joints],
+                    forces=[self.max_force[k] for k in joints], positionGains=kp, velocityGains=kd,
+                )
+                continue
+            positions, velocities, forces = [], [], []
+            for k in joints:
+                joint, offset, voffset = self.layout.joints[k], self._offsets[k], self._voffsets[k]
+                if joint.dof == 1:
+                    positions.append([float(targets[offset])])
+                    velocities.append([0.0 if target_velocities is None else float(target_velocities[voffset])])
+                    forces.append([self.max_force[k]])
+                else:
+                    w, x, y, z = targets[offset:offset + 4]
+                    norm = math.sqrt(w * w + x * x + y * y + z * z)
+                    if norm < 1e-6:  # a policy's zero quaternion: hold the identity rotation
+                        w, x, y, z, norm = 1.0, 0.0, 0.0, 0.0, 1.0
+                    positions.append([float(x / norm), float(y / norm), float(z / norm), float(w / norm)])
+                    velocities.append([0.0, 0.0, 0.0] if target_velocities is None
+                                      else [float(v) for v in target_velocities[voffset:voffset + 3]])
+                    forces.append([self.max_force[k]] * 3)
+            pb.setJointMotorControlMultiDofArray(
+                character.id, ids, pb.POSITION_CONTROL if mode == "position" else pb.STABLE_PD_CONTROL,
+                targetPositions=positions, targetVelocities=velocities, forces=forces,
+                positionGains=kp, velocityGains=kd,
             )
-            return
-        positions, velocities, forces = [], [], []
-        offset = voffset = 0
-        for k, joint in enumerate(self.layout.joints):
-            if joint.dof == 1:
-                positions.append([float(targets[offset])])
-                velocities.append([0.0 if target_velocities is None else float(target_velocities[voffset])])
-                forces.append([self.max_force[k]])
-                offset, voffset = offset + 1, voffset + 1
-            else:
-                w, x, y, z = targets[offset:offset + 4]
-                norm = math.sqrt(w * w + x * x + y * y + z * z)
-                if norm < 1e-6:  # a policy's zero quaternion: hold the identity rotation
-                    w, x, y, z, norm = 1.0, 0.0, 0.0, 0.0, 1.0
-                positions.append([float(x / norm), float(y / norm), float(z / norm), float(w / norm)])
-                velocities.append([0.0, 0.0, 0.0] if target_velocities is None
-                                  else [float(v) for v in target_velocities[voffset:voffset + 3]])
-                forces.append([self.max_force[k]] * 3)
-                offset, voffset = offset + 4, voffset + 3
-        pb.setJointMotorControlMultiDofArray(
-            character.id, character.joint_indices, mode,
-            targetPositions=positions, targetVelocities=velocities, forces=forces,
-            positionGains=self.kp, velocityGains=self.kd,
-        )

@@ -1,6 +1,7 @@
 """`aslexp report RUN_OR_SWEEP_DIR... [--out DIR]`: recognition runs -> tables, comparisons, agreement.
-`aslexp report --results [--outputs DIR] [--render-only]`: the results page, docs/results.md
-(aslexp.reports.results_page: one table per result of conf/results.yaml, from snapshots made of run folders).
+`aslexp report --results [--outputs DIR] [--render-only] [--add-test-clips]`: the results page, docs/results.md
+(aslexp.reports.results_page: one table per result of conf/results.yaml, from snapshots made of run folders;
+recognition rows carry their test clips and intervals, aslexp.reports.results_recognition).
 
 Reads only run directories (run.json + metrics.json + predictions.csv) and writes, per keypoint
 layout and lexicon (a suffix names the group when a folder holds more than one):
@@ -594,6 +595,7 @@ def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any
     validation accuracy, and the strongest simple baseline (the best of rf, hgb, logreg and svm by
     validation). Test numbers never choose."""
     from aslexp.recognition.report import FEATURE_BASELINES, unit_values
+    from aslexp.reports import results_recognition
 
     options = entry.get("options") or {}
     metric, spread = options.get("metric", "mcc"), options.get("spread", "ci95")
@@ -625,11 +627,14 @@ def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any
             baselines.append({"label": "strongest simple baseline (by validation)", "kind": "simple",
                               "name": strongest["classifier"],
                               "value": _spread(unit_values(strongest["metrics"], metric), spread, unit)[0]})
+        # the test clips, the interval that holds at that size, the majority class's value, the data's facts
+        facts = results_recognition.run_fields(best, metric, mean, unit_values(metrics, metric))
         rows.append({"key": f"{split}/{prop}", "label": f"{split}, {prop}", "thesis": None, "baselines": baselines,
                      "learned": {"what": f"test {metric} of the model chosen by validation", "mean": mean,
                                  "spread": width, "spread_kind": kind, "n": len(unit_values(metrics, metric)),
-                                 "unit": f"{unit}s", "model": best["classifier"], "models_compared": len(candidates)},
-                     "steps": None})
+                                 "unit": f"{unit}s", "model": best["classifier"], "models_compared": len(candidates),
+                                 **facts["learned"]},
+                     "steps": None, **facts["row"]})
     return {"rows": rows, "run_dirs": [r["dir"] for r in runs], "skipped": skipped, "quantity": f"test {metric}",
             "row_name": "split, property"}
 
@@ -649,6 +654,8 @@ def results_per_class_summary(entry: dict[str, Any], folders: list[Path]) -> dic
     """The results page's rows of one model on one property per split (``report: recognition_per_class``,
     Table 4.4's layout): per class the thesis' A = TP_c / N_test, precision and recall on the test
     set, mean over the units (splits, else model seeds) ± ``options.spread``."""
+    from aslexp.reports import results_recognition
+
     options = entry.get("options") or {}
     runs, _, skipped = find_runs(folders)
     runs = _selected(runs, options.get("select"))
@@ -657,6 +664,7 @@ def results_per_class_summary(entry: dict[str, Any], folders: list[Path]) -> dic
                                                                str(r["classifier"]))):
         metrics = run["metrics"]
         unit = metrics.get("statistics_unit", "seed")
+        sizes = results_recognition.run_sizes(metrics)
         units: dict[Any, list[dict[str, Any]]] = defaultdict(list)
         for index, test in enumerate(metrics.get("test_per_seed") or []):
             units[test.get("split") if unit == "split" else index].append(test)
@@ -666,6 +674,7 @@ def results_per_class_summary(entry: dict[str, Any], folders: list[Path]) -> dic
 
             mean, width, kind = _spread(values("thesis_a"), options.get("spread", "ci95"), unit)
             rows.append({"key": f"{run['split']}/{label}", "label": f"{run['split']}, {label}", "thesis": None,
+                         "n_test": sizes["n_test"], "n_all": sizes["n_all"], "n_test_source": sizes["n_test_source"],
                          "baselines": [],
                          "learned": {"what": f"per-class A = TP_c / N_test, {run['classifier']} on {run['property']}",
                                      "mean": mean, "spread": width, "spread_kind": kind, "n": len(values("thesis_a")),
@@ -675,6 +684,28 @@ def results_per_class_summary(entry: dict[str, Any], folders: list[Path]) -> dic
                          "steps": None})
     return {"rows": rows, "run_dirs": [r["dir"] for r in runs], "skipped": skipped,
             "quantity": "per-class test numbers", "row_name": "split, class"}
+
+
+def add_test_clips_to_snapshots(catalogue_path: str | Path, snapshots: str | Path) -> dict[str, str]:
+    """:func:`add_test_clips` on every ``report: recognition`` snapshot whose rows lack ``n_test``
+    (written back); id -> what happened."""
+    from aslexp.reports.results_page import load_catalogue, read_snapshot, snapshot_path, write_snapshot
+    from aslexp.reports.results_recognition import add_test_clips
+
+    done = {}
+    for entry in load_catalogue(catalogue_path):
+        if entry["report"] != "recognition":
+            continue
+        path = snapshot_path(Path(snapshots), entry["id"])
+        snapshot = read_snapshot(path)
+        if snapshot is None:
+            continue
+        if all("n_test" in row for row in snapshot["rows"]):
+            done[entry["id"]] = "has its test clips"
+            continue
+        write_snapshot(path, add_test_clips(entry, snapshot))
+        done[entry["id"]] = "test clips added (the split recomputed from the data)"
+    return done
 
 
 RESULTS_SUMMARIES = {"recognition": results_summary, "recognition_per_class": results_per_class_summary}
@@ -687,6 +718,9 @@ def results_main(args: argparse.Namespace) -> int:
     if not args.catalogue.is_file():
         print(f"aslexp report: {args.catalogue}: no such file", file=sys.stderr)
         return 2
+    if args.add_test_clips:
+        for entry_id, what in add_test_clips_to_snapshots(args.catalogue, args.snapshots).items():
+            print(f"{entry_id}: {what}")
     result = results_page.write_results(args.catalogue, args.outputs, args.snapshots, args.page,
                                         RESULTS_SUMMARIES, render_only=args.render_only)
     for entry_id, what in result["entries"].items():
@@ -707,6 +741,9 @@ def report_main(argv: list[str]) -> int:
                       help="summarise every result of the catalogue whose run folders are under --outputs into "
                            "its snapshot (docs/results/<id>.json; others keep theirs) and render the page")
     page.add_argument("--render-only", action="store_true", help="with --results: render the page from the snapshots")
+    page.add_argument("--add-test-clips", action="store_true",
+                      help="with --results: first add the test clips (the split recomputed from the data), intervals "
+                           "and majority values to the recognition snapshots that lack them (run folders gone)")
     page.add_argument("--outputs", type=Path, default=Path("outputs"),
                       help="where the run folders are (default: outputs)")
     page.add_argument("--catalogue", type=Path, default=results_page.CATALOGUE, help="default: conf/results.yaml")
@@ -718,8 +755,8 @@ def report_main(argv: list[str]) -> int:
         if args.paths:
             parser.error("--results reads the catalogue's folders: give no paths")
         return results_main(args)
-    if args.render_only:
-        parser.error("--render-only goes with --results")
+    if args.render_only or args.add_test_clips:
+        parser.error("--render-only and --add-test-clips go with --results")
     if not args.paths:
         parser.error("give run or sweep directories, or --results")
     missing = [path for path in args.paths if not path.exists()]
