@@ -126,6 +126,14 @@ def _extract_has_shard() -> bool:
 def test_extraction_as_an_array_job_one_shard_per_task_resumable(tmp_path):
     """`aslexp extract --shard I/N`: task I of N takes the videos whose sorted index is I mod N,
     into one output folder and cache; submitting the array again recomputes nothing."""
+    from aslexp.pose.extract import ExtractionError, mediapipe_python
+
+    try:  # the array's tasks run MediaPipe: without its environment they fail, which tests nothing here
+        mediapipe_python()
+    except ExtractionError as err:
+        if os.environ.get("CI"):
+            raise
+        pytest.skip(str(err))
     videos = tmp_path / "videos"
     videos.mkdir()
     for name in ("63185.mp4", "70212.mp4", "68011.mp4"):  # the three shortest clips
