@@ -133,9 +133,11 @@ class BatchedImitationEnv(VectorEnv):
         ref_q, ref_qd, *ref_root = self.reference.state_many(self.time)
         sim_frames, sim_tips, ref_tips = self._read(slice(None), reference=ref_q)
         q, qd = self.body.joints(self.states)
-        # not finite, or a joint faster than max_joint_velocity (NaN compares False: caught by the first)
+        # not finite, or a joint faster than max_joint_velocity (NaN compares False: caught by the first,
+        # or by the ~(<=) of the speed)
         diverged = ~np.isfinite(sim_frames.reshape(n, -1).sum(axis=1) + qd.sum(axis=1))
-        diverged |= np.max(np.abs(qd), axis=1) > self.spec_env.max_joint_velocity
+        # the speed before the joint-speed clamp (mujoco_engine: peak_speeds), so the clamp hides no blow-up
+        diverged |= ~(np.maximum(np.max(np.abs(qd), axis=1), self.body.peak_speeds) <= self.spec_env.max_joint_velocity)
         diverged &= finite
         root = sim_frames[:, 0]
         sim = PoseSnapshot(q, qd, sim_tips, root[:, 0:3], root[:, 3:7], root[:, 7:10], root[:, 10:13])

@@ -628,8 +628,11 @@ class ImitationEnv(gym.Env):
 
         links = self.sim.link_states(links=self._state_links)
         sim_state = self._sim_snapshot(links)
+        # MuJoCo clamps joint speeds as PyBullet does: its guard reads the speed before the clamp,
+        # which a simulation that blew up sends far past max_joint_velocity (or to NaN).
+        speed = np.max([np.max(np.abs(sim_state.qd)), getattr(self.sim, "peak_speed", 0.0)])  # NaN stays NaN
         if (not np.all(np.isfinite(links)) or not np.all(np.isfinite(sim_state.qd))
-                or np.max(np.abs(sim_state.qd)) > self.spec_env.max_joint_velocity):
+                or not speed <= self.spec_env.max_joint_velocity):
             self.counters["diverged"] += 1
             obs = np.nan_to_num(self._observation(links), nan=0.0, posinf=0.0, neginf=0.0)
             return obs, 0.0, True, False, {"nan_action": False, "diverged": True}

@@ -214,6 +214,7 @@ class MujocoBody:
         self.set_gains(controller)
         self._runner = None
         self.clamped_steps = 0  # physics steps of one environment where the joint-speed clamp acted
+        self.peak_speeds = np.zeros(0)  # per environment of the last step(): fastest joint before the clamp
 
     # -- control ------------------------------------------------------------------------------------
     def set_gains(self, controller) -> None:
@@ -386,21 +387,26 @@ class MujocoBody:
                        state=out, sensordata=sensordata, skip_checks=True)
         if sensors:
             return sensordata[:, 0].copy()
+        # Each environment's fastest joint over the substeps, before any clamp (NaN stays NaN): what
+        # the environments' divergence guard reads, so the clamp cannot hide a simulation that blew up.
+        speeds = np.abs(out[:, :, self.slices["qvel"]]).max(axis=(1, 2)) if n else np.zeros(0)
         limit = self.engine.joint_speed_limit
         if limit is not None:
             # The fast path checks every substep of the whole batch at once; only an environment
             # that passed the limit somewhere is stepped again, one substep at a time, clamped.
-            fast = np.abs(out[:, :, self.slices["qvel"]]) > limit
-            for row in np.flatnonzero(fast.any(axis=(1, 2))):
-                out[row, -1] = self._clamped_steps(model, initial[row], inputs[row], nstep, float(limit))
+            for row in np.flatnonzero(~(speeds <= limit)):
+                out[row, -1], speeds[row] = self._clamped_steps(model, initial[row], inputs[row], nstep, float(limit))
+        self.peak_speeds = speeds
         states[:, :self.physics_size] = out[:, -1]
         return states
 
-    def _clamped_steps(self, model, initial: np.ndarray, inputs: np.ndarray, nstep: int, limit: float) -> np.ndarray:
+    def _clamped_steps(self, model, initial: np.ndarray, inputs: np.ndarray, nstep: int,
+                       limit: float) -> tuple[np.ndarray, float]:
         """One environment's ``nstep`` physics steps with PyBullet's joint-speed clamp: after each
         step every generalised velocity is clipped to +-``limit`` and the positions are integrated
         from the step's start with the clipped velocity (btMultiBody clamps the velocity before it
-        steps the positions). Returns the final physics state."""
+        steps the positions). Returns the final physics state and the fastest joint speed the steps
+        produced before clamping (NaN if one was not finite)."""
         mujoco, qpos, qvel = self.mujoco, self.slices["qpos"], self.slices["qvel"]
         runner = self._single
         data = self._datas[id(model)][:1]
@@ -408,11 +414,14 @@ class MujocoBody:
         control = np.ascontiguousarray(inputs[None, None, :])
         step = np.empty((1, 1, self.physics_size))
         dt = float(model.opt.timestep)
+        peak = 0.0
         for _ in range(nstep):
             runner.rollout([model], data, state, control, control_spec=self.control_spec, nstep=1, state=step,
                            skip_checks=True)
             new = step[0, 0].copy()
             velocity = new[qvel]
+            fastest = float(np.max(np.abs(velocity))) if len(velocity) else 0.0
+            peak = fastest if not fastest <= peak else peak  # a NaN is kept
             if np.any(np.abs(velocity) > limit):
                 self.clamped_steps += 1
                 clipped = np.clip(velocity, -limit, limit)
@@ -420,7 +429,7 @@ class MujocoBody:
                 mujoco.mj_integratePos(model, position, clipped, dt)
                 new[qpos], new[qvel] = position, clipped
             state[0] = new
-        return state[0]
+        return state[0], peak
 
     def contacts(self, state: np.ndarray) -> set[int]:
         """Link indices (-1: the root) touching the ground in one state."""
@@ -547,6 +556,9 @@ class MujocoCharacter:
     def advance(self, substeps: int) -> None:
         self.body.step(self.state, self.ctrl, substeps)
         self._bodies = None
+        self.peak_speed = float(self.body.peak_speeds[0])
+
+    peak_speed = 0.0  # the fastest joint of the last advance(), before the joint-speed clamp
 
     # -- state -------------------------------------------------------------------------------------------
     def _sensors(self) -> np.ndarray:
