@@ -125,7 +125,8 @@ def _split_values(value: str) -> list[str]:
         else:
             current += char
     parts.append(current)
-    return [p.strip() for p in parts]
+    # Hydra's multirun records a boolean as Python writes it (False); the command as YAML does (false)
+    return [{"True": "true", "False": "false"}.get(p.strip(), p.strip()) for p in parts]
 
 
 def _key_values(overrides: list[str]) -> dict[str, list[str]]:

@@ -96,7 +96,7 @@ def plot_panels(runs: dict[str, list[dict[str, Any]]], lines: dict[str, dict[str
             steps = np.asarray([st for st, _ in curves[0][:length]], dtype=float)
             values = np.asarray([[v for _, v in c[:length]] for c in curves], dtype=float)
             mean, std = values.mean(0), values.std(0)
-            ax.plot(steps, mean, color="k", marker="o", ms=3, label=f"PPO evaluations, mean ± std (n={len(curves)} seeds)")
+            ax.plot(steps, mean, color="k", marker="o", ms=3, label=f"PPO evaluations, mean ± std (n={len(curves)} seed{'s' if len(curves) != 1 else ''})")
             ax.fill_between(steps, mean - std, mean + std, color="k", alpha=0.15)
             if steps[0] == 0:
                 ax.plot([0], [mean[0]], marker="s", ms=7, color="C3", ls="none", label="untrained policy")
