@@ -169,3 +169,19 @@ def test_the_thesis_overlay_writes_its_baselines_untrained_level_and_code_scale_
     first = dict(zip(header, progress[1].split(",")))
     assert first["step"] == "0" and first["eval_reward"]  # the untrained level, the curve's first point
     assert metrics["last_eval"] == pytest.approx(float(dict(zip(header, progress[-1].split(",")))["eval_reward"]))
+
+
+def test_a_run_whose_last_evaluation_blew_up_exits_1_with_where_and_when_and_keeps_its_metrics(tmp_path):
+    # Issue 39 item 2's case: the upper body on MuJoCo under the position-motor stand-in with an
+    # untrained policy's absolute targets. It used to end "last eval 0.0000", exit 0.
+    run_dir = tmp_path / "run"
+    proc = run_job("imitate", "motion='00433'", "body=upper_body", "engine=mujoco", "ppo.total_steps=0",
+                   "ppo.eval_steps=30", "ppo.eval_episodes=2", "plots=false", "render.gif=false", "render.mp4=false",
+                   f"hydra.run.dir={run_dir}", check=False)
+    assert proc.returncode == 1, proc.stderr[-2000:]
+    [line] = [x for x in proc.stderr.splitlines() if x.startswith("aslexp imitate:")]
+    assert "the simulation blew up in 2 of 2 evaluation episodes (first: joint " in line
+    assert "is not a score" in line and "Try " in line
+    metrics = json.loads((run_dir / "metrics.json").read_text())  # nothing computed is lost
+    assert metrics["last_eval_diverged"] == 2 and metrics["last_eval_divergences"][0]["speed"] > 1000
+    assert json.loads((run_dir / "run.json").read_text())["status"] == "failed"

@@ -635,7 +635,8 @@ class ImitationEnv(gym.Env):
                 or not speed <= self.spec_env.max_joint_velocity):
             self.counters["diverged"] += 1
             obs = np.nan_to_num(self._observation(links), nan=0.0, posinf=0.0, neginf=0.0)
-            return obs, 0.0, True, False, {"nan_action": False, "diverged": True}
+            return obs, 0.0, True, False, {"nan_action": False, "diverged": True,
+                                           "divergence": self._divergence(sim_state.qd, speed)}
 
         ref_state = self._reference_snapshot(self.time)
         self.last_sim_state, self.last_reference_state = sim_state, ref_state  # what the reward compared
@@ -667,6 +668,17 @@ class ImitationEnv(gym.Env):
             info["r_drift"] = drift
             reward *= drift
         return self._observation(links), reward, early, truncated, info
+
+    def _divergence(self, qd: np.ndarray, speed: float) -> dict[str, Any]:
+        """Where a blow-up showed: the fastest joint (MuJoCo: before its clamp; a NaN counts as the
+        fastest), its speed and the time into the episode (for the one line that reports it)."""
+        joint = getattr(self.sim, "peak_joint", "")
+        if not joint:
+            names = [j.name for j in self.layout.joints for _ in range(1 if j.dof == 1 else 3)]
+            fastest = int(np.argmax(np.where(np.isnan(qd), np.inf, np.abs(qd)))) if len(qd) else 0
+            joint = names[fastest] if fastest < len(names) else "?"
+        return {"joint": joint, "speed": float(speed), "step": int(self.steps),
+                "seconds": round(self.steps / self.spec_env.control_hz, 4)}
 
     def fallen(self) -> bool:
         """True when a link other than the body's ``ground_contacts`` touches the ground."""

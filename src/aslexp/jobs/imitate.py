@@ -205,6 +205,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         # The last evaluation's episodes that blew up (a number they touched is not a score), and the
         # last evaluation under report.score_rewards (the same episodes under another reward scale).
         "last_eval_diverged": int(last_diverged), "last_eval_scores": last_scores,
+        "last_eval_divergences": list(trainer.last_evaluation.divergences) if trainer.last_evaluation else [],
         **({"report_baselines": report_baselines} if report_baselines is not None else {}),
         "final_eval_terms": final.terms, "num_envs": ppo.num_envs, "device": str(trainer.device),
         "steps": trainer.steps, "seconds": trainer.elapsed, "stopped": stopped,
@@ -239,6 +240,28 @@ def measure_report_baselines(cfg: dict[str, Any], eval_env, ppo, data_root: Path
     return [{**row, "seconds": seconds} for row in measured]
 
 
+def refuse_blown_up(metrics: dict[str, Any], cfg: DictConfig) -> None:
+    """A last evaluation whose simulation blew up is an error, never a score: one line saying where
+    and when, and what to change (metrics.json keeps the numbers, marked ``last_eval_diverged``)."""
+    count = int(metrics.get("last_eval_diverged") or 0)
+    if not count:
+        return
+    from aslexp.errors import SimulationDiverged
+
+    episodes = len(metrics["eval_protocol"]["phases"])
+    first = (metrics.get("last_eval_divergences") or [{}])[0]
+    where = ""
+    if first.get("joint"):
+        where = (f" (first: joint {first['joint']} at {first['speed']:.3g} rad/s, {first['seconds']:g} s into the "
+                 f"episode from phase {first.get('phase', 0):g})")
+    engine = (cfg.get("engine") or {}).get("name", "pybullet")
+    hints = ("a stable-PD controller (physical gains) or engine=pybullet, whose motors the MuJoCo stand-in only "
+             "approximates" if engine == "mujoco" else "a smaller physics step (env.physics_hz) or softer gains")
+    raise SimulationDiverged(
+        f"motion {metrics['motion']}: the simulation blew up in {count} of {episodes} evaluation episodes{where}; "
+        f"the last evaluation is not a score (kept in metrics.json as last_eval_diverged). Try {hints}")
+
+
 def _imitate_run(cfg: DictConfig, run: Run) -> float:
     check_config("imitate", cfg)  # swept values (the rest: ConfigCheck); a bad one fails this run
     import torch
@@ -251,6 +274,7 @@ def _imitate_run(cfg: DictConfig, run: Run) -> float:
     finally:
         metric_logger.close(metrics)
     run.save_metrics(metrics)
+    refuse_blown_up(metrics, cfg)  # after the metrics are written: nothing computed is lost
     run.set_main_metric("eval_reward", metrics["last_eval"], "maximize")
     log.info("last eval %.4f (best %.4f; lookahead baseline %.4f) after %d steps, %.0f s",
              metrics["last_eval"], metrics["best_eval"], metrics["baselines"]["lookahead"], metrics["steps"],

@@ -52,6 +52,7 @@ class Evaluation:
     trajectory: dict[str, np.ndarray] = field(default_factory=dict)
     diverged: bool = False  # ended because the simulation blew up (a NaN action counts too): an error, not a score
     scores: dict[str, float] = field(default_factory=dict)  # the env's score_rewards, as mean_reward
+    divergence: dict[str, Any] | None = None  # where it blew up (the env's info["divergence"])
     phase: float = 0.0  # of the motion at the start
     # RMS of the actions over steps and values, each as (action - box centre) / box half-width: 0 is
     # the centre (for a residual action: no correction, the controller), 1 the box's edge. In the
@@ -72,6 +73,7 @@ class EvaluationSummary:
     action_rms: float = float("nan")  # over every step of every episode (see Evaluation)
     diverged: int = 0  # episodes whose simulation blew up (or got a NaN action): their numbers are not scores
     scores: dict[str, float] = field(default_factory=dict)  # the env's score_rewards, means over the episodes
+    divergences: list[dict[str, Any]] = field(default_factory=list)  # per episode that blew up: phase, where
 
 
 def even_phases(count: int) -> tuple[float, ...]:
@@ -95,6 +97,7 @@ def evaluate(env: EvaluatedEnv, policy: Policy, steps: int | None = None, record
     traj: dict[str, list] = {"time": [], "q_sim": [], "q_ref": [], "qd_sim": [], "qd_ref": [], "reward": [],
                              "frames": []}
     ended_early = diverged = False
+    divergence = None
     centre, half = _action_box(env)
     squares = 0.0
     for k in range(steps):
@@ -121,6 +124,7 @@ def evaluate(env: EvaluatedEnv, policy: Policy, steps: int | None = None, record
         if terminated:
             ended_early = True
             diverged = bool(info.get("diverged") or info.get("nan_action"))
+            divergence = info.get("divergence") or ({"nan_action": True} if info.get("nan_action") else None)
             break
     n = max(len(rewards), 1)
     trajectory = {k: np.asarray(v) for k, v in traj.items() if len(v)} if record else {}
@@ -129,6 +133,7 @@ def evaluate(env: EvaluatedEnv, policy: Policy, steps: int | None = None, record
         terms={k: v / n for k, v in term_sums.items()}, ended_early=ended_early, trajectory=trajectory,
         phase=float(phase), action_rms=math.sqrt(squares / n) if centre is not None else float("nan"),
         diverged=diverged, scores={k: v / steps for k, v in score_sums.items()},
+        divergence=divergence if diverged else None,
     )
 
 
@@ -156,6 +161,7 @@ def evaluate_phases(env: EvaluatedEnv, policy: Policy, steps: int | None = None,
         terms={k: float(np.mean([e.terms[k] for e in episodes if k in e.terms])) for k in names},
         ended_early=sum(e.ended_early for e in episodes), diverged=sum(e.diverged for e in episodes),
         scores={k: float(np.mean([e.scores.get(k, 0.0) for e in episodes])) for k in episodes[0].scores},
+        divergences=[{"phase": e.phase, **(e.divergence or {})} for e in episodes if e.diverged],
         action_rms=math.sqrt(sum(e.action_rms ** 2 * e.steps for e in episodes)
                              / max(sum(e.steps for e in episodes), 1)),
     )

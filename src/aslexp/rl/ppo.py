@@ -362,6 +362,7 @@ class PPOTrainer:
         self._obs: np.ndarray | None = None  # in-process collection: the environments' current observations
         self._noise: list[ActionNoise] = []  # in-process collection with coloured noise: one per environment
         self._eval_agent: Agent | None = None  # the evaluations' CPU copy (eval_device: cpu, learner elsewhere)
+        self.last_evaluation: EvaluationSummary | None = None  # the newest evaluate()'s, divergences included
 
     def close(self) -> None:
         """Stop the worker processes (an environment instance passed in stays open)."""
@@ -567,8 +568,9 @@ class PPOTrainer:
         if self.eval_env is None:
             raise ValueError("this trainer has no evaluation environment")
         agent = self.evaluation_agent()
-        return evaluate_phases(self.eval_env, lambda obs, env: agent.act(obs, deterministic=True),
-                               self.config.eval_steps, self.config.phases)
+        self.last_evaluation = evaluate_phases(self.eval_env, lambda obs, env: agent.act(obs, deterministic=True),
+                                               self.config.eval_steps, self.config.phases)
+        return self.last_evaluation
 
     def evaluation_agent(self) -> Agent:
         """The policy the evaluations ask: the learner's own, or a CPU copy of it (``eval_device: cpu``

@@ -215,6 +215,13 @@ class MujocoBody:
         self._runner = None
         self.clamped_steps = 0  # physics steps of one environment where the joint-speed clamp acted
         self.peak_speeds = np.zeros(0)  # per environment of the last step(): fastest joint before the clamp
+        self.peak_dofs = np.zeros(0, dtype=int)  # and its MuJoCo degree of freedom (dof_name)
+        names = [j.name for j in layout.joints for _ in range(1 if j.dof == 1 else 3)]
+        self._dof_names = {int(v): name for v, name in zip(self.qvel_index, names)}
+
+    def dof_name(self, dof: int) -> str:
+        """The layout joint a MuJoCo degree of freedom belongs to ("the root" for a free base's)."""
+        return self._dof_names.get(int(dof), "the root")
 
     # -- control ------------------------------------------------------------------------------------
     def set_gains(self, controller) -> None:
@@ -389,7 +396,10 @@ class MujocoBody:
             return sensordata[:, 0].copy()
         # Each environment's fastest joint over the substeps, before any clamp (NaN stays NaN): what
         # the environments' divergence guard reads, so the clamp cannot hide a simulation that blew up.
-        speeds = np.abs(out[:, :, self.slices["qvel"]]).max(axis=(1, 2)) if n else np.zeros(0)
+        velocity = np.abs(out[:, :, self.slices["qvel"]])
+        speeds = velocity.max(axis=(1, 2)) if n else np.zeros(0)
+        # and which degree of freedom it was (a NaN counts as the fastest): what a blow-up names
+        self.peak_dofs = np.where(np.isnan(velocity), np.inf, velocity).max(axis=1).argmax(axis=1) if n else speeds
         limit = self.engine.joint_speed_limit
         if limit is not None:
             # The fast path checks every substep of the whole batch at once; only an environment
@@ -557,8 +567,10 @@ class MujocoCharacter:
         self.body.step(self.state, self.ctrl, substeps)
         self._bodies = None
         self.peak_speed = float(self.body.peak_speeds[0])
+        self.peak_joint = self.body.dof_name(self.body.peak_dofs[0])
 
     peak_speed = 0.0  # the fastest joint of the last advance(), before the joint-speed clamp
+    peak_joint = ""  # and its name
 
     # -- state -------------------------------------------------------------------------------------------
     def _sensors(self) -> np.ndarray:
