@@ -26,6 +26,7 @@ from aslexp.files import atomic_path
 
 log = logging.getLogger("aslexp.motion")
 LOOP_MODES = ("wrap", "none")
+MAX_MOTION_VALUE = 1000.0  # larger in magnitude: a broken file (load_motion refuses it)
 ROOT_COLUMNS = 7  # root position (3) + root quaternion (4)
 QUATERNION_TOLERANCE = 0.5  # |norm - 1| above this: not a unit quaternion (DeepMimic's own files reach 0.42)
 
@@ -273,6 +274,15 @@ def load_motion(
         raise MotionFormatError(f"{path}: 'Frames' holds non-numeric values ({exc})") from exc
     if data.shape[1] < 2:
         raise MotionFormatError(f"{path}: frames need a dt column and at least one value")
+    # Angles in radians, root positions in metres, quaternion parts within 1: a value beyond 1,000 in
+    # magnitude is a broken file, and a simulation driven by it would blow up (non-finite: Motion says).
+    bad = np.isfinite(data) & (np.abs(data) > MAX_MOTION_VALUE)
+    if bad.any():
+        frame, column = (int(i) for i in np.argwhere(bad)[0])
+        what = "dt (s)" if column == 0 else f"value {column} after dt"
+        raise MotionFormatError(f"{path}: frame {frame}, {what} is {data[frame, column]:.6g} ({int(bad.sum())} such "
+                                f"values); expected numbers of magnitude at most {MAX_MOTION_VALUE:,.0f} "
+                                f"(radians, metres, quaternion parts)")
     found = data.shape[1] - 1
     if expected_columns is not None and found != expected_columns:
         raise MotionFormatError(
