@@ -47,6 +47,12 @@ class Baseline:
         return cls(**values)
 
 
+def ended_early(row: dict[str, Any]) -> str:
+    """How a baseline row's episodes ended early, for a mark beside its number: "diverged", "fell",
+    both, or "" (the row's ``diverged`` count and ``fell`` flag)."""
+    return ", ".join(end for end in ("diverged", "fell") if row.get(end))
+
+
 def no_learning_baselines(motion, body: dict, reward: dict, env: dict, rows: list[Baseline],
                           seconds: float = 10.0, data_root: str | os.PathLike | None = None,
                           engine: str | dict | None = None, phases: tuple[float, ...] = (0.0,),

@@ -674,7 +674,7 @@ class ImitationEnv(gym.Env):
         fastest), its speed and the time into the episode (for the one line that reports it)."""
         joint = getattr(self.sim, "peak_joint", "")
         if not joint:
-            names = [j.name for j in self.layout.joints for _ in range(1 if j.dof == 1 else 3)]
+            names = self.layout.velocity_names
             fastest = int(np.argmax(np.where(np.isnan(qd), np.inf, np.abs(qd)))) if len(qd) else 0
             joint = names[fastest] if fastest < len(names) else "?"
         return {"joint": joint, "speed": float(speed), "step": int(self.steps),

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from aslexp.data.root import resolve_data_root
-from aslexp.envs.baselines import Baseline, no_learning_baselines
+from aslexp.envs.baselines import Baseline, ended_early, no_learning_baselines
 from aslexp.envs.config import resolve_group
 
 # (body, reward, env, rows): the settings whose baselines the thesis and aslexp report.
@@ -70,8 +70,8 @@ def measure(kind: str, name: str, seconds: float, data_root: Path) -> list[dict[
 
 def _mark(row: dict[str, Any], engine: str) -> str:
     """A row's number with how its episode ended, if it ended early."""
-    ends = [end for end in ("diverged", "fell") if row.get(f"{engine}_{end}")]
-    return f"{row[engine]:.3f}" + (f" ({', '.join(ends)})" if ends else "")
+    ends = ended_early({end: row.get(f"{engine}_{end}") for end in ("diverged", "fell")})
+    return f"{row[engine]:.3f}" + (f" ({ends})" if ends else "")
 
 
 def table(rows: list[dict[str, Any]]) -> str:

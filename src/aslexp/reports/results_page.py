@@ -333,21 +333,14 @@ def _imitation_runs(folders: list[Path]) -> tuple[dict[str, list[dict[str, Any]]
     return dict(sorted(runs.items())), skipped
 
 
-def _ended(row: dict[str, Any]) -> dict[str, str]:
-    """A baseline's note when some of its episodes ended early: blew up (diverged) or fell."""
-    ends = [end for end in ("diverged", "fell") if row.get(end)]
-    return {"note": ", ".join(ends)} if ends else {}
-
-
 def _thesis_baselines(entry, cfg, motion, items, cache) -> tuple[list[dict[str, Any]], str, float | None]:
+    from aslexp.envs.baselines import ended_early
     from aslexp.reports.thesis_report import baseline_column, motion_baselines, thesis_number
 
-    # Measured by the runs under their own evaluation protocol (metrics.json report_baselines); runs
-    # from before session 19 did not, and are simulated here from phase 0 as they always were.
-    rows = next((m["report_baselines"] for m in items if m.get("report_baselines")), None) or motion_baselines(cfg, cache)
+    rows = motion_baselines(cfg, cache, items)
     baselines = [{"label": re.sub(r"^aslexp: ", "aslexp's ", baseline_column(b)),
                   "kind": "simple" if b["aslexp"] else "no-learning",
-                  "value": _round(b["reward"]), **_ended(b),
+                  "value": _round(b["reward"]), **({"note": ended_early(b)} if ended_early(b) else {}),
                   **({"scores": {k: _round(v) for k, v in b["scores"].items()}} if b.get("scores") else {})}
                  for b in rows]
     text, value = thesis_number((cfg.get("report") or {}).get("thesis", "letters"), motion)

@@ -42,9 +42,14 @@ def thesis_number(kind: str, motion: str) -> tuple[str, float | None]:
     return "-", None
 
 
-def motion_baselines(cfg: dict[str, Any], cache: Path) -> list[dict[str, Any]]:
-    """The no-learning rows of ``cfg["report"]`` for the run config's motion, cached in ``cache``
-    (deterministic: computed once per motion, not per seed)."""
+def motion_baselines(cfg: dict[str, Any], cache: Path, items: list[dict[str, Any]] = ()) -> list[dict[str, Any]]:
+    """The no-learning rows of ``cfg["report"]`` for the run config's motion: those the runs
+    (``items``: their metrics.json) measured under their own evaluation protocol
+    (``report_baselines``, since session 19), else simulated here from phase 0 as they always were,
+    cached in ``cache`` (deterministic: computed once per motion, not per seed)."""
+    measured = next((m["report_baselines"] for m in items if m.get("report_baselines")), None)
+    if measured is not None:
+        return measured
     report = cfg.get("report") or {}
     key = {"report": report, "body": cfg["body"], "reward": cfg["reward"], "env": cfg["env"],
            "motion": cfg["motion"]}
@@ -69,8 +74,10 @@ def motion_baselines(cfg: dict[str, Any], cache: Path) -> list[dict[str, Any]]:
 
 def _marked(row: dict[str, Any]) -> float | str:
     """A baseline's reward, with how its episodes ended where one ended early."""
-    ends = [end for end in ("diverged", "fell") if row.get(end)]
-    return round(row["reward"], 3) if not ends else f"{row['reward']:.3f} ({', '.join(ends)})"
+    from aslexp.envs.baselines import ended_early
+
+    ends = ended_early(row)
+    return round(row["reward"], 3) if not ends else f"{row['reward']:.3f} ({ends})"
 
 
 def baseline_column(row: dict[str, Any]) -> str:
@@ -137,10 +144,7 @@ def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -
     for motion, items in sorted(runs.items()):
         cfg = run_config(items[0]["run_dir"])
         kind = (cfg.get("report") or {}).get("thesis", "letters")
-        # Runs since session 19 measured their baselines under their own evaluation protocol (metrics.json
-        # report_baselines); older ones are simulated here, from phase 0, as they always were.
-        measured = next((m["report_baselines"] for m in items if m.get("report_baselines")), None)
-        baselines = measured if measured is not None else motion_baselines(cfg, out_dir / "baselines" / f"{motion}.json")
+        baselines = motion_baselines(cfg, out_dir / "baselines" / f"{motion}.json", items)
         all_baselines[motion] = baselines
         text, value = thesis_number(kind, motion)
         trained = [m for m in items if learned(m)]

@@ -104,6 +104,11 @@ class BodyLayout:
         return sum(j.dof for j in self.joints)
 
     @property
+    def velocity_names(self) -> tuple[str, ...]:
+        """The joint of each joint-velocity value (1 per revolute joint, 3 per spherical joint)."""
+        return tuple(j.name for j in self.joints for _ in range(1 if j.dof == 1 else 3))
+
+    @property
     def quaternion_columns(self) -> tuple[int, ...]:
         """First column of each quaternion block in a motion frame (root and spherical joints)."""
         return (3,) + tuple(j.motion_column for j in self.joints if j.dof == 4)

@@ -216,8 +216,7 @@ class MujocoBody:
         self.clamped_steps = 0  # physics steps of one environment where the joint-speed clamp acted
         self.peak_speeds = np.zeros(0)  # per environment of the last step(): fastest joint before the clamp
         self.peak_dofs = np.zeros(0, dtype=int)  # and its MuJoCo degree of freedom (dof_name)
-        names = [j.name for j in layout.joints for _ in range(1 if j.dof == 1 else 3)]
-        self._dof_names = {int(v): name for v, name in zip(self.qvel_index, names)}
+        self._dof_names = {int(v): name for v, name in zip(self.qvel_index, layout.velocity_names)}
 
     def dof_name(self, dof: int) -> str:
         """The layout joint a MuJoCo degree of freedom belongs to ("the root" for a free base's)."""
@@ -398,9 +397,12 @@ class MujocoBody:
         # the environments' divergence guard reads, so the clamp cannot hide a simulation that blew up.
         velocity = np.abs(out[:, :, self.slices["qvel"]])
         speeds = velocity.max(axis=(1, 2)) if n else np.zeros(0)
-        # and which degree of freedom it was (a NaN counts as the fastest): what a blow-up names
-        self.peak_dofs = np.where(np.isnan(velocity), np.inf, velocity).max(axis=1).argmax(axis=1) if n else speeds
         limit = self.engine.joint_speed_limit
+        # and which degree of freedom it was (a NaN counts as the fastest), what a blow-up names: only
+        # for the environments past the clamp's speed (a blow-up passes it), none on most steps
+        self.peak_dofs = np.zeros(n, dtype=int)
+        for row in np.flatnonzero(~(speeds <= (limit if limit is not None else 100.0))):
+            self.peak_dofs[row] = int(np.argmax(np.where(np.isnan(velocity[row]), np.inf, velocity[row]).max(axis=0)))
         if limit is not None:
             # The fast path checks every substep of the whole batch at once; only an environment
             # that passed the limit somewhere is stepped again, one substep at a time, clamped.
