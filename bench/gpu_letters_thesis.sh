@@ -16,23 +16,9 @@
 # A lease of 15 minutes (10 per call) does not hold it: it needs a longer loan or a node of one's own.
 set -u
 OUT=${OUT:?set OUT to a folder}
-exec > >(tee "$OUT/log.txt") 2>&1
-date; uptime
-START=$(date +%s)
-el() { echo "[$(( $(date +%s) - START )) s] $*"; }
-R=$PWD
-export PYTHONPATH=$R/src:$R/outputs/gpu/pylib${PYTHONPATH:+:$PYTHONPATH}
-# MuJoCo renders nothing here (GIFs are drawn by PyBullet, and off): no OpenGL, whose EGL import fails without libEGL
-export MUJOCO_GL=disable OMP_NUM_THREADS=1 MPLBACKEND=Agg
-# The data: ASLEXP_DATA_ROOT, else the carried copy, else the configs' default (../shared/data).
-if [ -z "${ASLEXP_DATA_ROOT:-}" ] && [ -d "$R/outputs/gpu/data" ]; then export ASLEXP_DATA_ROOT=$R/outputs/gpu/data; fi
-MIN=${MIN:-5.5}; LETTERS=${LETTERS:-A B C D E}; SEEDS=${SEEDS:-0 1 2}; DEV=${DEV:-cuda}; PY=${PY:-python3}
+MIN=${MIN:-5.5}; LETTERS=${LETTERS:-A B C D E}; SEEDS=${SEEDS:-0 1 2}
 KILL=${KILL:-510}; BENCH=${BENCH:-1}
-if [ -z "${NOPIP:-}" ]; then
-  el "install"
-  $PY -m pip install --no-index --no-deps -q "$R"/outputs/gpu/wheels/*.whl > "$OUT/pip.log" 2>&1 || { el "pip failed"; tail -5 "$OUT/pip.log"; }
-fi
-nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null; nproc; $PY -V
+source bench/gpu_machine.sh
 $PY - <<'PY' || { el "SMOKE FAILED"; exit 3; }
 import torch, mujoco, torchrl
 print("torch", torch.__version__, "cuda", torch.cuda.is_available(), "mujoco", mujoco.__version__, "torchrl", torchrl.__version__)

@@ -55,7 +55,7 @@ def raw_physics(env: UpperBodyImitationEnv, steps: int, self_collision: bool = T
     start = time.perf_counter()
     for target in targets:
         if motors:
-            controller.apply(char, target)
+            char.apply_pd(controller, target)
         world.step(spec.substeps)
     rate = steps / (time.perf_counter() - start)
     world.close()

@@ -12,4 +12,10 @@ bash scripts/setup.sh
 export MPLBACKEND=Agg
 # One process per core (pytest-xdist; at most 8; ASLEXP_TEST_WORKERS=N to choose): tests sharing a
 # service or a fixture's files stay on one worker (tests/conftest.py). `-n 0` runs in one process.
-exec .venv/bin/python -m pytest -q -n "${ASLEXP_TEST_WORKERS:-auto}" --maxprocesses 8 --dist loadgroup "$@"
+# The 20 slowest tests and the suite's wall time are printed at the end (the suite's budget: 15 minutes).
+start=$(date +%s)
+status=0
+.venv/bin/python -m pytest -q -n "${ASLEXP_TEST_WORKERS:-auto}" --maxprocesses 8 --dist loadgroup \
+  --durations=20 --durations-min=1 "$@" || status=$?
+echo "test.sh: the suite took $(( $(date +%s) - start )) s"
+exit $status

@@ -158,7 +158,8 @@ def test_a_plug_in_registers_through_its_entry_point(tmp_path, monkeypatch):
     dist-info on sys.path here) is loaded the first time an unknown name is asked for."""
     import sys
 
-    from aslexp.keypoints import get_layout, registry
+    from aslexp import plugins
+    from aslexp.keypoints import get_layout
 
     (tmp_path / "aslexp_test_plugin.py").write_text(
         "from aslexp.keypoints import KeypointLayout, register_layout\n"
@@ -169,6 +170,6 @@ def test_a_plug_in_registers_through_its_entry_point(tmp_path, monkeypatch):
     (info / "METADATA").write_text("Metadata-Version: 2.1\nName: aslexp-test-plugin\nVersion: 0.1\n")
     (info / "entry_points.txt").write_text("[aslexp.keypoints]\npair = aslexp_test_plugin:register\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setattr(registry, "_entry_points_loaded", False)
+    monkeypatch.setattr(plugins, "_loaded_groups", set())  # entry points are read once per process
     assert get_layout("plugin_pair").names == ("p", "q")
     sys.modules.pop("aslexp_test_plugin", None)

@@ -142,7 +142,7 @@ def test_the_batch_refuses_what_only_the_single_environment_does(data_root):
     with pytest.raises(ValueError, match="env.residual_base_smoothing"):
         BatchedImitationEnv(2, data_root / "motions/hand/A.txt", engine="mujoco",
                             env={"action_mode": "residual", "residual_base_smoothing": 0.5})
-    with pytest.raises(ValueError, match="engine is 'pybullet'"):
+    with pytest.raises(ValueError, match="the engine is 'pybullet'"):
         BatchedImitationEnv(2, data_root / "motions/hand/A.txt", engine="pybullet")
     with pytest.raises(ValueError, match="engine config: integrator must be one of"):
         EngineSpec.from_dict({"name": "mujoco", "integrator": "verlet"})

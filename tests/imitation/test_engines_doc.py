@@ -72,3 +72,20 @@ def test_the_gpu_device_script_runs_on_the_cpu(tmp_path, data_root):
     with tarfile.open(out / "letters_thesis_mujoco.tgz") as archive:
         names = archive.getnames()
     assert "letters_thesis_mujoco/A_s0/metrics.json" in names and not any("checkpoints" in n for n in names)
+
+
+def test_the_gpu_check_script_runs_on_the_cpu(tmp_path, data_root):
+    """bench/gpu_check.sh (the lent GPU machine's test run and imitate on CUDA) on the CPU path, as its
+    header's command: one test file, seconds of training, no baselines."""
+    import json
+    import os
+
+    env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "OUT": str(tmp_path), "NOPIP": "1", "DEV": "cpu",
+           "MIN": "0.02", "PY": sys.executable, "TESTS": "tests/imitation/test_assembly.py",
+           "EXTRA": "report.baselines=[] ppo.hidden_sizes=[32,32] ppo.eval_steps=30"}
+    proc = subprocess.run(["bash", "bench/gpu_check.sh"], cwd=PROJECT_ROOT, env=env, capture_output=True, text=True,
+                          timeout=600)
+    log = (tmp_path / "log.txt").read_text()
+    assert proc.returncode == 0 and "3 passed" in log, log[-3000:]
+    metrics = json.loads((tmp_path / "imitate_B" / "metrics.json").read_text())
+    assert metrics["motion"] == "B" and metrics["steps"] > 0 and metrics["device"] == "cpu"

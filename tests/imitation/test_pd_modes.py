@@ -106,7 +106,7 @@ def test_mujoco_gives_position_groups_the_stand_in_and_stable_pd_groups_physical
     body = env.sim.body
     body.set_gains(env.controller)
     m = body.model
-    dt, scale = m.opt.timestep, body.engine.motor_gain_scale
+    dt, scale = m.opt.timestep, body.engine.options.motor_gain_scale
     inertia = body.joint_inertia()
     groups = env.controller.spec.groups
     i = 0

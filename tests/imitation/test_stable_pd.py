@@ -74,7 +74,7 @@ def test_the_command_is_resent_before_every_substep(sign, data_root):
     rewards = []
     for _ in range(60):
         targets = np.clip(env.reference_targets(1), env.joint_lower, env.joint_upper)
-        env.controller.apply(env.sim, targets)
+        env.sim.apply_pd(env.controller, targets)  # the PyBullet character sends it once
         env.sim_world.step(8)
         env.time += env.control_dt
         links = env.sim.link_states(links=env._state_links)

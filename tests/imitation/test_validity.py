@@ -17,6 +17,7 @@ from aslexp.envs.config import resolve_group
 from aslexp.envs.imitation import ImitationEnv
 from aslexp.rl.evaluate import evaluate_phases, reference_policy
 from aslexp.rl.ppo import PPOConfig, agent_for_spaces
+from aslexp.envs.assembly import ImitationSetup
 from aslexp.sim.engine import EngineSpec
 
 from .test_jobs import run_job
@@ -74,8 +75,8 @@ def test_a_real_divergence_ends_the_episode_and_is_counted(motion_a, limit):
 
 
 def test_the_engine_config_refuses_a_bad_speed_limit():
-    assert EngineSpec.from_dict({"name": "mujoco"}).joint_speed_limit == 100.0
-    assert EngineSpec.from_dict({"name": "mujoco", "joint_speed_limit": None}).joint_speed_limit is None
+    assert EngineSpec.from_dict({"name": "mujoco"}).options.joint_speed_limit == 100.0
+    assert EngineSpec.from_dict({"name": "mujoco", "joint_speed_limit": None}).options.joint_speed_limit is None
     with pytest.raises(ValueError, match="joint_speed_limit must be a number > 0"):
         EngineSpec.from_dict({"name": "mujoco", "joint_speed_limit": 0})
 
@@ -123,9 +124,10 @@ def test_thesis_ppo_settings_map_actions_as_sb3_and_aslexp_settings_keep_the_box
 
 
 def test_baselines_run_from_the_evaluation_phases_and_score_under_every_reward(motion_a):
-    rows = no_learning_baselines(motion_a, resolve_group("body", "hand15"), resolve_group("reward", "hand_thesis"),
-                                 resolve_group("env", "default"), [Baseline(label="thesis PD", controller="thesis")],
-                                 seconds=1.0, phases=(0.0, 0.5), score_rewards={"hand_code": "hand_code"})
+    setup = ImitationSetup.from_groups(motion_a, "hand15", "thesis", "hand_thesis", "default",
+                                       score_rewards={"hand_code": "hand_code"})
+    rows = no_learning_baselines(setup, [Baseline(label="thesis PD", controller="thesis")], seconds=1.0,
+                                 phases=(0.0, 0.5))
     assert [r["lookahead"] for r in rows] == [0, 1]
     for row in rows:
         assert row["phases"] == [0.0, 0.5] and len(row["per_phase"]) == 2
@@ -133,9 +135,8 @@ def test_baselines_run_from_the_evaluation_phases_and_score_under_every_reward(m
         assert row["diverged"] == 0 and row["steps"] == row["planned_steps"] == 30
         # the same trajectory under the authors' code weights (THESIS.md 10.1) scores higher on the hand
         assert row["scores"]["hand_code"] > row["reward"]
-    single = no_learning_baselines(motion_a, resolve_group("body", "hand15"), resolve_group("reward", "hand_thesis"),
-                                   resolve_group("env", "default"), [Baseline(label="x", controller="thesis")],
-                                   seconds=1.0, phases=(0.5,))
+    single = no_learning_baselines(ImitationSetup.from_groups(motion_a, "hand15", "thesis", "hand_thesis", "default"),
+                                   [Baseline(label="x", controller="thesis")], seconds=1.0, phases=(0.5,))
     assert single[0]["reward"] == pytest.approx(rows[0]["per_phase"][1])
 
 

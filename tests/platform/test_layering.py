@@ -24,6 +24,7 @@ LEVELS: dict[str, int] = {
     # foundation: leaf modules any room may use
     "errors": 0, "files": 0, "paths": 0, "process": 0, "quaternion": 0, "seeding": 0,
     "config_schema": 1,  # errors
+    "plugins": 1,        # errors: entry points and registering modules, for every registry
     "runfile": 1,        # files: run.json's name, time stamps, marking a run interrupted
     "viz": 1,            # files: plots and videos
     # the ground floor

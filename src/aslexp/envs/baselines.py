@@ -10,7 +10,6 @@ controllers) run with a residual action and no correction, so their own targets 
 from __future__ import annotations
 
 import logging
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from aslexp.envs.assembly import ImitationSetup
 from aslexp.envs.config import deep_merge, resolve_group
 from aslexp.envs.imitation import ImitationEnv
 from aslexp.envs.tracking import reference_rollout
@@ -53,31 +53,27 @@ def ended_early(row: dict[str, Any]) -> str:
     return ", ".join(end for end in ("diverged", "fell") if row.get(end))
 
 
-def no_learning_baselines(motion, body: dict, reward: dict, env: dict, rows: list[Baseline],
-                          seconds: float = 10.0, data_root: str | os.PathLike | None = None,
-                          engine: str | dict | None = None, phases: tuple[float, ...] = (0.0,),
-                          score_rewards: dict[str, str | dict] | None = None) -> list[dict[str, Any]]:
+def no_learning_baselines(setup: ImitationSetup, rows: list[Baseline], seconds: float = 10.0,
+                          phases: tuple[float, ...] = (0.0,)) -> list[dict[str, Any]]:
     """Mean reward per step of every row x lookahead over ``seconds`` of simulated time from each
     start phase of ``phases`` (the learned policy's evaluation protocol; an early end, e.g. a fall,
-    scores 0 for the rest), averaged over the phases, under ``reward`` (and, in ``scores``, under each
-    of ``score_rewards``); ``body`` and ``env`` are complete group dicts (the run's), each row's
-    overrides merged over them. ``diverged``: episodes whose simulation blew up (never a score)."""
+    scores 0 for the rest), averaged over the phases, under the setup's reward (and, in ``scores``,
+    under each of its ``score_rewards``); each row's overrides are merged over the setup's groups
+    (the run's). ``diverged``: episodes whose simulation blew up (never a score)."""
     out: list[dict[str, Any]] = []
     phases = tuple(float(p) for p in phases) or (0.0,)
+    score_rewards = setup.score_rewards
+    motion = setup.motion.source or "motion"
     # Progress: each row x lookahead is seconds of simulation per phase (minutes at 240 Hz for all rows).
     total = sum(len(r.lookahead) or 1 for r in rows)
     started = time.perf_counter()
     simulated = 0
     for row in rows:
-        controller = resolve_group("controller", row.controller)
-        options = not ControllerSpec.from_dict(controller).is_thesis_pd
-        env_cfg = deep_merge(env, row.env)
-        env_cfg = deep_merge(env_cfg, {"reference_state_init": False, "residual_velocity_range": 0.0,
-                                       "early_termination": {"min_reward": None},
-                                       **({"action_mode": "residual"} if options else {})})
-        instance = ImitationEnv(motion, body=deep_merge(body, row.body), controller=controller, reward=reward,
-                                env=env_cfg, data_root=data_root, complete_configs=True, engine=engine,
-                                score_rewards=score_rewards)
+        options = not ControllerSpec.from_dict(resolve_group("controller", row.controller)).is_thesis_pd
+        env_overrides = deep_merge(row.env, {"reference_state_init": False, "residual_velocity_range": 0.0,
+                                             "early_termination": {"min_reward": None},
+                                             **({"action_mode": "residual"} if options else {})})
+        instance = ImitationEnv.from_setup(setup.merged(body=row.body, controller=row.controller, env=env_overrides))
         try:
             steps = max(1, int(round(seconds * instance.spec_env.control_hz)))
             lookaheads = (instance.spec_env.reference_lookahead,) if options else row.lookahead

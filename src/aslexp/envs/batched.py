@@ -1,10 +1,10 @@
-"""N imitation environments of one MuJoCo body, stepped together: a gymnasium vector environment.
+"""N imitation environments of one body, stepped together: a gymnasium vector environment.
 
-``BatchedImitationEnv(num_envs, motion, ..., engine="mujoco")`` is what ``N`` copies of
-:class:`~aslexp.envs.imitation.ImitationEnv` with ``engine=mujoco`` would be, with no Python per
-environment in a step: the physics of all N advances in one ``mujoco.rollout`` call (C threads),
-the link states of the N bodies and of their N references come back from one more (the probe,
-:mod:`aslexp.sim.mujoco_engine`), and the reference, the targets, the observation
+``BatchedImitationEnv(num_envs, motion, ..., engine=...)`` is what ``N`` copies of
+:class:`~aslexp.envs.imitation.ImitationEnv` on an engine that batches
+(:class:`~aslexp.sim.engine.BatchedBody`; MuJoCo's, :mod:`aslexp.sim.mujoco_engine`) would be, with
+no Python per environment in a step: the physics of all N advances in one call (C threads), the
+link states of the N bodies and of their N references come back from one more, and the reference, the targets, the observation
 (:func:`~aslexp.envs.imitation.observe`) and the reward (``ImitationReward.many``) are computed on
 arrays of N by the same functions the single environment calls with a batch of one. Same seeds
 and actions give the same transitions as N single environments (tested step for step).
@@ -28,40 +28,56 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from aslexp.envs.assembly import ImitationSetup
 from aslexp.envs.imitation import ImitationEnv, observe
 from aslexp.envs.reward import PoseSnapshot
+from aslexp.sim.engine import batching_engines
 
 
 class BatchedImitationEnv(VectorEnv):
-    """``num_envs`` imitation environments of one motion and body on the MuJoCo engine."""
+    """``num_envs`` imitation environments of one motion and body on an engine that batches."""
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP}
 
     def __init__(self, num_envs: int, motion, body=None, controller=None, reward=None, env=None,
-                 engine: str | dict | None = "mujoco", data_root: str | os.PathLike | None = None,
+                 engine: str | dict | None = None, data_root: str | os.PathLike | None = None,
                  complete_configs: bool = False, shape_reward: bool = False,
                  env_class: type[ImitationEnv] = ImitationEnv, threads: int | None = None) -> None:
         """The arguments of :class:`ImitationEnv` (``env_class``: its subclass whose group defaults
-        apply, e.g. the upper body's), for ``num_envs`` environments; ``threads`` overrides
-        ``engine.threads`` (rollout workers step their batch on one thread each)."""
+        apply, e.g. the upper body's), for ``num_envs`` environments (``engine`` None: the first engine
+        that batches); ``threads`` overrides ``engine.threads`` (rollout workers step their batch on
+        one thread each)."""
+        if engine is None:
+            engine = batching_engines()[0]
+        setup = ImitationSetup.from_groups(motion, body, controller, reward, env, engine, data_root=data_root,
+                                           complete=complete_configs, defaults=env_class.GROUP_DEFAULTS)
+        self._assemble(num_envs, setup, shape_reward, threads, env_class)
+
+    @classmethod
+    def from_setup(cls, num_envs: int, setup: ImitationSetup, shape_reward: bool = False, threads: int | None = None,
+                   env_class: type[ImitationEnv] = ImitationEnv) -> "BatchedImitationEnv":
+        """``num_envs`` environments of an assembled experiment (:mod:`aslexp.envs.assembly`)."""
+        batch = cls.__new__(cls)
+        batch._assemble(num_envs, setup, shape_reward, threads, env_class)
+        return batch
+
+    def _assemble(self, num_envs: int, setup: ImitationSetup, shape_reward: bool, threads: int | None,
+                  env_class: type[ImitationEnv]) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"ppo config: num_envs must be an integer >= 1, got {num_envs!r}")
         # One single environment holds the configuration (specs, spaces, reference, reward, model).
-        self.template = env_class(motion, body=body, controller=controller, reward=reward, env=env,
-                                     data_root=data_root, complete_configs=complete_configs,
-                                     shape_reward=shape_reward, engine=engine)
+        self.template = env_class.from_setup(setup, shape_reward=shape_reward)
         t = self.template
-        if t.engine_spec.name != "mujoco":
-            raise ValueError(f"ppo config: vector_env batched steps MuJoCo bodies; the engine is "
-                             f"{t.engine_spec.name!r} (engine=mujoco, or vector_env auto/sync/async/workers)")
+        if t.simulation.batch is None:
+            raise ValueError(f"ppo config: vector_env batched needs an engine that steps many environments at "
+                             f"once; the engine is {t.engine_spec.name!r} (one that batches: "
+                             f"{batching_engines()}; or vector_env auto/sync/async/workers)")
         _refuse_unbatched(t, shape_reward)
         self.num_envs = int(num_envs)
         self.spec_env, self.reference, self.layout = t.spec_env, t.reference, t.layout
-        self.body = t.sim.body
+        self.body = t.simulation.batch
         if threads is not None:
-            import dataclasses
-
-            self.body.engine = dataclasses.replace(self.body.engine, threads=int(threads))
+            self.body.set_threads(int(threads))
         self.body.set_gains(t.controller)
         self.reward_fn = t.reward_fn
         self.single_observation_space = t.observation_space
@@ -136,7 +152,7 @@ class BatchedImitationEnv(VectorEnv):
         # not finite, or a joint faster than max_joint_velocity (NaN compares False: caught by the first,
         # or by the ~(<=) of the speed)
         diverged = ~np.isfinite(sim_frames.reshape(n, -1).sum(axis=1) + qd.sum(axis=1))
-        # the speed before the joint-speed clamp (mujoco_engine: peak_speeds), so the clamp hides no blow-up
+        # the speed before the joint-speed clamp (BatchedBody.peak_speeds), so the clamp hides no blow-up
         diverged |= ~(np.maximum(np.max(np.abs(qd), axis=1), self.body.peak_speeds) <= self.spec_env.max_joint_velocity)
         diverged &= finite
         root = sim_frames[:, 0]

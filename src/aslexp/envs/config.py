@@ -9,7 +9,6 @@ dicts from Hydra, so both paths read the same YAML: the configuration lives in o
 from __future__ import annotations
 
 import copy
-from pathlib import Path
 from typing import Any
 
 import yaml
@@ -18,8 +17,17 @@ from aslexp import paths
 
 CONF_DIR = paths.CONF_DIR
 
-DEFAULTS = {"body": "hand15", "controller": "thesis", "reward": "deepmimic", "env": "default", "engine": "pybullet",
-            "ppo": "base"}
+
+def job_defaults(job: str) -> dict[str, str]:
+    """The group choices of ``conf/<job>.yaml``'s defaults list (``{"engine": "pybullet", ...}``):
+    the defaults below Hydra are the job's own, written once."""
+    with open(CONF_DIR / f"{job}.yaml", encoding="utf-8") as fh:
+        entries = (yaml.safe_load(fh) or {}).get("defaults") or []
+    return {key: value for entry in entries if isinstance(entry, dict) for key, value in entry.items()
+            if isinstance(value, str) and "/" not in key and " " not in key}
+
+
+DEFAULTS = {**job_defaults("imitate"), "ppo": "base"}  # ppo: every key's default (ppo/base)
 
 
 def deep_merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:

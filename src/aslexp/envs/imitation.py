@@ -36,195 +36,19 @@ from __future__ import annotations
 import os
 from collections import defaultdict
 from contextlib import contextmanager
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from aslexp.envs.config import CONF_DIR, load_group_file, resolve_group
-from aslexp.envs.reward import TERMS, ImitationReward, PoseSnapshot, RewardSpec
-from aslexp.sim.body import BodySpec, load_layout
-from aslexp.sim.engine import EngineSpec
-from aslexp.sim.motion import Motion, MotionFormatError, load_motion
-from aslexp.sim.pd import ControllerSpec, PDController
+from aslexp.envs.assembly import ImitationSetup, warn_travelling_root
+from aslexp.envs.reward import PoseSnapshot
+from aslexp.envs.spec import UP_AXIS, EnvSpec  # the env's keys (conf/env) live there
+from aslexp.sim.engine import DEFAULT_CAMERA
+from aslexp.sim.motion import Motion
+from aslexp.sim.pd import PDController
 from aslexp.sim.reference import ReferenceMotion
 from aslexp import quaternion
-from aslexp.sim.world import Character, PhysicsConfig, World
-
-
-OBSERVATIONS = ("aslexp", "deepmimic")
-# Env keys that shape the training reward alone (ImitationEnv shape_reward): no score depends on them.
-TRAINING_ONLY_KEYS = ("heading_shaping", "offset_shaping")
-# Env keys that move the base a residual policy corrects: the no-learning baselines ("the controller"
-# = the reference one step ahead) are defined without them, so a variant cannot move its own bar.
-RESIDUAL_BASE_KEYS = ("residual_base_smoothing", "residual_base_smoothing_groups")
-UP_AXIS = 1  # the motions and worlds are y-up (gravity -9.8 y)
-
-# Rendering camera (TinyRenderer) looking at the mean link position: the hand's view.
-DEFAULT_CAMERA = {"distance": 0.5, "yaw": 90.0, "pitch": -10.0}
-
-
-@dataclass(frozen=True)
-class EnvSpec:
-    """``conf/env/*.yaml`` as plain values."""
-
-    physics_hz: float = 240.0
-    control_hz: float = 30.0
-    gravity: tuple[float, float, float] = (0.0, -9.8, 0.0)
-    solver_iterations: int = 10
-    non_contact_inner_iterations: int = 1
-    episode_steps: int = 300
-    reference_state_init: bool = True
-    early_termination: dict[str, Any] = field(default_factory=lambda: {"min_reward": None})
-    # rad/s: a joint faster than this (or any non-finite state) is a simulation that blew up. Far
-    # above the 100 rad/s both engines clamp every joint speed to (engine.joint_speed_limit): a
-    # transient the clamp absorbs is physics, not divergence.
-    max_joint_velocity: float = 1000.0
-    action_mode: str = "absolute"
-    residual_range: float = 0.5
-    reference_lookahead: int = 1
-    observe_future: tuple[int, ...] = ()
-    observe_joints: bool = False
-    observe_future_velocities: bool = False  # also the reference joint velocities at observe_future
-    # The reference's root now, in the frame the links are seen in (position relative to the
-    # simulated root, rotation): 7 values that show how far the body has drifted or turned, which
-    # the heading frame of the deepmimic observation hides (it removes the yaw).
-    observe_reference_root: bool = False
-    # Training only: with ImitationEnv(..., shape_reward=True), as aslexp.jobs.imitate builds its
-    # training envs, the reward PPO learns from is the step reward times
-    # exp(-heading_shaping * yaw^2 - offset_shaping * |d|^2): yaw the turn (rad) of the simulated
-    # root against the reference's about the up axis, d its horizontal offset (m). Slipping feet turn
-    # and shift the body over seconds, past a 30 Hz policy's horizon; this charges the drift at every
-    # step. Every score (evaluations, baselines, reports) stays the reward config's alone. 0: off.
-    heading_shaping: float = 0.0
-    offset_shaping: float = 0.0
-    residual_velocity_range: float = 0.0  # rad/s; > 0 appends velocity-target corrections to the action
-    # Residual only: the base the correction is added to, low-pass filtered,
-    # base_t = alpha * base_(t-1) + (1 - alpha) * reference_(t + lookahead), on the joints of
-    # residual_base_smoothing_groups (None: all); restarted every episode. 0: the reference itself.
-    # With alpha > 0 a zero correction is the smoothed-reference baseline (aslexp.rl.evaluate), the
-    # strongest no-learning one on the standing upper body: gentler targets, less slip.
-    residual_base_smoothing: float = 0.0
-    residual_base_smoothing_groups: tuple[str, ...] | None = None
-    # The policy's action is [-1, 1] per value, mapped affinely onto the box above (absolute: each
-    # joint's range, e.g. [-1, 1] -> [0, 2] rad; residual: +-residual_range, +-residual_velocity_range).
-    normalize_actions: bool = False
-    # The box of absolute targets: each joint's range (joint), or the range the reference motion
-    # visits widened by action_range_margin rad on each side, within the joint range (motion).
-    action_range: str = "joint"
-    action_range_margin: float = 0.25
-    # Links in the observation (fnmatch patterns on link names, URDF order); None: every link;
-    # []: none (the observation is then the phase and the observe_* options alone).
-    observe_links: tuple[str, ...] | None = None
-    camera: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_CAMERA))
-    observation: str = "aslexp"  # aslexp (root frame, per link 13 values) | deepmimic (the authors')
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> "EnvSpec":
-        unknown = set(values) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"env config: unknown keys {sorted(unknown)}")
-        values = dict(values)
-        values["gravity"] = tuple(values.get("gravity", (0.0, -9.8, 0.0)))
-        values["observe_future"] = tuple(int(k) for k in values.get("observe_future") or ())
-        if values.get("observe_links") is not None:
-            values["observe_links"] = tuple(str(p) for p in values["observe_links"])
-        if values.get("residual_base_smoothing_groups") is not None:
-            values["residual_base_smoothing_groups"] = tuple(str(g) for g in values["residual_base_smoothing_groups"])
-        spec = cls(**values)
-        if spec.observation not in OBSERVATIONS:
-            raise ValueError(f"env config: observation must be one of {OBSERVATIONS}, got {spec.observation!r}")
-        unknown_end = set(spec.early_termination or {}) - {"min_reward", "fall", "patience"}
-        if unknown_end:
-            raise ValueError(f"env config: early_termination has unknown keys {sorted(unknown_end)}; "
-                             f"expected min_reward, patience, fall")
-        patience = (spec.early_termination or {}).get("patience", 1)
-        if patience is None or int(patience) != patience or patience < 1:
-            raise ValueError(f"env config: early_termination.patience must be an integer >= 1 "
-                             f"(control steps below min_reward before the end), got {patience!r}")
-        for name in TRAINING_ONLY_KEYS:
-            value = getattr(spec, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
-                raise ValueError(f"env config: {name} must be a number >= 0 (a scale of the training reward's "
-                                 f"factor exp(-heading_shaping yaw^2 - offset_shaping |d|^2); 0 off), got {value!r}")
-        alpha = spec.residual_base_smoothing
-        if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0.0 <= alpha < 1.0:
-            raise ValueError(f"env config: residual_base_smoothing must be a number in [0, 1) (the low-pass "
-                             f"filter's alpha on the residual's base; 0 off), got {alpha!r}")
-        if alpha > 0 and spec.action_mode != "residual":
-            raise ValueError(f"env config: residual_base_smoothing {alpha} needs action_mode residual "
-                             f"(it filters the base a correction is added to), got {spec.action_mode!r}")
-        if spec.action_range not in ("joint", "motion"):
-            raise ValueError(f"env config: action_range must be joint or motion, got {spec.action_range!r}")
-        if spec.action_range == "motion" and (spec.action_mode != "absolute" or spec.action_range_margin < 0):
-            raise ValueError(f"env config: action_range motion needs action_mode absolute and "
-                             f"action_range_margin >= 0, got {spec.action_mode!r}, {spec.action_range_margin}")
-        if spec.action_mode not in ("absolute", "residual"):
-            raise ValueError(f"env config: action_mode must be absolute or residual, got {spec.action_mode!r}")
-        ratio = spec.physics_hz / spec.control_hz
-        if abs(ratio - round(ratio)) > 1e-6 or ratio < 1:
-            raise ValueError(f"env config: physics_hz ({spec.physics_hz}) must be a multiple of "
-                             f"control_hz ({spec.control_hz})")
-        return spec
-
-    @property
-    def substeps(self) -> int:
-        return int(round(self.physics_hz / self.control_hz))
-
-
-def resolve_motion_path(motion: str | os.PathLike, data_root: str | os.PathLike | None) -> Path:
-    """A motion file given absolutely, relative to the current directory, or to the data root; or
-    a motion's name in ``conf/motion`` (``"A"``, ``"00433"``)."""
-    path = Path(motion).expanduser()
-    if path.is_absolute() or path.is_file():
-        return path
-    if not path.suffix and len(path.parts) == 1 and (CONF_DIR / "motion" / f"{path}.yaml").is_file():
-        path = Path(load_group_file("motion", str(path))["file"])
-    if data_root is None:
-        from aslexp.data.root import resolve_data_root
-
-        data_root = resolve_data_root(None, must_exist=False)
-    return Path(data_root) / path
-
-
-ROOT_TRAVEL_WARNING_M = 0.25  # the thesis' clips hold their root still (0.0 m)
-_warned_travel: set[str] = set()
-
-
-def _warn_travelling_root(motion: Motion, base: str) -> None:
-    """Warn (once per file) when a clip's root travels but the body's root is held still: the
-    pose is then tracked from the wrong place and the reward stays near zero (a walk on a fixed
-    root scores ~0.04)."""
-    if base == "free" or motion.num_frames < 2 or (motion.source or "") in _warned_travel:
-        return
-    root = np.asarray(motion.frames)[:, :3]
-    travel = float(np.linalg.norm(root - root[0], axis=1).max())
-    if travel > ROOT_TRAVEL_WARNING_M:
-        _warned_travel.add(motion.source or "")
-        import logging
-
-        logging.getLogger(__name__).warning(
-            "%s: the root travels %.2f m over the clip, but body.base=%s holds it at its first pose: "
-            "the pose is tracked from the wrong place and the reward will be low; a free root "
-            "follows it (body.base=free)",
-            motion.source or "motion", travel, base)
-
-
-def _bodies_for(found: int | None, data_root: str | os.PathLike | None) -> str:
-    """A hint naming the bodies (``conf/body``) whose motions have ``found`` values per frame."""
-    if found is None:
-        return ""
-    fits = []
-    for path in sorted((CONF_DIR / "body").glob("*.yaml")):
-        try:
-            _, layout = load_layout(BodySpec.from_dict(resolve_group("body", path.stem)), data_root)
-        except Exception:  # noqa: BLE001 - a hint only: a body that cannot load fits nothing
-            continue
-        if layout.motion_columns == found:
-            fits.append(f"body={path.stem}")
-    return f"; {' or '.join(fits)} runs motions of that width" if fits else ""
 
 
 class ImitationEnv(gym.Env):
@@ -259,80 +83,45 @@ class ImitationEnv(gym.Env):
         ``score_rewards``: name -> reward config (a name or a complete dict) under which every step is
         also scored, as ``info["score_<name>"]`` (reporting only: the same trajectory under another
         reward scale, e.g. the authors' code weights beside the thesis' Table 5.2)."""
+        setup = ImitationSetup.from_groups(motion, body, controller, reward, env, engine, data_root=data_root,
+                                           complete=complete_configs, defaults=self.GROUP_DEFAULTS,
+                                           score_rewards=score_rewards)
+        self._assemble(setup, render_mode, render_size, shape_reward)
+
+    @classmethod
+    def from_setup(cls, setup: ImitationSetup, render_mode: str | None = None,
+                   render_size: tuple[int, int] = (320, 320), shape_reward: bool = False) -> "ImitationEnv":
+        """The environment of an assembled experiment (:mod:`aslexp.envs.assembly`)."""
+        env = cls.__new__(cls)
+        env._assemble(setup, render_mode, render_size, shape_reward)
+        return env
+
+    def _assemble(self, setup: ImitationSetup, render_mode: str | None, render_size: tuple[int, int],
+                  shape_reward: bool) -> None:
         super().__init__()
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.render_mode = render_mode
         self.render_size = tuple(render_size)
         self.shape_reward = bool(shape_reward)
-        if data_root is None:
-            from aslexp.data.root import resolve_data_root
-
-            data_root = resolve_data_root(None, must_exist=False)
-        self.data_root = Path(data_root)
-
-        # -- configuration ----------------------------------------------------------------
-        def group(name: str, value):
-            if complete_configs and isinstance(value, dict):
-                return value
-            return resolve_group(name, value, self.GROUP_DEFAULTS[name])
-
-        self.body_spec = BodySpec.from_dict(group("body", body))
-        self.controller_spec = ControllerSpec.from_dict(group("controller", controller))
-        self.reward_spec = RewardSpec.from_dict(group("reward", reward))
-        self.spec_env = EnvSpec.from_dict(group("env", env))
-        self.engine_spec = EngineSpec.from_dict(resolve_group("engine", engine, "pybullet")
-                                                if not isinstance(engine, dict) else engine)
-        self.urdf, self.layout = load_layout(self.body_spec, self.data_root)
-
-        if isinstance(motion, Motion):
-            if motion.num_columns != self.layout.motion_columns:
-                raise ValueError(
-                    f"{motion.source or 'motion'}: the model expects {self.layout.motion_columns} values "
-                    f"per frame but the motion has {motion.num_columns}"
-                )
-            self.motion = motion
-        else:
-            try:
-                self.motion = load_motion(resolve_motion_path(motion, self.data_root),
-                                          expected_columns=self.layout.motion_columns,
-                                          quaternions=self.layout.quaternion_columns)
-            except MotionFormatError as err:
-                raise MotionFormatError(f"{err}{_bodies_for(err.found, self.data_root)}") from None
-        self.reference = ReferenceMotion(self.motion, self.layout)
+        self.setup = setup
+        self.data_root = setup.data_root
+        self.body_spec, self.controller_spec, self.reward_spec = setup.body, setup.controller, setup.reward
+        self.spec_env, self.engine_spec = setup.env, setup.engine
+        self.urdf, self.layout, self.motion = setup.urdf, setup.layout, setup.motion
+        self.reference = setup.reference
         self.control_dt = 1.0 / self.spec_env.control_hz
-        _warn_travelling_root(self.motion, self.body_spec.base)
+        warn_travelling_root(self.motion, self.body_spec.base)
 
-        # -- engine: a simulated character and a kinematic reference in separate worlds ----
-        physics = PhysicsConfig(self.spec_env.physics_hz, self.spec_env.gravity, self.spec_env.solver_iterations,
-                                self.spec_env.non_contact_inner_iterations)
-        root_pos, root_rot, _, _ = self.reference.root(0.0)
-        if self.engine_spec.name == "mujoco":
-            from aslexp.sim.mujoco_engine import MujocoCharacter, MujocoWorld
-
-            self.sim_world = MujocoWorld(physics, self.engine_spec)
-            self.sim = MujocoCharacter(self.sim_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot)
-            self.ref_world = self.sim_world  # the reference is kinematics on the same model, never stepped
-            self.ref = MujocoCharacter(self.sim_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot,
-                                       kinematic=True, body=self.sim.body)
-        else:
-            self.sim_world = World(physics)
-            self.ref_world = World(physics)
-            self.sim = Character(self.sim_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot)
-        self._views: tuple | None = None  # MuJoCo: PyBullet pose holders that render()'s TinyRenderer draws
-        self.ground = self.sim_world.add_ground() if self.body_spec.base == "free" else None
+        # -- engine: a simulated character and a kinematic reference, built by the engine ---------
+        self.simulation = setup.simulation(render=render_mode == "rgb_array")
+        self.sim, self.ref, self.ground = self.simulation.sim, self.simulation.ref, self.simulation.ground
         unknown = [n for n in self.body_spec.ground_contacts if n not in self.sim.link_names]
         if unknown:
             raise ValueError(f"body {self.body_spec.name}: ground_contacts {unknown} are not links; "
                              f"links: {self.sim.link_names}")
         self._allowed_contacts = {self.sim.link_names.index(n) for n in self.body_spec.ground_contacts}
-        if self.engine_spec.name == "pybullet":
-            self.ref = Character(self.ref_world, self.urdf, self.body_spec, self.layout, root_pos, root_rot,
-                                 kinematic=True)
-        if render_mode == "rgb_array" and self.engine_spec.name == "pybullet":
-            _colour(self.ref, (0.25, 0.45, 0.85))  # reference: blue
-            _colour(self.sim, (0.95, 0.55, 0.15))  # simulation: orange
-        self.controller = PDController(self.controller_spec, self.layout)
+        self.controller = setup.pd_controller()
         self.controller.check_body(self.sim)
         if self.controller_spec.target_rate == "physics" and self.spec_env.action_mode != "residual":
             raise ValueError(f"controller {self.controller_spec.name}: target_rate physics re-samples the "
@@ -350,10 +139,8 @@ class ImitationEnv(gym.Env):
         self._filter_state: np.ndarray | None = None
         self._plain_base = False  # set by thesis_pd(): the base is the reference itself
         self._default_controller: PDController | None = None
-        self.reward_fn = ImitationReward(self.reward_spec, self.layout)
-        self.score_fns = {str(name): ImitationReward(RewardSpec.from_dict(
-            value if isinstance(value, dict) else resolve_group("reward", value)), self.layout)
-            for name, value in (score_rewards or {}).items()}
+        self.reward_fn = setup.reward_function()
+        self.score_fns = {name: setup.reward_function(spec) for name, spec in setup.score_rewards.items()}
 
         # -- spaces ---------------------------------------------------------------------------
         lower, upper = [], []
@@ -524,10 +311,10 @@ class ImitationEnv(gym.Env):
             yield self
             return
         if self._default_controller is None:
-            spec = ControllerSpec.from_dict(resolve_group("controller", None, self.GROUP_DEFAULTS["controller"]))
+            spec = self.setup.thesis_controller()
             if not spec.is_thesis_pd:
                 raise ValueError(f"default controller {spec.name!r} has target options; baselines need a plain one")
-            self._default_controller = PDController(spec, self.layout)
+            self._default_controller = self.setup.pd_controller(spec)
             self._default_controller.check_body(self.sim)
         previous = self._thesis_pd, self.controller
         self._thesis_pd, self.controller = True, self._default_controller
@@ -554,8 +341,7 @@ class ImitationEnv(gym.Env):
             for i in range(n):
                 t = self.time + (i + 1) * substep
                 targets = np.clip(self.reference.joints(t) + action, self.joint_lower, self.joint_upper)
-                self.controller.apply(self.sim, targets, velocity_targets(t))
-                self.sim_world.step(1)
+                self.controller.drive(self.sim, targets, velocity_targets(t), 1)
             return
         target_time = self.time + self.spec_env.reference_lookahead * self.control_dt
         if self.spec_env.action_mode == "residual":
@@ -698,37 +484,19 @@ class ImitationEnv(gym.Env):
         """Reference (left) and simulation (right) side by side, PyBullet's TinyRenderer."""
         if self.render_mode != "rgb_array":
             return None
-        camera = {**DEFAULT_CAMERA, **(self.spec_env.camera or {})}
-        if self.engine_spec.name == "mujoco":  # MuJoCo's renderer needs OpenGL: PyBullet draws the poses
-            return self._render_views(camera)
-        return np.concatenate([_snapshot(self.ref_world, self.ref, self.render_size, camera),
-                               _snapshot(self.sim_world, self.sim, self.render_size, camera)], axis=1)
+        return self.simulation.render({**DEFAULT_CAMERA, **(self.spec_env.camera or {})}, self.render_size)
 
-    def _render_views(self, camera: dict[str, float]) -> np.ndarray:
-        if self._views is None:
-            physics = PhysicsConfig(self.spec_env.physics_hz, self.spec_env.gravity)
-            views = []
-            for rgb in ((0.25, 0.45, 0.85), (0.95, 0.55, 0.15)):  # reference blue, simulation orange
-                world = World(physics)
-                holder = Character(world, self.urdf, self.body_spec, self.layout, kinematic=True)
-                _colour(holder, rgb)
-                views.append((world, holder))
-            self._views = tuple(views)
-        images = []
-        for (world, holder), source in zip(self._views, (self.ref, self.sim)):
-            holder.set_state(*source.joint_state())
-            position, rotation, _, _ = source.base_state()
-            holder.set_base(position, rotation)
-            images.append(_snapshot(world, holder, self.render_size, camera))
-        return np.concatenate(images, axis=1)
+    @property
+    def sim_world(self):
+        """The simulated character's world (an engine's own object: engine-specific tests reach it)."""
+        return self.sim.world
+
+    @property
+    def ref_world(self):
+        return self.ref.world
 
     def close(self) -> None:
-        self.sim_world.close()
-        if self.ref_world is not self.sim_world:
-            self.ref_world.close()
-        for world, _ in self._views or ():
-            world.close()
-        self._views = None
+        self.simulation.close()
 
 
 def heading_rotation(root_rot: np.ndarray) -> np.ndarray:
@@ -780,27 +548,3 @@ def observe(spec: EnvSpec, reference: ReferenceMotion, times: np.ndarray, links:
         parts += [quaternion.rotate(quaternion.conjugate(frame), ref_pos - root_pos),
                   np.where(ref_local[:, :1] < 0, -ref_local, ref_local)]
     return np.concatenate(parts, axis=1).astype(np.float32)
-
-
-def _colour(character: Character, rgb: tuple[float, float, float]) -> None:
-    """Colour a character for rendering; distal links lighter so finger tips stand out."""
-    pb = character.world.client
-    for link in range(-1, character.num_links):
-        shade = 1.0 if link < 0 or not character.link_names[link].endswith("dist") else 1.25
-        pb.changeVisualShape(character.id, link, rgbaColor=[min(c * shade, 1.0) for c in rgb] + [1.0])
-
-
-def _snapshot(world: World, character: Character, size: tuple[int, int],
-              camera: dict[str, float] | None = None) -> np.ndarray:
-    camera = camera or DEFAULT_CAMERA
-    pb = world.client
-    base, _ = pb.getBasePositionAndOrientation(character.id)
-    links = character.link_states(velocities=False)
-    target = links[:, 0:3].mean(axis=0) if len(links) else np.asarray(base)
-    width, height = size
-    view = pb.computeViewMatrixFromYawPitchRoll(cameraTargetPosition=list(target),
-                                                distance=float(camera["distance"]), yaw=float(camera["yaw"]),
-                                                pitch=float(camera["pitch"]), roll=0, upAxisIndex=1)
-    proj = pb.computeProjectionMatrixFOV(fov=60, aspect=width / height, nearVal=0.01, farVal=10.0)
-    _, _, rgba, _, _ = pb.getCameraImage(width, height, view, proj, renderer=pb.ER_TINY_RENDERER)
-    return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]

@@ -18,12 +18,26 @@ error |dw|^2 to the velocity error.
 
 Joint errors are summed (Eq. 5.10, the thesis and the authors' code) unless
 ``normalize_joint_weights`` makes them a weighted mean (aslexp's earlier upper-body default).
+
+A new kind of error is a registration, not a patch: a function of the reward and the two snapshots
+(arrays with a leading batch axis) returning one error per state, registered by name, and a term
+that names it in a reward YAML, whose ``module`` key imports the registering module::
+
+    @register_error("worst_tip")
+    def worst_tip(reward, sim, ref):      # ImitationReward, PoseSnapshot (N, ...) x 2 -> (N,)
+        return np.max(np.sum((sim.end_effectors - ref.end_effectors) ** 2, axis=-1), axis=-1)
+
+    # conf/reward/my_reward.yaml
+    module: my_package.my_errors
+    terms: {pose: {weight: 0.5, scale: 2}, worst_tip: {weight: 0.5, scale: 40}}
 """
 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,8 +46,35 @@ import numpy as np
 from aslexp.sim.body import BodyLayout
 from aslexp.quaternion import angle as quat_angle
 
-TERMS = ("pose", "velocity", "end_effector", "root")
+TERMS = ("pose", "velocity", "end_effector", "root")  # the built-in errors, computed together every step
 COMBINE = ("sum", "product")
+# Registered errors beyond the built-ins: name -> f(reward, sim, ref) -> (N,) errors.
+_ERRORS: dict[str, Callable[..., np.ndarray]] = {}
+
+
+def register_error(name: str, *, replace: bool = False):
+    """Decorator: make ``f(reward, sim, ref) -> (N,)`` the error ``name`` a reward term may use."""
+
+    def decorate(function: Callable[..., np.ndarray]):
+        if name in TERMS:
+            raise ValueError(f"reward error {name!r} is built in")
+        known = _ERRORS.get(name)
+        if known is not None and known is not function and not replace:
+            raise ValueError(f"reward error {name!r} is already registered ({known.__module__}); choose another "
+                             "name or pass replace=True")
+        _ERRORS[name] = function
+        return function
+
+    return decorate
+
+
+def unregister_error(name: str) -> None:
+    """Forget a registered error (tests register throwaway ones)."""
+    _ERRORS.pop(name, None)
+
+
+def error_names() -> tuple[str, ...]:
+    return TERMS + tuple(_ERRORS)
 
 
 @dataclass(frozen=True)
@@ -63,9 +104,16 @@ class RewardSpec:
 
     @classmethod
     def from_dict(cls, values: dict[str, Any]) -> "RewardSpec":
-        unknown = set(values) - {"terms", "combine", "joint_weights", "root_error", "normalize_joint_weights"}
+        unknown = set(values) - {"terms", "combine", "joint_weights", "root_error", "normalize_joint_weights",
+                                 "module"}
         if unknown:
             raise ValueError(f"reward config: unknown keys {sorted(unknown)}")
+        modules = values.get("module") or []
+        for module in [modules] if isinstance(modules, str) else modules:  # they register errors
+            try:
+                importlib.import_module(str(module))
+            except ImportError as error:
+                raise ValueError(f"reward config: module {module} could not be imported ({error})") from None
         terms = {}
         for name, term in (values.get("terms") or {}).items():
             if term is None:  # a term switched off by an override (`reward.terms.pose: null`)
@@ -74,8 +122,9 @@ class RewardSpec:
             if unknown_keys:
                 raise ValueError(f"reward config: term {name!r} has unknown keys {sorted(unknown_keys)}")
             kind = term.get("error") or name
-            if kind not in TERMS:
-                raise ValueError(f"reward config: unknown term {name!r} (error {kind!r}); known errors: {TERMS}")
+            if kind not in TERMS and kind not in _ERRORS:
+                raise ValueError(f"reward config: unknown term {name!r} (error {kind!r}); known errors: "
+                                 f"{error_names()} (a registered one: reward.module names its module)")
             groups = term.get("groups")
             if (groups is not None or term.get("root")) and kind not in ("pose", "velocity"):
                 raise ValueError(f"reward config: term {name!r}: `groups` and `root` apply to pose and "
@@ -185,6 +234,8 @@ class ImitationReward:
         out = {"pose": pose, "velocity": vel, "end_effector": end, "root": root}
         for name, term in self.spec.terms.items():
             kind = term.kind(name)
+            if kind not in out:  # a registered error, computed once per step whichever terms use it
+                out[kind] = np.asarray(_ERRORS[kind](self, sim, ref), dtype=np.float64).reshape(n)
             if name in self._term_weights:
                 per_joint = pose_j if kind == "pose" else vel_j
                 out[name] = per_joint @ self._term_weights[name]

@@ -54,36 +54,38 @@ def build_envs(cfg: dict[str, Any], data_root: Path, vector_env: str = "auto"):
     """A factory of training envs (picklable: PPO may build them in worker processes) and the
     evaluation env (no early termination: evaluations score whole episodes; also scored under
     ``report.score_rewards``). With
-    ``vector_env: batched`` (engine=mujoco) the factory takes the number of environments and
+    ``vector_env: batched`` (an engine that batches: engine=mujoco) the factory takes the number of environments and
     builds one :class:`~aslexp.envs.batched.BatchedImitationEnv` of them."""
     import functools
 
-    from aslexp.envs.config import deep_merge
+    from aslexp.envs.assembly import ImitationSetup
     from aslexp.envs.imitation import ImitationEnv
 
-    common = dict(body=cfg["body"], controller=cfg["controller"], reward=cfg["reward"], data_root=data_root,
-                  engine=cfg.get("engine"), complete_configs=True)  # Hydra composed every group
+    setup = ImitationSetup.from_config(cfg, data_root, score_rewards=score_rewards(cfg))  # Hydra composed every group
     if vector_env == "batched":
         from aslexp.envs.batched import BatchedImitationEnv
 
-        make_train_env = functools.partial(BatchedImitationEnv, motion=cfg["motion"]["file"], env=cfg["env"],
-                                           shape_reward=True, **common)
-    else:
-        make_train_env = functools.partial(ImitationEnv, cfg["motion"]["file"], env=cfg["env"], shape_reward=True,
-                                           **common)  # env.heading_shaping / offset_shaping apply here only
-    eval_cfg = deep_merge(cfg["env"], {"early_termination": {"min_reward": None}})
+        make_train_env = functools.partial(BatchedImitationEnv.from_setup, setup=setup, shape_reward=True)
+    else:  # env.heading_shaping / offset_shaping apply to the training envs only
+        make_train_env = functools.partial(ImitationEnv.from_setup, setup, shape_reward=True)
     render = cfg.get("render") or {}
-    eval_env = ImitationEnv(cfg["motion"]["file"], env=eval_cfg, render_mode="rgb_array",
-                            render_size=tuple(render.get("size", (240, 240))), score_rewards=score_rewards(cfg),
-                            **common)
+    eval_env = ImitationEnv.from_setup(setup.merged(env={"early_termination": {"min_reward": None}}),
+                                       render_mode="rgb_array", render_size=tuple(render.get("size", (240, 240))))
     return make_train_env, eval_env
 
 
+def _engine(cfg: dict[str, Any]):
+    from aslexp.envs.config import DEFAULTS
+    from aslexp.sim.engine import get_engine
+
+    engine = cfg.get("engine") or {}
+    return get_engine(engine.get("name", DEFAULTS["engine"]), engine.get("module"))
+
+
 def engine_vector_env(cfg: dict[str, Any], vector_env: str) -> str:
-    """``auto`` with engine=mujoco is ``batched`` (every environment in one MuJoCo batch); any
-    other choice stays."""
-    engine = (cfg.get("engine") or {}).get("name", "pybullet")
-    return "batched" if vector_env == "auto" and engine == "mujoco" else vector_env
+    """``auto`` on an engine that batches (engine=mujoco) is ``batched``: every environment in one
+    batch; any other choice stays."""
+    return "batched" if vector_env == "auto" and _engine(cfg).batched else vector_env
 
 
 def _resume_path(resume: str | None, cfg: dict[str, Any]) -> Path | None:
@@ -231,12 +233,10 @@ def measure_report_baselines(cfg: dict[str, Any], eval_env, ppo, data_root: Path
     if not rows:
         return None
     from aslexp.envs.baselines import Baseline, no_learning_baselines
-    from aslexp.envs.imitation import resolve_motion_path
 
     seconds = ppo.eval_steps / eval_env.spec_env.control_hz
-    measured = no_learning_baselines(resolve_motion_path(cfg["motion"]["file"], data_root), cfg["body"], cfg["reward"], cfg["env"],
-                                     [Baseline.from_dict(dict(b)) for b in rows], seconds, data_root,
-                                     engine=cfg.get("engine"), phases=ppo.phases, score_rewards=score_rewards(cfg))
+    measured = no_learning_baselines(eval_env.setup, [Baseline.from_dict(dict(b)) for b in rows], seconds,
+                                     phases=ppo.phases)
     return [{**row, "seconds": seconds} for row in measured]
 
 
@@ -254,9 +254,7 @@ def refuse_blown_up(metrics: dict[str, Any], cfg: DictConfig) -> None:
     if first.get("joint"):
         where = (f" (first: joint {first['joint']} at {first['speed']:.3g} rad/s, {first['seconds']:g} s into the "
                  f"episode from phase {first.get('phase', 0):g})")
-    engine = (cfg.get("engine") or {}).get("name", "pybullet")
-    hints = ("a stable-PD controller (physical gains) or engine=pybullet, whose motors the MuJoCo stand-in only "
-             "approximates" if engine == "mujoco" else "a smaller physics step (env.physics_hz) or softer gains")
+    hints = _engine(cfg).divergence_hint
     raise SimulationDiverged(
         f"motion {metrics['motion']}: the simulation blew up in {count} of {episodes} evaluation episodes{where}; "
         f"the last evaluation is not a score (kept in metrics.json as last_eval_diverged). Try {hints}")

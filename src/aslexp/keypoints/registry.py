@@ -22,7 +22,6 @@ registrations; they are loaded the first time a name is not found or the names a
 from __future__ import annotations
 
 import inspect
-import logging
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -31,14 +30,13 @@ from aslexp.errors import DataError
 from aslexp.keypoints.layout import KeypointLayout
 from aslexp.keypoints.source import KeypointSource
 from aslexp.keypoints.subsets import register_subsets
+from aslexp.plugins import load_entry_points
 
-log = logging.getLogger(__name__)
 
 ENTRY_POINT_GROUP = "aslexp.keypoints"
 
 _LAYOUTS: dict[str, KeypointLayout] = {}
 _SOURCES: dict[str, SourceSpec] = {}
-_entry_points_loaded = False
 
 
 @dataclass(frozen=True)
@@ -57,20 +55,7 @@ class SourceSpec:
 
 
 def _load_entry_points() -> None:
-    global _entry_points_loaded
-    if _entry_points_loaded:
-        return
-    _entry_points_loaded = True
-    from importlib.metadata import entry_points
-
-    for entry in entry_points(group=ENTRY_POINT_GROUP):
-        try:
-            target = entry.load()
-        except Exception as error:  # noqa: BLE001 - a broken plug-in must not break the built-ins
-            log.warning("keypoint plug-in %s (%s) failed to load: %s", entry.name, entry.value, error)
-            continue
-        if callable(target):
-            target()
+    load_entry_points(ENTRY_POINT_GROUP, "keypoint")
 
 
 # ----------------------------------------------------------------------------- layouts

@@ -1,7 +1,8 @@
 """Recognition of phonological properties of signs from keypoint sequences.
 
-    models      build_classifier(name, params, ...) and the classifiers (chance baselines, logreg,
-                svm, the rf/hgb feature baseline, mlp, lstm, gru, stgcn, slgcn, cnn3d)
+    registry    register_classifier: a classifier is a builder, its parameters and a YAML
+    models      build_classifier(name, params, ...) and the built-in classifiers (chance baselines,
+                logreg, svm, the rf/hgb feature baseline, mlp, lstm, gru, stgcn, slgcn, cnn3d)
     train       TrainerConfig, fit (validation, early stopping or a fixed budget), fit_final,
                 checkpoints; device and precision (device.py), augmentation (augment.py)
     metrics     classification_metrics, intervals over splits, paired comparisons, Fleiss' kappa,

@@ -191,7 +191,7 @@ def run_recognition(
     if "name" not in classifier:
         raise ValueError(f"classifier config needs a 'name' (got keys {sorted(classifier)})")
     name = str(classifier["name"])
-    params = resolve_params(name, classifier.get("params"))
+    params = resolve_params(name, classifier.get("params"), classifier.get("module"))  # a module registers it
     config = TrainerConfig.from_dict(trainer)
     options = split if isinstance(split, SplitOptions) else SplitOptions.from_dict(split)
     seeds = [int(seed) for seed in seeds]

@@ -21,6 +21,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from aslexp.recognition.metrics import mean_interval, paired_comparison
+from aslexp.recognition.registry import BUILT_IN
 
 __all__ = [
     "BELOW_BASELINE",
@@ -39,7 +40,7 @@ THESIS_NAMES = {"flexion": "Flexion", "major_location": "MajLoc", "minor_locatio
                 "selected_fingers": "Fingers", "sign_type": "SignType"}  # fmt: skip
 
 
-MODEL_ORDER = ("majority", "stratified", "logreg", "svm", "rf", "hgb", "mlp", "lstm", "gru", "stgcn", "slgcn", "cnn3d")
+MODEL_ORDER = BUILT_IN  # the registry's table order (aslexp.recognition.registry)
 SPLIT_ORDER = ("phoneme", "gloss", "cv5")
 PROPERTY_ORDER = ("sign_type", "major_location", "minor_location", "selected_fingers", "flexion", "movement")
 

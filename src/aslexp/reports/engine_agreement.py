@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from aslexp.data.root import resolve_data_root
+from aslexp.envs.assembly import ImitationSetup
 from aslexp.envs.baselines import Baseline, ended_early, no_learning_baselines
 from aslexp.envs.config import resolve_group
 
@@ -57,8 +58,9 @@ def measure(kind: str, name: str, seconds: float, data_root: Path) -> list[dict[
         row = Baseline.from_dict({"label": label, "controller": controller, "body": body_overrides})
         measured = {}
         for engine, config in ENGINES.items():
-            measured[engine] = no_learning_baselines(motion, body, reward, env, [row], seconds, data_root,
-                                                     engine=config)
+            setup = ImitationSetup.from_groups(motion, body, None, reward, env, config, data_root=data_root,
+                                               complete=True)
+            measured[engine] = no_learning_baselines(setup, [row], seconds)
         for pb, mj, free in zip(measured["pybullet"], measured["mujoco"], measured["mujoco_unclamped"]):
             out.append({"body": kind, "motion": name, "label": label, "lookahead": pb["lookahead"],
                         "pybullet": pb["reward"], "mujoco": mj["reward"], "difference": mj["reward"] - pb["reward"],

@@ -161,7 +161,8 @@ def run_env(cfg: dict[str, Any], env_overrides: dict[str, Any] | None = None,
     ``env_overrides`` and ``body_overrides`` merged over its env and body configs."""
     from aslexp.data.root import resolve_data_root
     from aslexp.envs.config import deep_merge
-    from aslexp.envs.imitation import ImitationEnv, resolve_motion_path
+    from aslexp.envs.assembly import resolve_motion_path
+    from aslexp.envs.imitation import ImitationEnv
 
     data_root = resolve_data_root(cfg.get("data_root"))
     return ImitationEnv(resolve_motion_path(cfg["motion"]["file"], data_root),

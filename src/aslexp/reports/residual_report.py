@@ -51,7 +51,7 @@ def root_drift(env, policy, steps: int) -> dict[str, float]:
     """Where the root went under ``policy`` from phase 0: its largest tilt from vertical and its
     largest yaw against the reference's root (degrees), over ``steps`` control steps."""
     from aslexp import quaternion
-    from aslexp.envs.imitation import UP_AXIS
+    from aslexp.envs.spec import UP_AXIS
 
     obs, _ = env.reset(options={"phase": 0.0})
     tilt = yaw = 0.0
@@ -69,7 +69,8 @@ def root_drift(env, policy, steps: int) -> dict[str, float]:
 
 def residual_baselines(cfg: dict[str, Any], cache: Path) -> dict[str, Any]:
     """The comparison rows for one motion (deterministic: computed once, cached in ``cache``)."""
-    from aslexp.envs.imitation import RESIDUAL_BASE_KEYS, TRAINING_ONLY_KEYS, ImitationEnv
+    from aslexp.envs.imitation import ImitationEnv
+    from aslexp.envs.spec import RESIDUAL_BASE_KEYS, TRAINING_ONLY_KEYS
     from aslexp.rl.evaluate import (constant_correction_policy, evaluate_phases, reference_policy,
                                     smoothed_reference_policy)
     from aslexp.rl.ppo import PPOConfig

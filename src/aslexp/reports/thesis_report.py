@@ -60,13 +60,12 @@ def motion_baselines(cfg: dict[str, Any], cache: Path, items: list[dict[str, Any
         if stored.get("key") == json.loads(json.dumps(key)):
             return stored["rows"]
     from aslexp.data.root import resolve_data_root
+    from aslexp.envs.assembly import ImitationSetup
     from aslexp.envs.baselines import Baseline, no_learning_baselines
-    from aslexp.envs.imitation import resolve_motion_path
 
-    data_root = resolve_data_root(cfg.get("data_root"))
-    rows = no_learning_baselines(resolve_motion_path(cfg["motion"]["file"], data_root), cfg["body"], cfg["reward"],
-                                 cfg["env"], [Baseline.from_dict(b) for b in report.get("baselines", [])],
-                                 float(report.get("baseline_seconds", 10.0)), data_root, engine=cfg.get("engine"))
+    setup = ImitationSetup.from_config(cfg, resolve_data_root(cfg.get("data_root")))
+    rows = no_learning_baselines(setup, [Baseline.from_dict(b) for b in report.get("baselines", [])],
+                                 float(report.get("baseline_seconds", 10.0)))
     cache.parent.mkdir(parents=True, exist_ok=True)
     cache.write_text(json.dumps({"key": key, "rows": rows}, indent=1))
     return rows

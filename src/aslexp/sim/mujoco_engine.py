@@ -35,13 +35,15 @@ from __future__ import annotations
 
 import logging
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from aslexp.errors import ConfigError
 from aslexp.quaternion import relative_rotvec, rotate, z_to
 from aslexp.sim.body import BodyLayout, BodySpec
-from aslexp.sim.engine import EngineSpec
+from aslexp.sim.engine import EngineSpec, Simulation, SimulationRequest, register_engine
 from aslexp.sim.urdf import read_joints
 
 
@@ -95,6 +97,55 @@ def _state_slices(mujoco, model) -> dict[str, slice]:
 CONTROL_SPEC = ("mjSTATE_CTRL", "mjSTATE_MOCAP_POS", "mjSTATE_MOCAP_QUAT")
 
 
+INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
+SOLVERS = ("Newton", "CG", "PGS")
+
+
+@dataclass(frozen=True)
+class MujocoOptions:
+    """MuJoCo's own keys of ``conf/engine/mujoco.yaml``."""
+
+    # the integrator (implicitfast treats the PD actuators' damping implicitly: stable at any gain,
+    # as stable PD), the constraint solver and its iterations
+    integrator: str = "implicitfast"
+    solver: str = "Newton"
+    iterations: int = 50
+    # controller mode position: the stiffness of the actuators that stand for PyBullet's velocity
+    # motor, times this (the module docstring says why 2)
+    motor_gain_scale: float = 2.0
+    # threads stepping a batch of environments (0: every core this process may use)
+    threads: int = 0
+    # every generalised velocity (the joints' and a free base's six) clamped to +-this after each
+    # physics step, and the step's positions integrated with the clamped velocity: PyBullet's
+    # btMultiBody does exactly this whenever it applies a velocity change (maxJointVelocity, 100 rad/s
+    # by default, which aslexp never changes), so both engines share one joint-speed semantics.
+    # null: MuJoCo's own, no clamp (a transient PyBullet cannot produce, e.g. at a looping motion's seam).
+    joint_speed_limit: float | None = 100.0
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "MujocoOptions":
+        spec = cls(**values)
+        if spec.integrator not in INTEGRATORS:
+            raise ConfigError(f"engine config: integrator must be one of {INTEGRATORS}, got {spec.integrator!r}")
+        if spec.solver not in SOLVERS:
+            raise ConfigError(f"engine config: solver must be one of {SOLVERS}, got {spec.solver!r}")
+        scale = spec.motor_gain_scale
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
+            raise ConfigError(f"engine config: motor_gain_scale must be a number > 0, got {scale!r}")
+        limit = spec.joint_speed_limit
+        if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, float)) or not limit > 0):
+            raise ConfigError(f"engine config: joint_speed_limit must be a number > 0 (rad/s) or null, got {limit!r}")
+        for key in ("iterations", "threads"):
+            value = getattr(spec, key)
+            if isinstance(value, bool) or not isinstance(value, int) or value < (1 if key == "iterations" else 0):
+                raise ConfigError(f"engine config: {key} must be an integer >= {1 if key == 'iterations' else 0}, "
+                                  f"got {value!r}")
+        return spec
+
+
+DEFAULT_SPEC = EngineSpec(name="mujoco", options=MujocoOptions())
+
+
 class MujocoBody:
     """A body config compiled for MuJoCo, with the maps between the motion layout and MuJoCo's
     vectors (qpos, qvel, ctrl, state)."""
@@ -104,7 +155,7 @@ class MujocoBody:
         mujoco = _mujoco()
         self.mujoco = mujoco
         self.spec, self.layout, self.physics = spec, layout, physics
-        self.engine = engine or EngineSpec(name="mujoco")
+        self.engine = engine or DEFAULT_SPEC
         self.controller = controller
         urdf = Path(urdf)
         joints = read_joints(urdf)
@@ -125,9 +176,9 @@ class MujocoBody:
             root.mocap = True
         mspec.option.timestep = 1.0 / float(physics.physics_hz)
         mspec.option.gravity = list(physics.gravity)
-        mspec.option.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{self.engine.integrator.upper()}")
-        mspec.option.solver = getattr(mujoco.mjtSolver, f"mjSOL_{self.engine.solver.upper()}")
-        mspec.option.iterations = int(self.engine.iterations)
+        mspec.option.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{self.engine.options.integrator.upper()}")
+        mspec.option.solver = getattr(mujoco.mjtSolver, f"mjSOL_{self.engine.options.solver.upper()}")
+        mspec.option.iterations = int(self.engine.options.iterations)
         bodies = {b.name: b for b in mspec.bodies}
         if spec.self_collision:
             for body in mspec.bodies:  # PyBullet excludes every ancestor; MuJoCo only the parent
@@ -248,7 +299,7 @@ class MujocoBody:
                     else:  # PyBullet's velocity-constraint motor, per joint (module docstring)
                         mass = inertia[i]
                         kv[i], kv_target[i] = (1.0 + gains.kd) * mass / dt, gains.kd * mass / dt
-                        kp[i] = self.engine.motor_gain_scale * gains.kp * mass / (dt * dt)
+                        kp[i] = self.engine.options.motor_gain_scale * gains.kp * mass / (dt * dt)
                     # PyBullet caps its motor's constraint impulse; the stand-in's PD torque also fights
                     # the coupled chain and gravity that the constraint absorbs, and capped at the same
                     # value it stalls the upper body (docs/engines.md): only physical gains keep the cap.
@@ -368,7 +419,7 @@ class MujocoBody:
         if self._runner is None:
             from mujoco import rollout
 
-            threads = self.engine.threads or (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+            threads = self.engine.options.threads or (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
                                               else os.cpu_count() or 1)
             self._threads = max(1, threads)
             # A pool for batches; one environment steps in this thread (a hand-off costs more than its step).
@@ -397,7 +448,7 @@ class MujocoBody:
         # the environments' divergence guard reads, so the clamp cannot hide a simulation that blew up.
         velocity = np.abs(out[:, :, self.slices["qvel"]])
         speeds = velocity.max(axis=(1, 2)) if n else np.zeros(0)
-        limit = self.engine.joint_speed_limit
+        limit = self.engine.options.joint_speed_limit
         # and which degree of freedom it was (a NaN counts as the fastest), what a blow-up names: only
         # for the environments past the clamp's speed (a blow-up passes it), none on most steps
         self.peak_dofs = np.zeros(n, dtype=int)
@@ -442,6 +493,10 @@ class MujocoBody:
                 new[qpos], new[qvel] = position, clipped
             state[0] = new
         return state[0], peak
+
+    def set_threads(self, threads: int) -> None:
+        """Step batches on ``threads`` threads (rollout workers: one each; 0: every core)."""
+        self.engine = self.engine.replace(threads=int(threads))
 
     def contacts(self, state: np.ndarray) -> set[int]:
         """Link indices (-1: the root) touching the ground in one state."""
@@ -514,7 +569,7 @@ class MujocoWorld:
 
     def __init__(self, physics, engine: EngineSpec | None = None) -> None:
         self.physics = physics
-        self.engine = engine or EngineSpec(name="mujoco")
+        self.engine = engine or DEFAULT_SPEC
         self.character: MujocoCharacter | None = None
 
     @property
@@ -559,11 +614,18 @@ class MujocoCharacter:
         if not kinematic:
             world.character = self
 
-    # -- control (PDController.apply / drive) ---------------------------------------------------------
-    def set_targets(self, controller, targets: np.ndarray, target_velocities: np.ndarray | None) -> None:
+    # -- control (the engine seam: PDController.drive) ------------------------------------------------
+    def check_controller(self, controller) -> None:
+        """Every controller runs on every base here (MuJoCo reads a fixed base's joints right)."""
+
+    def drive(self, controller, targets: np.ndarray, target_velocities: np.ndarray | None, substeps: int) -> None:
+        """Hold ``targets`` for ``substeps`` physics steps: an actuator holds its input, set once."""
+        controller.commands_sent += 1
         if self.body.controller is not controller:
             self.body.set_gains(controller)
+        targets = np.asarray(targets, dtype=np.float64)
         self.ctrl = self.body.controls(targets[None], None if target_velocities is None else target_velocities[None])
+        self.advance(substeps)
 
     def advance(self, substeps: int) -> None:
         self.body.step(self.state, self.ctrl, substeps)
@@ -616,3 +678,34 @@ class MujocoCharacter:
     def ground_contacts(self, ground: int) -> set[int]:
         return self.body.contacts(self.state[0])
 
+
+
+@register_engine("mujoco", options=MujocoOptions, batched=True,
+                 summary="MuJoCo: the same URDFs; many environments per process (envs.batched)",
+                 divergence_hint="a stable-PD controller (physical gains) or engine=pybullet, whose motors "
+                                 "the MuJoCo stand-in only approximates")
+def build(spec: EngineSpec, request: SimulationRequest) -> Simulation:
+    """One environment: the simulated character and its kinematic reference share one compiled
+    model (the reference is posed, never stepped); images are drawn by PyBullet's TinyRenderer
+    from the poses (MuJoCo's renderer needs OpenGL)."""
+    world = MujocoWorld(request.physics, spec)
+    sim = MujocoCharacter(world, request.urdf, request.body, request.layout, request.root_position,
+                          request.root_rotation)
+    ref = MujocoCharacter(world, request.urdf, request.body, request.layout, request.root_position,
+                          request.root_rotation, kinematic=True, body=sim.body)
+    ground = world.add_ground() if request.body.base == "free" else None
+    views: list = []
+
+    def render(camera: dict[str, float], size: tuple[int, int]) -> np.ndarray:
+        if not views:
+            from aslexp.sim.world import PoseRenderer
+
+            views.append(PoseRenderer(request.urdf, request.body, request.layout, request.physics))
+        return views[0].draw((ref, sim), camera, size)
+
+    def close() -> None:
+        world.close()
+        for view in views:
+            view.close()
+
+    return Simulation(sim=sim, ref=ref, ground=ground, batch=sim.body, render_fn=render, close_fn=close)

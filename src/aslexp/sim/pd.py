@@ -1,4 +1,5 @@
-"""PD control: gains per joint group, applied with PyBullet's motors.
+"""PD control: gains per joint group; each engine's character applies them (PyBullet: its motors,
+``aslexp.sim.world.Character.drive``; MuJoCo: PD actuators, ``aslexp.sim.mujoco_engine``).
 
 Two modes (``mode`` in ``conf/controller/*.yaml``):
 * ``position``: PyBullet's POSITION_CONTROL motor, a PD controller solved as a velocity
@@ -8,7 +9,7 @@ Two modes (``mode`` in ``conf/controller/*.yaml``):
   gains, N m/rad and N m s/rad, computed implicitly over the next step), the upper-body controller
   of the authors' code (THESIS.md 10.1; the thesis text's for the body joints only). Two PyBullet
   3.2.7 facts shape it: the command is cleared after every physics step,
-  so :meth:`PDController.drive` re-sends it before each substep (sent once per 30 Hz control step
+  so the PyBullet character re-sends it before each substep (sent once per 30 Hz control step
   the joints would be driven 1 substep in 8); and on a fixed-base body the server reads each
   joint's state 7 slots off, so the body must be loaded with a free base, pinned or standing
   (``body.base: pinned | free``; a fixed base is refused).
@@ -16,7 +17,7 @@ Two modes (``mode`` in ``conf/controller/*.yaml``):
 A joint group may carry its own ``mode`` (``groups: {fingers: {kp: 0.22, kd: 0.87, mode: position}}``;
 absent or null: the controller's ``mode``): the thesis' upper body drives its body joints with stable
 PD and its hands with the chapter-5 hand's position motor (conf/controller/upper_body_thesis.yaml).
-:meth:`PDController.apply` then sends one PyBullet motor call per mode with that mode's joints; the
+:meth:`aslexp.sim.world.Character.apply_pd` then sends one PyBullet motor call per mode with that mode's joints; the
 stable-PD rules above (re-sent every substep, no fixed base) hold as soon as one joint is stable PD.
 
 Two agent-side options shape the targets the environment gives the motors (defaults: the thesis
@@ -29,14 +30,12 @@ or the reference motion.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from aslexp.sim.body import BodyLayout
-from aslexp.sim.world import Character
 
 MODES = ("position", "stable_pd")
 TARGET_VELOCITIES = ("zero", "reference")
@@ -144,90 +143,30 @@ class PDController:
         self.modes = [spec.mode_of(g) for g in per_joint]  # per joint: position | stable_pd
         # Per mode, in layout order: the joints (layout positions) and where each one's target and
         # target velocity start in the motion-layout vectors.
-        self._by_mode: dict[str, list[int]] = {}
+        self.by_mode: dict[str, list[int]] = {}
         for k, mode in enumerate(self.modes):
-            self._by_mode.setdefault(mode, []).append(k)
-        self._offsets, self._voffsets = [], []
+            self.by_mode.setdefault(mode, []).append(k)
+        self.offsets, self.voffsets = [], []
         offset = voffset = 0
         for joint in layout.joints:
-            self._offsets.append(offset)
-            self._voffsets.append(voffset)
+            self.offsets.append(offset)
+            self.voffsets.append(voffset)
             offset += joint.dof
             voffset += 1 if joint.dof == 1 else 3
-        self.commands_sent = 0  # apply() calls: motor commands given (a test counts them per substep)
+        self.commands_sent = 0  # motor commands given (PyBullet: one per substep under stable PD; a test counts them)
         self.motor_calls = {mode: 0 for mode in MODES}  # PyBullet motor calls per mode
 
     @property
     def resend_every_substep(self) -> bool:
         """True when a joint is stable PD, whose command PyBullet clears after each physics step."""
-        return "stable_pd" in self._by_mode
+        return "stable_pd" in self.by_mode
 
-    def check_body(self, character: Character) -> None:
-        """Refuse stable PD on a fixed-base body (PyBullet 3.2.7 misreads its joint states)."""
-        if getattr(character, "engine", "pybullet") == "mujoco":
-            return  # MuJoCo reads every base right
-        if "stable_pd" in self._by_mode and character.base == "fixed":
-            groups = sorted({self.layout.joints[k].group for k in self._by_mode["stable_pd"]})
-            raise ValueError(
-                f"controller {self.spec.name}: stable PD needs a free base (body.base=pinned or free); "
-                f"on a fixed base PyBullet 3.2.7 reads the joint states 7 slots off (body {character.spec.name}, "
-                f"stable-PD groups {groups})")
+    def check_body(self, character) -> None:
+        """Refuse a body this controller cannot drive on the character's engine (PyBullet: stable
+        PD on a fixed base)."""
+        character.check_controller(self)
 
-    def drive(self, character: Character, targets: np.ndarray, target_velocities: np.ndarray | None,
-              substeps: int) -> None:
-        """Hold ``targets`` for ``substeps`` physics steps: a position motor is set once, a stable-PD
-        command is re-sent before every step (a MuJoCo actuator holds its input: set once). A mixed
-        controller re-sends both: the position motors' command is the same, so sending it again
-        changes nothing."""
-        if not self.resend_every_substep or getattr(character, "engine", "pybullet") == "mujoco":
-            self.apply(character, targets, target_velocities)
-            character.world.step(substeps)
-            return
-        for _ in range(substeps):
-            self.apply(character, targets, target_velocities)
-            character.world.step(1)
-
-    def apply(self, character: Character, targets: np.ndarray,
-              target_velocities: np.ndarray | None = None) -> None:
-        """Drive ``character`` towards ``targets`` (motion-layout joint vector) until the next call:
-        one PyBullet motor call per mode, with that mode's joints."""
-        self.commands_sent += 1
-        if getattr(character, "engine", "pybullet") == "mujoco":
-            character.set_targets(self, np.asarray(targets, dtype=np.float64), target_velocities)
-            return
-        pb = character.world.client
-        for mode, joints in self._by_mode.items():
-            self.motor_calls[mode] += 1
-            ids = [character.joint_indices[k] for k in joints]
-            kp = [self.kp[k] for k in joints]
-            kd = [self.kd[k] for k in joints]
-            if mode == "position" and all(self.layout.joints[k].dof == 1 for k in joints):
-                pb.setJointMotorControlArray(
-                    character.id, ids, pb.POSITION_CONTROL,
-                    targetPositions=[float(targets[self._offsets[k]]) for k in joints],
-                    targetVelocities=[0.0 if target_velocities is None else float(target_velocities[self._voffsets[k]])
-                                      for k in joints],
-                    forces=[self.max_force[k] for k in joints], positionGains=kp, velocityGains=kd,
-                )
-                continue
-            positions, velocities, forces = [], [], []
-            for k in joints:
-                joint, offset, voffset = self.layout.joints[k], self._offsets[k], self._voffsets[k]
-                if joint.dof == 1:
-                    positions.append([float(targets[offset])])
-                    velocities.append([0.0 if target_velocities is None else float(target_velocities[voffset])])
-                    forces.append([self.max_force[k]])
-                else:
-                    w, x, y, z = targets[offset:offset + 4]
-                    norm = math.sqrt(w * w + x * x + y * y + z * z)
-                    if norm < 1e-6:  # a policy's zero quaternion: hold the identity rotation
-                        w, x, y, z, norm = 1.0, 0.0, 0.0, 0.0, 1.0
-                    positions.append([float(x / norm), float(y / norm), float(z / norm), float(w / norm)])
-                    velocities.append([0.0, 0.0, 0.0] if target_velocities is None
-                                      else [float(v) for v in target_velocities[voffset:voffset + 3]])
-                    forces.append([self.max_force[k]] * 3)
-            pb.setJointMotorControlMultiDofArray(
-                character.id, ids, pb.POSITION_CONTROL if mode == "position" else pb.STABLE_PD_CONTROL,
-                targetPositions=positions, targetVelocities=velocities, forces=forces,
-                positionGains=kp, velocityGains=kd,
-            )
+    def drive(self, character, targets: np.ndarray, target_velocities: np.ndarray | None, substeps: int) -> None:
+        """Hold ``targets`` (motion-layout joint vector) for ``substeps`` physics steps: the engine's
+        character applies this controller's gains (:class:`aslexp.sim.engine.EngineCharacter`)."""
+        character.drive(self, np.asarray(targets, dtype=np.float64), target_velocities, substeps)

@@ -9,27 +9,16 @@ character in a world that is never stepped (it only answers forward-kinematics q
 
 from __future__ import annotations
 
+import math
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from aslexp.quaternion import rotate, wxyz_to_xyzw, z_to
 from aslexp.sim.body import BodyLayout, BodySpec
-
-
-@dataclass(frozen=True)
-class PhysicsConfig:
-    """Engine settings (``conf/env/*.yaml`` holds them next to the control rate)."""
-
-    physics_hz: float = 240.0
-    gravity: tuple[float, float, float] = (0.0, -9.8, 0.0)
-    solver_iterations: int = 10
-    # PyBullet's numNonContactInnerIterations: sweeps over the joint motors and limits inside each
-    # solver iteration. For long articulated chains (the upper body) 10 x 10 converges where 100 x 1
-    # does not (docs/imitation_upper_body.md, "Solver convergence").
-    non_contact_inner_iterations: int = 1
+from aslexp.sim.engine import (DEFAULT_CAMERA, EngineSpec, PhysicsConfig, Simulation, SimulationRequest,
+                               register_engine)
 
 
 class World:
@@ -87,9 +76,12 @@ class World:
 
 
 class Character:
-    """A body in a world: load it, set its pose, read joints and links in motion-layout terms."""
+    """A body in a world: load it, set its pose, read joints and links in motion-layout terms
+    (:class:`aslexp.sim.engine.EngineCharacter`)."""
 
-    engine = "pybullet"
+    # PyBullet reports joint speeds after its own clamp only: no faster speed to tell
+    peak_speed = 0.0
+    peak_joint = ""
 
     def __init__(self, world: World, urdf: str | os.PathLike, spec: BodySpec, layout: BodyLayout,
                  base_position=(0.0, 0.0, 0.0), base_orientation_wxyz=(1.0, 0.0, 0.0, 0.0),
@@ -229,6 +221,70 @@ class Character:
         tips = links[self.end_effector_links]
         return tips[:, 0:3] + rotate(tips[:, 3:7], self.end_effector_offset)
 
+    # -- PD control (the engine seam; aslexp.sim.pd.PDController holds the gains) ---------------
+    def check_controller(self, controller) -> None:
+        """Refuse stable PD on a fixed-base body (PyBullet 3.2.7 misreads its joint states)."""
+        if "stable_pd" in controller.by_mode and self.base == "fixed":
+            groups = sorted({self.layout.joints[k].group for k in controller.by_mode["stable_pd"]})
+            raise ValueError(
+                f"controller {controller.spec.name}: stable PD needs a free base (body.base=pinned or free); "
+                f"on a fixed base PyBullet 3.2.7 reads the joint states 7 slots off (body {self.spec.name}, "
+                f"stable-PD groups {groups})")
+
+    def drive(self, controller, targets: np.ndarray, target_velocities: np.ndarray | None, substeps: int) -> None:
+        """Hold ``targets`` for ``substeps`` physics steps: a position motor is set once, a stable-PD
+        command is re-sent before every step (PyBullet clears it after each). A mixed controller
+        re-sends both: the position motors' command is the same, so sending it again changes nothing."""
+        if "stable_pd" not in controller.by_mode:
+            self.apply_pd(controller, targets, target_velocities)
+            self.world.step(substeps)
+            return
+        for _ in range(substeps):
+            self.apply_pd(controller, targets, target_velocities)
+            self.world.step(1)
+
+    def apply_pd(self, controller, targets: np.ndarray, target_velocities: np.ndarray | None = None) -> None:
+        """Drive towards ``targets`` (motion-layout joint vector) until the next call: one PyBullet
+        motor call per mode, with that mode's joints."""
+        controller.commands_sent += 1
+        pb = self.world.client
+        layout = self.layout
+        for mode, joints in controller.by_mode.items():
+            controller.motor_calls[mode] += 1
+            ids = [self.joint_indices[k] for k in joints]
+            kp = [controller.kp[k] for k in joints]
+            kd = [controller.kd[k] for k in joints]
+            if mode == "position" and all(layout.joints[k].dof == 1 for k in joints):
+                pb.setJointMotorControlArray(
+                    self.id, ids, pb.POSITION_CONTROL,
+                    targetPositions=[float(targets[controller.offsets[k]]) for k in joints],
+                    targetVelocities=[0.0 if target_velocities is None
+                                      else float(target_velocities[controller.voffsets[k]]) for k in joints],
+                    forces=[controller.max_force[k] for k in joints], positionGains=kp, velocityGains=kd,
+                )
+                continue
+            positions, velocities, forces = [], [], []
+            for k in joints:
+                joint, offset, voffset = layout.joints[k], controller.offsets[k], controller.voffsets[k]
+                if joint.dof == 1:
+                    positions.append([float(targets[offset])])
+                    velocities.append([0.0 if target_velocities is None else float(target_velocities[voffset])])
+                    forces.append([controller.max_force[k]])
+                else:
+                    w, x, y, z = targets[offset:offset + 4]
+                    norm = math.sqrt(w * w + x * x + y * y + z * z)
+                    if norm < 1e-6:  # a policy's zero quaternion: hold the identity rotation
+                        w, x, y, z, norm = 1.0, 0.0, 0.0, 0.0, 1.0
+                    positions.append([float(x / norm), float(y / norm), float(z / norm), float(w / norm)])
+                    velocities.append([0.0, 0.0, 0.0] if target_velocities is None
+                                      else [float(v) for v in target_velocities[voffset:voffset + 3]])
+                    forces.append([controller.max_force[k]] * 3)
+            pb.setJointMotorControlMultiDofArray(
+                self.id, ids, pb.POSITION_CONTROL if mode == "position" else pb.STABLE_PD_CONTROL,
+                targetPositions=positions, targetVelocities=velocities, forces=forces,
+                positionGains=kp, velocityGains=kd,
+            )
+
 
 def pack_joint_states(joints, states) -> tuple[np.ndarray, np.ndarray]:
     """PyBullet multi-DoF joint states (one per joint of ``joints``) as the motion layout's vectors:
@@ -256,3 +312,82 @@ def pack_link_states(states, indices, num_links: int, velocities: bool = True) -
             out[i, 7:10] = s[6]
             out[i, 10:13] = s[7]
     return out
+
+
+# -- rendering: PyBullet's TinyRenderer (no OpenGL), for its own worlds and any engine's poses ------
+
+REFERENCE_RGB, SIMULATION_RGB = (0.25, 0.45, 0.85), (0.95, 0.55, 0.15)  # blue, orange
+
+
+def colour(character: Character, rgb: tuple[float, float, float]) -> None:
+    """Colour a character for rendering; distal links lighter so finger tips stand out."""
+    pb = character.world.client
+    for link in range(-1, character.num_links):
+        shade = 1.0 if link < 0 or not character.link_names[link].endswith("dist") else 1.25
+        pb.changeVisualShape(character.id, link, rgbaColor=[min(c * shade, 1.0) for c in rgb] + [1.0])
+
+
+def snapshot(character: Character, size: tuple[int, int], camera: dict[str, float] | None = None) -> np.ndarray:
+    """One (H, W, 3) image of ``character`` in its world."""
+    camera = {**DEFAULT_CAMERA, **(camera or {})}
+    pb = character.world.client
+    base, _ = pb.getBasePositionAndOrientation(character.id)
+    links = character.link_states(velocities=False)
+    target = links[:, 0:3].mean(axis=0) if len(links) else np.asarray(base)
+    width, height = size
+    view = pb.computeViewMatrixFromYawPitchRoll(cameraTargetPosition=list(target),
+                                                distance=float(camera["distance"]), yaw=float(camera["yaw"]),
+                                                pitch=float(camera["pitch"]), roll=0, upAxisIndex=1)
+    proj = pb.computeProjectionMatrixFOV(fov=60, aspect=width / height, nearVal=0.01, farVal=10.0)
+    _, _, rgba, _, _ = pb.getCameraImage(width, height, view, proj, renderer=pb.ER_TINY_RENDERER)
+    return np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)[:, :, :3]
+
+
+class PoseRenderer:
+    """Draws the poses of another engine's characters: two coloured kinematic PyBullet holders
+    (reference blue, simulation orange) posed from any :class:`~aslexp.sim.engine.EngineCharacter`."""
+
+    def __init__(self, urdf, spec: BodySpec, layout: BodyLayout, physics: PhysicsConfig) -> None:
+        self.holders = []
+        for rgb in (REFERENCE_RGB, SIMULATION_RGB):
+            holder = Character(World(PhysicsConfig(physics.physics_hz, physics.gravity)), urdf, spec, layout,
+                               kinematic=True)
+            colour(holder, rgb)
+            self.holders.append(holder)
+
+    def draw(self, sources, camera: dict[str, float], size: tuple[int, int]) -> np.ndarray:
+        images = []
+        for holder, source in zip(self.holders, sources):
+            holder.set_state(*source.joint_state())
+            position, rotation, _, _ = source.base_state()
+            holder.set_base(position, rotation)
+            images.append(snapshot(holder, size, camera))
+        return np.concatenate(images, axis=1)
+
+    def close(self) -> None:
+        for holder in self.holders:
+            holder.world.close()
+
+
+@register_engine("pybullet", summary="PyBullet 3.2.7: the thesis' engine and the default")
+def build(spec: EngineSpec, request: SimulationRequest) -> Simulation:
+    """One environment: the simulated character in its world, the kinematic reference in a world of
+    its own that is never stepped (it only answers forward-kinematics questions)."""
+    sim_world, ref_world = World(request.physics), World(request.physics)
+    sim = Character(sim_world, request.urdf, request.body, request.layout, request.root_position,
+                    request.root_rotation)
+    ground = sim_world.add_ground() if request.body.base == "free" else None
+    ref = Character(ref_world, request.urdf, request.body, request.layout, request.root_position,
+                    request.root_rotation, kinematic=True)
+    if request.render:
+        colour(ref, REFERENCE_RGB)
+        colour(sim, SIMULATION_RGB)
+
+    def render(camera: dict[str, float], size: tuple[int, int]) -> np.ndarray:
+        return np.concatenate([snapshot(ref, size, camera), snapshot(sim, size, camera)], axis=1)
+
+    def close() -> None:
+        sim_world.close()
+        ref_world.close()
+
+    return Simulation(sim=sim, ref=ref, ground=ground, render_fn=render, close_fn=close)

@@ -1,8 +1,9 @@
-"""The classifier registry: ``build_classifier(name, params, ...)``.
+"""The built-in classifiers, registered by name (:mod:`aslexp.recognition.registry`):
+``build_classifier(name, params, ...)`` builds any registered one.
 
-``DEFAULT_PARAMS[name]`` lists every key a classifier accepts and its default; ``params`` may
-override any of them and nothing else (an unknown key is an error, so a typo in a config or a
-sweep space cannot go unnoticed).
+Each registration lists every key a classifier accepts and its default; ``params`` may override any
+of them and nothing else (an unknown key is an error, so a typo in a config or a sweep space cannot
+go unnoticed).
 
 Defaults fit a 2-core CPU and a few hundred clips: ST-GCN with 5 blocks of [32, 32, 64, 64, 128]
 channels (0.32 M parameters with the 33-node pose, vs 1.2 M for [64, 64, 128, 128, 256] and 3.1 M
@@ -15,7 +16,6 @@ baseline on pooled summary statistics.
 
 from __future__ import annotations
 
-import copy
 from typing import Any
 
 import torch
@@ -33,6 +33,12 @@ from aslexp.recognition.models.classical import (
 )
 from aslexp.recognition.models.cnn3d import HeatmapCNN3D, HeatmapRenderer
 from aslexp.recognition.models.graph import PARTITIONS, spatial_partition_adjacency
+from aslexp.recognition.registry import (
+    DefaultParams,
+    get_classifier,
+    register_classifier,
+    resolve_params,
+)
 from aslexp.recognition.models.sequence import MLP, RecurrentClassifier
 from aslexp.recognition.models.slgcn import SLGCN, spatial_graph
 from aslexp.recognition.models.stgcn import STGCN
@@ -40,7 +46,7 @@ from aslexp.recognition.models.stgcn import STGCN
 _RNN_DEFAULTS = {"hidden_size": 128, "num_layers": 2, "bidirectional": True, "dropout": 0.3, "frame_stride": 2,
                  "head_layers": 0, "head_size": None, "head_dropout": None}  # fmt: skip
 
-DEFAULT_PARAMS: dict[str, dict[str, Any]] = {
+_DEFAULTS: dict[str, dict[str, Any]] = {
     "majority": {},
     "stratified": {},
     "logreg": {"C": 1.0, "max_iter": 2000, "pooling": "mean_std", "standardize": True, "solver": "lbfgs",
@@ -91,24 +97,6 @@ DEFAULT_PARAMS: dict[str, dict[str, Any]] = {
     },
 }
 
-CLASSIFIER_NAMES = tuple(DEFAULT_PARAMS)
-BASELINE_NAMES = ("majority", "stratified")
-FEATURE_MODELS = ("logreg", "svm", "rf", "hgb")  # fitted once on pooled features: no epochs
-
-
-def resolve_params(name: str, params: dict[str, Any] | None) -> dict[str, Any]:
-    """Defaults of ``name`` updated with ``params``; unknown names or keys raise ValueError."""
-    if name not in DEFAULT_PARAMS:
-        raise ValueError(f"unknown classifier {name!r}; known: {', '.join(CLASSIFIER_NAMES)}")
-    params = dict(params or {})
-    unknown = sorted(set(params) - set(DEFAULT_PARAMS[name]))
-    if unknown:
-        raise ValueError(
-            f"classifier '{name}': unknown params {unknown}; accepted: {sorted(DEFAULT_PARAMS[name]) or 'none'}"
-        )
-    resolved = copy.deepcopy(DEFAULT_PARAMS[name])
-    resolved.update(params)
-    return resolved
 
 
 def _stride(name: str, params: dict[str, Any]) -> int:
@@ -116,6 +104,123 @@ def _stride(name: str, params: dict[str, Any]) -> int:
     if stride < 1:
         raise ValueError(f"classifier '{name}': frame_stride must be >= 1, got {params['frame_stride']}")
     return stride
+
+
+def _layout(spec: ClassifierSpec) -> KeypointLayout:
+    if spec.layout is None:
+        raise ValueError(f"classifier '{spec.name}' needs the keypoint layout (its edges and center)")
+    return spec.layout
+
+
+# -- the chance baselines and the feature models (scikit-learn) -----------------------------------------
+@register_classifier("majority", _DEFAULTS["majority"], baseline=True, summary="the most frequent class")
+def _majority(spec: ClassifierSpec) -> Classifier:
+    return DummyBaseline(spec, strategy="most_frequent")
+
+
+@register_classifier("stratified", _DEFAULTS["stratified"], baseline=True, summary="classes drawn at their rates")
+def _stratified(spec: ClassifierSpec) -> Classifier:
+    return DummyBaseline(spec, strategy="stratified")
+
+
+@register_classifier("logreg", _DEFAULTS["logreg"], summary="logistic regression on pooled features")
+def _logreg(spec: ClassifierSpec) -> Classifier:
+    p = spec.params
+    return LogisticRegressionClassifier(spec, C=p["C"], max_iter=p["max_iter"], pooling=p["pooling"],
+                                        standardize=p["standardize"], solver=p["solver"], multi_class=p["multi_class"])
+
+
+@register_classifier("svm", _DEFAULTS["svm"], summary="support vector machine on pooled features")
+def _svm(spec: ClassifierSpec) -> Classifier:
+    p = spec.params
+    return SVMClassifier(spec, C=p["C"], kernel=p["kernel"], gamma=p["gamma"], pooling=p["pooling"],
+                         standardize=p["standardize"], degree=p["degree"],
+                         decision_function_shape=p["decision_function_shape"], max_iter=p["max_iter"])
+
+
+@register_classifier("rf", _DEFAULTS["rf"], summary="random forest on summary statistics")
+def _rf(spec: ClassifierSpec) -> Classifier:
+    p = spec.params
+    return RandomForestFeatureClassifier(spec, pooling=p["pooling"], n_estimators=p["n_estimators"],
+                                         max_depth=p["max_depth"], min_samples_leaf=p["min_samples_leaf"],
+                                         max_features=p["max_features"], n_jobs=p["n_jobs"])
+
+
+@register_classifier("hgb", _DEFAULTS["hgb"], summary="gradient-boosted trees on summary statistics")
+def _hgb(spec: ClassifierSpec) -> Classifier:
+    p = spec.params
+    return GradientBoostingFeatureClassifier(spec, pooling=p["pooling"], learning_rate=p["learning_rate"],
+                                             max_iter=p["max_iter"], max_leaf_nodes=p["max_leaf_nodes"],
+                                             min_samples_leaf=p["min_samples_leaf"],
+                                             l2_regularization=p["l2_regularization"], n_threads=p["n_threads"])
+
+
+# -- the networks (torch modules: aslexp's trainer trains them) -----------------------------------------
+@register_classifier("mlp", _DEFAULTS["mlp"], summary="multi-layer perceptron over the flattened clip")
+def _mlp(spec: ClassifierSpec) -> torch.nn.Module:
+    p = spec.params
+    hidden = list(p["hidden_sizes"]) if p["num_layers"] is None else [int(p["hidden_size"])] * int(p["num_layers"])
+    return MLP(spec.num_channels * spec.num_frames * spec.num_nodes, spec.num_classes, hidden_sizes=hidden,
+               dropout=p["dropout"])
+
+
+def _recurrent(spec: ClassifierSpec) -> torch.nn.Module:
+    p = spec.params
+    return RecurrentClassifier(
+        spec.name, spec.num_channels * spec.num_nodes + spec.num_nodes, spec.num_classes,
+        hidden_size=int(p["hidden_size"]), num_layers=int(p["num_layers"]), bidirectional=bool(p["bidirectional"]),
+        dropout=float(p["dropout"]), frame_stride=_stride(spec.name, p), head_layers=int(p["head_layers"]),
+        head_size=None if p["head_size"] is None else int(p["head_size"]),
+        head_dropout=None if p["head_dropout"] is None else float(p["head_dropout"]),
+    )
+
+
+register_classifier("lstm", _DEFAULTS["lstm"], summary="LSTM over the frames")(_recurrent)
+register_classifier("gru", _DEFAULTS["gru"], summary="GRU over the frames")(_recurrent)
+
+
+@register_classifier("stgcn", _DEFAULTS["stgcn"], summary="spatial-temporal graph convolution (ST-GCN)")
+def _stgcn(spec: ClassifierSpec) -> torch.nn.Module:
+    p = spec.params
+    return STGCN(
+        spec.num_channels, spec.num_classes, torch.from_numpy(spatial_partition_adjacency(_layout(spec))),
+        channels=[int(c) for c in p["channels"]], temporal_kernel=int(p["temporal_kernel"]),
+        dropout=float(p["dropout"]), residual=bool(p["residual"]), edge_importance=bool(p["edge_importance"]),
+        adaptive=bool(p["adaptive"]), mask_channel=bool(p["mask_channel"]), frame_stride=_stride(spec.name, p),
+    )
+
+
+@register_classifier("slgcn", _DEFAULTS["slgcn"], summary="SL-GCN with the authors' sizes (a GPU model)")
+def _slgcn(spec: ClassifierSpec) -> torch.nn.Module:
+    p, layout = spec.params, _layout(spec)
+    return SLGCN(
+        spec.num_channels, spec.num_classes, spatial_graph(layout), center=int(layout.center),
+        channels=[int(c) for c in p["channels"]], groups=int(p["groups"]), block_size=int(p["block_size"]),
+        keep_prob=float(p["keep_prob"]), keep_prob_epochs=int(p["keep_prob_epochs"]),
+        drop_from_block=int(p["drop_from_block"]), freeze_graph_epochs=int(p["freeze_graph_epochs"]),
+        attention=bool(p["attention"]), temporal_kernel=int(p["temporal_kernel"]), normalize=bool(p["normalize"]),
+        mask_channel=bool(p["mask_channel"]), frame_stride=_stride(spec.name, p),
+    )
+
+
+@register_classifier("cnn3d", _DEFAULTS["cnn3d"], summary="3D CNN over rendered joint heatmaps")
+def _cnn3d(spec: ClassifierSpec) -> torch.nn.Module:
+    p = spec.params
+    xy = tuple(int(c) for c in p["xy_channels"])
+    if len(xy) != 2 or not all(0 <= c < spec.num_channels for c in xy):
+        raise ValueError(f"classifier 'cnn3d': xy_channels must be two channel indices < {spec.num_channels}, "
+                         f"got {p['xy_channels']}")
+    return HeatmapCNN3D(
+        spec.num_nodes, spec.num_classes, channels=[int(c) for c in p["channels"]], dropout=float(p["dropout"]),
+        heatmap_size=int(p["heatmap_size"]), sigma=float(p["sigma"]), sum_joints=bool(p["sum_joints"]),
+        xy_channels=xy, frame_stride=_stride(spec.name, p),
+    )
+
+
+DEFAULT_PARAMS = DefaultParams()  # every classifier's defaults by name, read from the registry
+CLASSIFIER_NAMES = tuple(_DEFAULTS)  # the built-in classifiers
+BASELINE_NAMES = ("majority", "stratified")  # chance baselines: every run reports the better one
+FEATURE_MODELS = ("logreg", "svm", "rf", "hgb")  # fitted once on pooled features: no epochs
 
 
 def build_classifier(
@@ -126,88 +231,22 @@ def build_classifier(
     num_nodes: int,
     num_classes: int,
     layout: KeypointLayout | None = None,
+    module: str | None = None,
 ) -> Classifier:
-    """A fresh, untrained classifier for clips of shape (C, T, V, 1) and ``num_classes`` classes.
+    """A fresh, untrained classifier for clips of shape (C, T, V, 1) and ``num_classes`` classes
+    (``module``: the module that registers ``name``, when it is not built in).
 
-    ``layout`` is required by ``stgcn`` (the skeleton graph) and checked against ``num_nodes``.
+    ``layout`` is required by the graph models (the skeleton graph) and checked against ``num_nodes``.
     Torch weights are initialised from torch's global RNG: seed before building.
     """
-    resolved = resolve_params(name, params)
+    resolved = resolve_params(name, params, module)
     if num_classes < 2:
         raise ValueError(f"classifier '{name}': need at least 2 classes, got {num_classes}")
     if layout is not None and layout.num_nodes != num_nodes:
         raise ValueError(f"classifier '{name}': layout '{layout.name}' has {layout.num_nodes} nodes, data has {num_nodes}")
     spec = ClassifierSpec(name, resolved, num_channels, num_frames, num_nodes, num_classes, layout)
-    p = resolved
-
-    if name in BASELINE_NAMES:
-        return DummyBaseline(spec, strategy="most_frequent" if name == "majority" else "stratified")
-    if name == "logreg":
-        return LogisticRegressionClassifier(
-            spec, C=p["C"], max_iter=p["max_iter"], pooling=p["pooling"], standardize=p["standardize"],
-            solver=p["solver"], multi_class=p["multi_class"],
-        )
-    if name == "svm":
-        return SVMClassifier(
-            spec, C=p["C"], kernel=p["kernel"], gamma=p["gamma"], pooling=p["pooling"], standardize=p["standardize"],
-            degree=p["degree"], decision_function_shape=p["decision_function_shape"], max_iter=p["max_iter"],
-        )
-    if name == "rf":
-        return RandomForestFeatureClassifier(
-            spec, pooling=p["pooling"], n_estimators=p["n_estimators"], max_depth=p["max_depth"],
-            min_samples_leaf=p["min_samples_leaf"], max_features=p["max_features"], n_jobs=p["n_jobs"],
-        )
-    if name == "hgb":
-        return GradientBoostingFeatureClassifier(
-            spec, pooling=p["pooling"], learning_rate=p["learning_rate"], max_iter=p["max_iter"],
-            max_leaf_nodes=p["max_leaf_nodes"], min_samples_leaf=p["min_samples_leaf"],
-            l2_regularization=p["l2_regularization"], n_threads=p["n_threads"],
-        )
-
-    module: torch.nn.Module
-    if name == "mlp":
-        hidden = list(p["hidden_sizes"]) if p["num_layers"] is None else [int(p["hidden_size"])] * int(p["num_layers"])
-        module = MLP(num_channels * num_frames * num_nodes, num_classes, hidden_sizes=hidden, dropout=p["dropout"])
-    elif name in ("lstm", "gru"):
-        module = RecurrentClassifier(
-            name, num_channels * num_nodes + num_nodes, num_classes,
-            hidden_size=int(p["hidden_size"]), num_layers=int(p["num_layers"]),
-            bidirectional=bool(p["bidirectional"]), dropout=float(p["dropout"]), frame_stride=_stride(name, p),
-            head_layers=int(p["head_layers"]), head_size=None if p["head_size"] is None else int(p["head_size"]),
-            head_dropout=None if p["head_dropout"] is None else float(p["head_dropout"]),
-        )
-    elif name == "slgcn":
-        if layout is None:
-            raise ValueError("classifier 'slgcn' needs the keypoint layout (its edges and center)")
-        module = SLGCN(
-            num_channels, num_classes, spatial_graph(layout), center=int(layout.center),
-            channels=[int(c) for c in p["channels"]], groups=int(p["groups"]), block_size=int(p["block_size"]),
-            keep_prob=float(p["keep_prob"]), keep_prob_epochs=int(p["keep_prob_epochs"]),
-            drop_from_block=int(p["drop_from_block"]), freeze_graph_epochs=int(p["freeze_graph_epochs"]),
-            attention=bool(p["attention"]), temporal_kernel=int(p["temporal_kernel"]), normalize=bool(p["normalize"]),
-            mask_channel=bool(p["mask_channel"]), frame_stride=_stride(name, p),
-        )
-    elif name == "stgcn":
-        if layout is None:
-            raise ValueError("classifier 'stgcn' needs the keypoint layout (its edges and center)")
-        module = STGCN(
-            num_channels, num_classes, torch.from_numpy(spatial_partition_adjacency(layout)),
-            channels=[int(c) for c in p["channels"]], temporal_kernel=int(p["temporal_kernel"]),
-            dropout=float(p["dropout"]), residual=bool(p["residual"]), edge_importance=bool(p["edge_importance"]),
-            adaptive=bool(p["adaptive"]), mask_channel=bool(p["mask_channel"]), frame_stride=_stride(name, p),
-        )
-    elif name == "cnn3d":
-        xy = tuple(int(c) for c in p["xy_channels"])
-        if len(xy) != 2 or not all(0 <= c < num_channels for c in xy):
-            raise ValueError(f"classifier 'cnn3d': xy_channels must be two channel indices < {num_channels}, got {p['xy_channels']}")
-        module = HeatmapCNN3D(
-            num_nodes, num_classes, channels=[int(c) for c in p["channels"]], dropout=float(p["dropout"]),
-            heatmap_size=int(p["heatmap_size"]), sigma=float(p["sigma"]), sum_joints=bool(p["sum_joints"]),
-            xy_channels=xy, frame_stride=_stride(name, p),
-        )
-    else:  # pragma: no cover - DEFAULT_PARAMS and this dispatch list the same names
-        raise AssertionError(name)
-    return TorchClassifier(spec, module)
+    built = get_classifier(name, module).build(spec)
+    return TorchClassifier(spec, built) if isinstance(built, torch.nn.Module) else built
 
 
 def rebuild_classifier(spec: ClassifierSpec) -> Classifier:
@@ -229,6 +268,8 @@ __all__ = [
     "SklearnClassifier",
     "TorchClassifier",
     "build_classifier",
+    "get_classifier",
+    "register_classifier",
     "clip_features",
     "rebuild_classifier",
     "resolve_params",

@@ -1,0 +1,203 @@
+"""One place that assembles an imitation experiment from its config groups.
+
+An :class:`ImitationSetup` is everything an imitation experiment is before anything steps: the
+motion and its reference, the body (URDF and motion layout), and the parsed controller, reward,
+environment and engine settings. Every consumer builds from one: the environment
+(``ImitationEnv.from_setup``; it only steps), a batch of environments (``BatchedImitationEnv.from_setup``),
+the imitate job, the no-learning baselines (:meth:`ImitationSetup.merged`: a row's overrides over the
+run's groups), the engine agreement report, and any controller that needs the simulation itself
+(:meth:`ImitationSetup.simulation`, :meth:`ImitationSetup.pd_controller`,
+:meth:`ImitationSetup.reward_function`).
+
+Groups are names (``conf/<group>/<name>.yaml``), partial dicts merged over the group's default, or
+complete dicts (``complete=True``: the jobs pass Hydra's composed groups, which merged over another
+body's default file would gain its keys and reward terms).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from aslexp.envs.config import CONF_DIR, DEFAULTS, deep_merge, load_group_file, resolve_group
+from aslexp.envs.reward import ImitationReward, RewardSpec
+from aslexp.envs.spec import EnvSpec
+from aslexp.sim.body import BodyLayout, BodySpec, load_layout
+from aslexp.sim.engine import EngineSpec, PhysicsConfig, Simulation, SimulationRequest, build_simulation
+from aslexp.sim.motion import Motion, MotionFormatError, load_motion
+from aslexp.sim.pd import ControllerSpec, PDController
+from aslexp.sim.reference import ReferenceMotion
+
+log = logging.getLogger(__name__)
+
+GROUPS = ("body", "controller", "reward", "env", "engine")
+# The hand's defaults (the imitate job's, conf/imitate.yaml); the upper body's env class has its own.
+HAND_DEFAULTS = {group: DEFAULTS[group] for group in GROUPS}
+
+
+@dataclass(frozen=True)
+class ImitationSetup:
+    """One imitation experiment, assembled (module docstring). ``groups``: the complete group dicts
+    it was parsed from (what :meth:`merged` merges overrides over)."""
+
+    motion: Motion
+    groups: dict[str, dict[str, Any]]
+    body: BodySpec
+    controller: ControllerSpec
+    reward: RewardSpec
+    env: EnvSpec
+    engine: EngineSpec
+    urdf: Path
+    layout: BodyLayout
+    data_root: Path
+    defaults: dict[str, str] = field(default_factory=lambda: dict(HAND_DEFAULTS))
+    score_rewards: dict[str, RewardSpec] = field(default_factory=dict)
+
+    # -- assembling -------------------------------------------------------------------------------------
+    @classmethod
+    def from_groups(cls, motion: str | os.PathLike | Motion, body=None, controller=None, reward=None, env=None,
+                    engine=None, data_root: str | os.PathLike | None = None, complete: bool = False,
+                    defaults: Mapping[str, str] | None = None,
+                    score_rewards: Mapping[str, str | dict] | None = None) -> "ImitationSetup":
+        """Each group a name, a (partial) dict or None (``defaults``: group -> file name)."""
+        defaults = {**HAND_DEFAULTS, **(defaults or {})}
+        given = {"body": body, "controller": controller, "reward": reward, "env": env, "engine": engine}
+        groups = {}
+        for name, value in given.items():
+            if isinstance(value, dict) and (complete or name == "engine"):
+                groups[name] = dict(value)
+            else:
+                groups[name] = resolve_group(name, value, defaults[name])
+        if data_root is None:
+            from aslexp.data.root import resolve_data_root
+
+            data_root = resolve_data_root(None, must_exist=False)
+        scores = {str(name): RewardSpec.from_dict(value if isinstance(value, dict) else resolve_group("reward", value))
+                  for name, value in (score_rewards or {}).items()}
+        return cls._parse(motion, groups, Path(data_root), defaults, scores)
+
+    @classmethod
+    def from_config(cls, cfg: Mapping[str, Any], data_root: str | os.PathLike | None = None,
+                    score_rewards: Mapping[str, str | dict] | None = None) -> "ImitationSetup":
+        """A job's composed config (its ``motion.file`` and every group complete)."""
+        return cls.from_groups(cfg["motion"]["file"], cfg["body"], cfg["controller"], cfg["reward"], cfg["env"],
+                               cfg.get("engine"), data_root=data_root, complete=True, score_rewards=score_rewards)
+
+    @classmethod
+    def _parse(cls, motion, groups: dict[str, dict], data_root: Path, defaults: dict[str, str],
+               score_rewards: dict[str, RewardSpec]) -> "ImitationSetup":
+        body = BodySpec.from_dict(groups["body"])
+        urdf, layout = load_layout(body, data_root)
+        return cls(motion=_load_motion(motion, layout, data_root), groups=groups, body=body,
+                   controller=ControllerSpec.from_dict(groups["controller"]),
+                   reward=RewardSpec.from_dict(groups["reward"]), env=EnvSpec.from_dict(groups["env"]),
+                   engine=EngineSpec.from_dict(groups["engine"]), urdf=urdf, layout=layout, data_root=data_root,
+                   defaults=dict(defaults), score_rewards=dict(score_rewards))
+
+    def merged(self, **overrides: Mapping[str, Any] | str) -> "ImitationSetup":
+        """This experiment with some groups changed: a dict is merged over this setup's group (a
+        baseline row's ``body: {base: pinned}``), a name replaces it with that file."""
+        groups = dict(self.groups)
+        for name, value in overrides.items():
+            if name not in GROUPS:
+                raise ValueError(f"unknown config group {name!r}; expected one of {GROUPS}")
+            groups[name] = resolve_group(name, value) if isinstance(value, str) else deep_merge(groups[name], dict(value))
+        body_changed = groups["body"] != self.groups["body"]
+        if not body_changed:  # the same body: the parsed motion and layout stay
+            return replace(self, groups=groups, controller=ControllerSpec.from_dict(groups["controller"]),
+                           reward=RewardSpec.from_dict(groups["reward"]), env=type(self.env).from_dict(groups["env"]),
+                           engine=EngineSpec.from_dict(groups["engine"]))
+        return self._parse(self.motion, groups, self.data_root, self.defaults, self.score_rewards)
+
+    # -- what the consumers build ---------------------------------------------------------------------------
+    @property
+    def reference(self) -> ReferenceMotion:
+        return ReferenceMotion(self.motion, self.layout)
+
+    def physics(self) -> PhysicsConfig:
+        return PhysicsConfig(self.env.physics_hz, self.env.gravity, self.env.solver_iterations,
+                             self.env.non_contact_inner_iterations)
+
+    def simulation(self, render: bool = False) -> Simulation:
+        """The engine's simulated and reference characters, at the reference's first root pose."""
+        root_pos, root_rot, _, _ = self.reference.root(0.0)
+        return build_simulation(self.engine, SimulationRequest(self.urdf, self.body, self.layout, self.physics(),
+                                                               root_pos, root_rot, render=render))
+
+    def pd_controller(self, spec: ControllerSpec | None = None) -> PDController:
+        return PDController(spec or self.controller, self.layout)
+
+    def thesis_controller(self) -> ControllerSpec:
+        """The body's default controller (the thesis' gains): the baselines' bar."""
+        return ControllerSpec.from_dict(resolve_group("controller", None, self.defaults["controller"]))
+
+    def reward_function(self, spec: RewardSpec | None = None) -> ImitationReward:
+        return ImitationReward(spec or self.reward, self.layout)
+
+
+def resolve_motion_path(motion: str | os.PathLike, data_root: str | os.PathLike | None) -> Path:
+    """A motion file given absolutely, relative to the current directory, or to the data root; or
+    a motion's name in ``conf/motion`` (``"A"``, ``"00433"``)."""
+    path = Path(motion).expanduser()
+    if path.is_absolute() or path.is_file():
+        return path
+    if not path.suffix and len(path.parts) == 1 and (CONF_DIR / "motion" / f"{path}.yaml").is_file():
+        path = Path(load_group_file("motion", str(path))["file"])
+    if data_root is None:
+        from aslexp.data.root import resolve_data_root
+
+        data_root = resolve_data_root(None, must_exist=False)
+    return Path(data_root) / path
+
+
+def _load_motion(motion: str | os.PathLike | Motion, layout: BodyLayout, data_root: Path) -> Motion:
+    if isinstance(motion, Motion):
+        if motion.num_columns != layout.motion_columns:
+            raise ValueError(f"{motion.source or 'motion'}: the model expects {layout.motion_columns} values "
+                             f"per frame but the motion has {motion.num_columns}")
+        return motion
+    try:
+        return load_motion(resolve_motion_path(motion, data_root), expected_columns=layout.motion_columns,
+                           quaternions=layout.quaternion_columns)
+    except MotionFormatError as err:
+        raise MotionFormatError(f"{err}{_bodies_for(err.found, data_root)}") from None
+
+
+def _bodies_for(found: int | None, data_root: str | os.PathLike | None) -> str:
+    """A hint naming the bodies (``conf/body``) whose motions have ``found`` values per frame."""
+    if found is None:
+        return ""
+    fits = []
+    for path in sorted((CONF_DIR / "body").glob("*.yaml")):
+        try:
+            _, layout = load_layout(BodySpec.from_dict(resolve_group("body", path.stem)), data_root)
+        except Exception:  # noqa: BLE001 - a hint only: a body that cannot load fits nothing
+            continue
+        if layout.motion_columns == found:
+            fits.append(f"body={path.stem}")
+    return f"; {' or '.join(fits)} runs motions of that width" if fits else ""
+
+
+ROOT_TRAVEL_WARNING_M = 0.25  # the thesis' clips hold their root still (0.0 m)
+_warned_travel: set[str] = set()
+
+
+def warn_travelling_root(motion: Motion, base: str) -> None:
+    """Warn (once per file) when a clip's root travels but the body's root is held still: the
+    pose is then tracked from the wrong place and the reward stays near zero (a walk on a fixed
+    root scores ~0.04)."""
+    if base == "free" or motion.num_frames < 2 or (motion.source or "") in _warned_travel:
+        return
+    root = np.asarray(motion.frames)[:, :3]
+    travel = float(np.linalg.norm(root - root[0], axis=1).max())
+    if travel > ROOT_TRAVEL_WARNING_M:
+        _warned_travel.add(motion.source or "")
+        log.warning("%s: the root travels %.2f m over the clip, but body.base=%s holds it at its first pose: "
+                    "the pose is tracked from the wrong place and the reward will be low; a free root "
+                    "follows it (body.base=free)", motion.source or "motion", travel, base)

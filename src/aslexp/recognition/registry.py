@@ -1,0 +1,134 @@
+"""The classifier registry: a classifier is a registration, not a patch (as a keypoint format is).
+
+A classifier is a builder, its accepted parameters with their defaults, and a YAML::
+
+    from aslexp.recognition.registry import register_classifier
+
+    @register_classifier("tiny_mlp", {"hidden_size": 32}, summary="one hidden layer")
+    def build(spec):                      # a ClassifierSpec: name, params, data shape, layout
+        return torch.nn.Sequential(...)   # a torch module (trained by aslexp's trainer) or a Classifier
+
+plus ``conf/classifier/tiny_mlp.yaml``::
+
+    name: tiny_mlp
+    module: my_package.tiny_mlp   # imported to register it (or an entry point of the group aslexp.classifiers)
+    params: {hidden_size: 32}
+
+``aslexp recognize classifier=tiny_mlp`` then trains, evaluates and reports it like a built-in. A
+builder returning a ``torch.nn.Module`` called as ``module(x, mask)`` (clips ``(N, C, T, V)``, the
+``(N, T, V)`` mask of observed joints) gets aslexp's trainer
+(:class:`~aslexp.recognition.models.base.TorchClassifier`); one returning a
+:class:`~aslexp.recognition.models.base.Classifier` is used as it is.
+
+Names are known without importing torch: the built-ins are listed here, in the order reports show
+them; their builders register when :mod:`aslexp.recognition.models` is imported.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from aslexp.errors import ConfigError
+from aslexp.plugins import import_registering_module, load_entry_points
+
+
+ENTRY_POINT_GROUP = "aslexp.classifiers"
+BUILT_IN_MODULE = "aslexp.recognition.models"
+# The built-in classifiers in the order tables list them (chance baselines, feature models, then
+# the sequence and graph networks).
+BUILT_IN = ("majority", "stratified", "logreg", "svm", "rf", "hgb", "mlp", "lstm", "gru", "stgcn", "slgcn", "cnn3d")
+
+
+@dataclass(frozen=True)
+class ClassifierEntry:
+    """A registered classifier: ``build(spec)`` returns a torch module or a Classifier; ``defaults``
+    every parameter it accepts; ``baseline``: a chance baseline that every run reports beside the
+    model (majority, stratified)."""
+
+    name: str
+    build: Callable[[Any], Any]
+    defaults: Mapping[str, Any] = field(default_factory=dict)
+    baseline: bool = False
+    summary: str = ""
+
+
+_CLASSIFIERS: dict[str, ClassifierEntry] = {}
+
+
+def register_classifier(name: str, defaults: Mapping[str, Any] | None = None, *, baseline: bool = False,
+                        summary: str = "", replace: bool = False):
+    """Decorator: make ``build(spec)`` the classifier ``name`` with these parameter defaults."""
+
+    def decorate(build: Callable[[Any], Any]):
+        known = _CLASSIFIERS.get(name)
+        if known is not None and known.build is not build and not replace:
+            raise ConfigError(f"classifier {name!r} is already registered ({known.build.__module__}); "
+                              "choose another name or pass replace=True")
+        _CLASSIFIERS[name] = ClassifierEntry(name, build, dict(defaults or {}), baseline, summary)
+        return build
+
+    return decorate
+
+
+def unregister_classifier(name: str) -> None:
+    """Forget a registered classifier (tests register throwaway ones)."""
+    if name in BUILT_IN:
+        raise ConfigError(f"classifier {name!r} is built in")
+    _CLASSIFIERS.pop(name, None)
+
+
+def _load_entry_points() -> None:
+    load_entry_points(ENTRY_POINT_GROUP, "classifier")
+
+
+def get_classifier(name: str, module: str | None = None) -> ClassifierEntry:
+    """The classifier ``name``: built in, registered, registered by importing ``module`` (the
+    classifier config's ``module`` key) or by an installed entry point."""
+    if name not in _CLASSIFIERS:
+        target = BUILT_IN_MODULE if name in BUILT_IN else module
+        if target:
+            import_registering_module("classifier", name, target)
+        else:
+            _load_entry_points()
+    try:
+        return _CLASSIFIERS[name]
+    except KeyError:
+        raise ValueError(f"unknown classifier {name!r}; known: {', '.join(classifier_names())} "
+                         f"(or give classifier.module, the module that registers it)") from None
+
+
+def classifier_names() -> tuple[str, ...]:
+    """Every known classifier: the built-ins in table order, then the registered ones."""
+    _load_entry_points()
+    return BUILT_IN + tuple(name for name in _CLASSIFIERS if name not in BUILT_IN)
+
+
+def resolve_params(name: str, params: Mapping[str, Any] | None, module: str | None = None) -> dict[str, Any]:
+    """Defaults of ``name`` updated with ``params``; unknown names or keys raise ValueError."""
+    defaults = get_classifier(name, module).defaults
+    params = dict(params or {})
+    unknown = sorted(set(params) - set(defaults))
+    if unknown:
+        raise ValueError(f"classifier '{name}': unknown params {unknown}; accepted: {sorted(defaults) or 'none'}")
+    resolved = copy.deepcopy(dict(defaults))
+    resolved.update(params)
+    return resolved
+
+
+class DefaultParams(Mapping):
+    """Every classifier's defaults by name, read from the registry (``DEFAULT_PARAMS[name]``)."""
+
+    def __getitem__(self, name: str) -> Mapping[str, Any]:
+        try:
+            return get_classifier(name).defaults
+        except ValueError:
+            raise KeyError(name) from None
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(classifier_names())
+
+    def __len__(self) -> int:
+        return len(classifier_names())
