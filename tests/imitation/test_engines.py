@@ -95,7 +95,11 @@ def test_the_reward_of_a_batch_is_the_reward_of_each_state(data_root):
 @pytest.mark.parametrize("env_name, kwargs", [
     ("hand_thesis", {"env": {"episode_steps": 100}}),  # random targets at 240 Hz: the speed clamp acts
     ("residual", {"env": {"normalize_actions": True, "early_termination": {"min_reward": 0.9, "patience": 2}}}),
-], ids=["absolute-240Hz", "residual-normalized-early-end"])
+    # the tracking PD: reference targets re-sampled every physics substep, reference velocities fed
+    ("residual", {"env": {"early_termination": {"min_reward": 0.9, "patience": 2}},
+                  "controller": "reference_velocity_tuned"}),
+    ("residual_velocity", {"controller": "reference_velocity_tuned"}),  # and velocity-target corrections
+], ids=["absolute-240Hz", "residual-normalized-early-end", "physics-rate-targets", "velocity-corrections"])
 def test_a_batch_is_n_single_environments_step_for_step(data_root, env_name, kwargs):
     n, motion = 3, data_root / "motions/hand/C.txt"
     env_cfg = kwargs.get("env", env_name)
@@ -103,8 +107,10 @@ def test_a_batch_is_n_single_environments_step_for_step(data_root, env_name, kwa
         from aslexp.envs.config import deep_merge, resolve_group
 
         env_cfg = deep_merge(resolve_group("env", env_name), env_cfg)
-    singles = [ImitationEnv(motion, engine="mujoco", reward="hand_thesis", env=env_cfg) for _ in range(n)]
-    batch = BatchedImitationEnv(n, motion, engine="mujoco", reward="hand_thesis", env=env_cfg)
+    controller = kwargs.get("controller")
+    singles = [ImitationEnv(motion, engine="mujoco", reward="hand_thesis", env=env_cfg, controller=controller)
+               for _ in range(n)]
+    batch = BatchedImitationEnv(n, motion, engine="mujoco", reward="hand_thesis", env=env_cfg, controller=controller)
     seeds = [7, 8, 9]
     obs = np.stack([e.reset(seed=s)[0] for e, s in zip(singles, seeds)])
     batch_obs, _ = batch.reset(seed=seeds)

@@ -39,6 +39,7 @@ LEVELS: dict[str, int] = {
     "tuning": 5,         # a sweep reads run.json through runfile, not through runs
     "runs": 6,           # run records and tools; the sweep tools read studies (tuning)
     "reports": 6,        # imitation reports: build envs, evaluate with rl
+    "control": 6,        # planners (model-predictive control): build batched envs (envs)
     # the edge
     "jobs": 7,
     "tools": 7,

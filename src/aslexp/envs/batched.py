@@ -12,9 +12,10 @@ and actions give the same transitions as N single environments (tested step for 
 Vector-environment conventions as :mod:`aslexp.rl.vector`'s: same-step autoreset (an episode's
 last observation in ``info["final_obs"]``, the returned one starts the next), reset seeds per
 environment, and the running statistics PPO reads (``call("term_means")``,
-``call("counter_values")``). The training options of the upper body's free-base residual work
-(``residual_base_smoothing``, drift shaping, falls, velocity corrections, physics-rate targets) are
-the single environment's: they are refused here with the key that needs them.
+``call("counter_values")``). The tracking PD's options run here as in the single environment
+(physics-rate targets, velocity-target corrections: tested step for step); the training options of
+the upper body's free-base residual work (``residual_base_smoothing``, drift shaping, falls) are the
+single environment's: they are refused here with the key that needs them.
 """
 
 from __future__ import annotations
@@ -130,6 +131,14 @@ class BatchedImitationEnv(VectorEnv):
         self.states[rows] = fresh
         self.counters["episodes"] += len(rows)
 
+    def restart_from(self, state: np.ndarray, time: float) -> None:
+        """Every environment continues from one physics ``state`` (a row of this body's state array)
+        at reference time ``time``, its episode counters cleared: the rollouts a planner compares."""
+        self.states[:] = state
+        self.time[:] = time
+        self.steps[:] = 0
+        self._below[:] = 0
+
     # -- one step of every environment ----------------------------------------------------------------
     def step(self, actions):
         actions = np.asarray(actions, dtype=np.float64).reshape(self.num_envs, -1)
@@ -141,8 +150,19 @@ class BatchedImitationEnv(VectorEnv):
         nan_rows = np.flatnonzero(~finite)
         nan_obs = self._observe(nan_rows, self._read(nan_rows)[0]) if len(nan_rows) else None
         physical = self.template.physical_action(actions if len(nan_rows) == 0 else np.where(finite[:, None], actions, 0.0))
-        targets, velocities = self._targets(physical)
-        self.body.step(self.states, self.body.controls(targets, velocities), self.substeps)
+        spec = self.template.controller_spec
+        if spec.target_rate == "physics" and not spec.is_thesis_pd:
+            # the reference part of the targets re-sampled at the end of every physics substep, the
+            # correction held (ImitationEnv._drive): one physics step per call, the fastest joint kept
+            peak = np.zeros(n)
+            for i in range(self.substeps):
+                targets, velocities = self._targets(physical, (i + 1) / self.substeps)
+                self.body.step(self.states, self.body.controls(targets, velocities), 1)
+                peak = np.maximum(peak, self.body.peak_speeds)
+            self.body.peak_speeds = peak
+        else:
+            targets, velocities = self._targets(physical)
+            self.body.step(self.states, self.body.controls(targets, velocities), self.substeps)
         self.time += self.control_dt
         self.steps += 1
 
@@ -191,10 +211,12 @@ class BatchedImitationEnv(VectorEnv):
             obs[ended] = self._observe(ended, self._read(ended)[0])
         return obs, reward.astype(np.float64), terminated, truncated, info
 
-    def _targets(self, physical: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-        """PD targets (N, layout) and target velocities (None: zero) of the physical actions."""
+    def _targets(self, physical: np.ndarray, substep: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """PD targets (N, layout) and target velocities (None: zero) of the physical actions; with
+        ``substep`` (a fraction of the control step: target_rate physics) the reference there."""
         t, spec = self.template, self.template.controller_spec
-        target_time = self.time + self.spec_env.reference_lookahead * self.control_dt
+        ahead = substep if substep is not None else self.spec_env.reference_lookahead
+        target_time = self.time + ahead * self.control_dt
         if self.spec_env.action_mode == "residual":
             targets = self.reference.joints_many(target_time) + physical[:, :self.layout.action_size]
         else:
@@ -203,6 +225,9 @@ class BatchedImitationEnv(VectorEnv):
         velocities = None
         if spec.target_velocity == "reference" and not spec.is_thesis_pd:
             velocities = spec.velocity_scale * self.reference.joint_velocities_many(target_time)
+        corrections = physical[:, self.layout.action_size:]  # env.residual_velocity_range > 0
+        if corrections.shape[1]:
+            velocities = corrections if velocities is None else velocities + corrections
         return targets, velocities
 
     def _read(self, rows: np.ndarray, reference: np.ndarray | None = None):
@@ -246,13 +271,11 @@ class BatchedImitationEnv(VectorEnv):
 
 def _refuse_unbatched(env: ImitationEnv, shape_reward: bool) -> None:
     """One line naming the first option only the single environment has."""
-    spec, controller = env.spec_env, env.controller_spec
+    spec = env.spec_env
     checks = [
         (spec.residual_base_smoothing > 0, "env.residual_base_smoothing"),
-        (spec.residual_velocity_range > 0, "env.residual_velocity_range"),
         (shape_reward and (spec.heading_shaping > 0 or spec.offset_shaping > 0), "env.heading_shaping/offset_shaping"),
         (bool((spec.early_termination or {}).get("fall")) and env.body_spec.base == "free", "env.early_termination.fall"),
-        (controller.target_rate == "physics", "controller.target_rate=physics"),
     ]
     for refused, key in checks:
         if refused:

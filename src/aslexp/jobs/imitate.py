@@ -121,6 +121,8 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
 
     data_root = resolve_data_root(cfg.get("data_root"))
     ppo = PPOConfig.from_dict(cfg["ppo"])
+    if cfg.get("planner"):  # a planner acts, nothing learns
+        return plan(cfg, out_dir, data_root, ppo)
     ppo = dataclasses.replace(ppo, vector_env=engine_vector_env(cfg, ppo.vector_env))
     resume = _resume_path(cfg.get("resume"), cfg)  # a wrong run folder stops here, before any work
     make_train_env, eval_env = build_envs(cfg, data_root, ppo.vector_env)
@@ -222,6 +224,44 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     }
     eval_env.close()
     return metrics
+
+
+def plan(cfg: dict[str, Any], out_dir: Path, data_root: Path, ppo) -> dict[str, Any]:
+    """``planner=...``: the planner drives the body (aslexp.control.mpc), scored under the run's
+    evaluation protocol (``ppo.eval_phases``/``eval_episodes``, ``ppo.eval_steps``) beside the same
+    baselines a trained run measures; its cost per control step. Nothing is trained."""
+    import numpy as np
+
+    from aslexp.control.mpc import PlannerSpec, evaluate_planner
+    from aslexp.envs.assembly import ImitationSetup
+    from aslexp.envs.imitation import ImitationEnv
+    from aslexp.rl.evaluate import baselines, evaluate_phases
+
+    spec = PlannerSpec.from_dict(dict(cfg["planner"]))
+    setup = ImitationSetup.from_config(cfg, data_root, score_rewards=score_rewards(cfg))
+    eval_env = ImitationEnv.from_setup(setup.merged(env={"early_termination": {"min_reward": None}}))
+    try:
+        base = baselines(eval_env, ppo.eval_steps, ppo.phases)
+        log.info("motion %s: baselines %s", cfg["motion"]["name"], {k: round(v, 4) for k, v in base.items()})
+        report_baselines = measure_report_baselines(cfg, eval_env, ppo, data_root)
+        # the run's own controller with a zero correction (the planner's zero sequence): what it adds to
+        zero = np.zeros(eval_env.physical_action_space.shape)
+        controller = evaluate_phases(eval_env, lambda obs, env: env.normalize_action(zero), ppo.eval_steps,
+                                     ppo.phases).mean_reward
+    finally:
+        eval_env.close()
+    started = time.perf_counter()
+    planned = evaluate_planner(spec, setup, ppo.phases, ppo.eval_steps, label=f"{spec.name} on {cfg['motion']['name']}")
+    log.info("motion %s: planner %s %.4f (the controller alone %.4f), %.3f s per control step",
+             cfg["motion"]["name"], spec.name, planned["reward"], controller, planned["seconds_per_step"])
+    return {
+        "motion": cfg["motion"]["name"], "seed": cfg.get("seed"), "baselines": base,
+        "last_eval": round(planned["reward"], 5), "best_eval": round(planned["reward"], 5),
+        "eval_protocol": ppo.eval_protocol, "last_eval_diverged": int(planned["diverged"]), "last_eval_scores": {},
+        "last_eval_divergences": [], **({"report_baselines": report_baselines} if report_baselines is not None else {}),
+        "planner": {**dataclasses.asdict(spec), **planned, "controller_alone": controller},
+        "steps": 0, "seconds": round(time.perf_counter() - started, 2), "stopped": "planned",
+    }
 
 
 def measure_report_baselines(cfg: dict[str, Any], eval_env, ppo, data_root: Path) -> list[dict[str, Any]] | None:

@@ -61,6 +61,12 @@ def facts(cfg: dict[str, Any]) -> dict[str, str]:
     terms = ", ".join(f"{name} {term.get('weight', 0):.3g}/{term.get('scale', 0):.3g}"
                       for name, term in (reward.get("terms") or {}).items() if term.get("weight", 0))
     out["reward"] = f"{reward.get('combine', 'sum')} of {terms} (weight/scale)"
+    planner = cfg.get("planner")
+    if planner:  # a planner acts (aslexp.control.mpc): nothing is trained, no learner's fact applies
+        out["policy"] = (f"none: model-predictive control ({planner.get('method')}, horizon {planner.get('horizon')}, "
+                         f"{planner.get('samples')} samples) on the controller")
+        return out
+    out["policy"] = "learned (PPO)"
     num_envs, batch = int(ppo.get("num_envs", 1)), int(ppo.get("steps_per_rollout", 0))
     out["update"] = f"{num_envs} environment{'s' if num_envs != 1 else ''} x {math.ceil(batch / max(num_envs, 1)):,} steps = {batch:,} per update"
     out["learner"] = (f"{' x '.join(str(h) for h in ppo.get('hidden_sizes') or [])} MLP, lr {ppo.get('learning_rate')}, "
@@ -112,7 +118,7 @@ def imitation_differences(run_configs: list[dict[str, Any]], reference: dict[str
                 ours[key].append(value)
     theirs = facts(reference)
     for key, values in ours.items():
-        if values != [theirs.get(key)]:
+        if key in theirs and values != [theirs.get(key)]:
             out.append(f"{key}: {' / '.join(values)} ({reference_name}: {theirs.get(key, '-')})")
     total = (reference.get("ppo") or {}).get("total_steps")
     steps = runs.get("steps") or []
@@ -123,15 +129,16 @@ def imitation_differences(run_configs: list[dict[str, Any]], reference: dict[str
         out.append(f"budget: {span} steps per run, {share} of {reference_name}' {int(total):,}")
     if runs.get("seeds_per_motion") and thesis_seeds:
         out.append(f"seeds: {'/'.join(str(c) for c in runs['seeds_per_motion'])} per motion (thesis: {thesis_seeds})")
+    scored = "the planner" if any(cfg.get("planner") for cfg in run_configs) else "learned"
     for (count, eval_steps), baselines in runs.get("protocols") or []:
-        learned = f"{_phases(count)} x {eval_steps} control steps"
+        episodes = f"{_phases(count)} x {eval_steps} control steps"
         if baselines is None:
-            out.append(f"evaluation: learned from {learned}; the no-learning baselines from phase 0 only, 10 s "
+            out.append(f"evaluation: {scored} from {episodes}; the no-learning baselines from phase 0 only, 10 s "
                        f"(measured at report time: runs before session 19)")
         elif baselines[0] != count:
-            out.append(f"evaluation: learned from {learned}, the baselines from {_phases(baselines[0])} x {baselines[1]:g} s")
+            out.append(f"evaluation: {scored} from {episodes}, the baselines from {_phases(baselines[0])} x {baselines[1]:g} s")
         else:
-            out.append(f"evaluation: learned and baselines alike, {learned}")
+            out.append(f"evaluation: {scored} and baselines alike, {episodes}")
     return out
 
 

@@ -389,6 +389,9 @@ def imitation_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, A
     from aslexp.reports.thesis_report import GLOSSES
 
     runs, skipped = _imitation_runs(folders)
+    # A planner's runs (aslexp.control.mpc) give each motion its ceiling: this entry's own, and those
+    # of the folders its options name (options.ceiling_folders: the same reward, controller and rate)
+    ceilings = _imitation_runs([Path(f) for f in (entry.get("options") or {}).get("ceiling_folders") or []])[0]
     rows, run_dirs, configs = [], [], []
     for motion, items in runs.items():
         run_dirs += [Path(m["run_dir"]) for m in items]
@@ -423,9 +426,30 @@ def imitation_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, A
                         **({"scores": {name: {"mean": _round(np.mean(v)), "spread": _round(np.std(v)), "n": len(v)}
                                        for name, v in scores.items()}} if scores else {})},
             "steps": [int(min(m["steps"] for m in trained)), int(max(m["steps"] for m in trained))] if trained else None,
+            **({"ceiling": ceiling_summary(planned)} if (planned := [m for m in items + ceilings.get(motion, [])
+                                                                      if m.get("planner")]) else {}),
         })
     return {"rows": rows, "run_dirs": run_dirs, "skipped": skipped, "quantity": "mean reward per step",
             "row_name": "motion", **thesis_differences(entry, configs, [m for items in runs.values() for m in items])}
+
+
+def ceiling_summary(planned: list[dict[str, Any]]) -> dict[str, Any]:
+    """A motion's ceiling from its planner runs: the score (mean, std over seeds), the planner, the
+    controller it plans on alone, the difference (saturated below 0.005) and the cost per control step."""
+    from aslexp.reports.report import run_config
+    from aslexp.reports.thesis_report import SATURATED
+
+    spec = planned[0]["planner"]
+    scores = [float(m["last_eval"]) for m in planned]
+    alone = float(np.mean([m["planner"]["controller_alone"] for m in planned]))
+    controller = (run_config(Path(planned[0]["run_dir"])).get("controller") or {}).get("name", "?")
+    return {"label": f"MPC ({spec['method'].replace('_', ' ')}, horizon {spec['horizon']}, {spec['samples']} "
+                     f"samples) on {controller}",
+            "mean": _round(np.mean(scores)), "spread": _round(np.std(scores)), "n": len(scores),
+            "controller_alone": _round(alone), "gain": _round(np.mean(scores) - alone),
+            "saturated": bool(np.mean(scores) - alone < SATURATED),
+            "seconds_per_step": _round(np.mean([m["planner"]["seconds_per_step"] for m in planned])),
+            "diverged": sum(int(m.get("last_eval_diverged") or 0) for m in planned)}
 
 
 def thesis_differences(entry: dict[str, Any], configs: list[dict[str, Any]], metrics: list[dict[str, Any]],
@@ -456,6 +480,9 @@ def build_snapshot(entry: dict[str, Any], outputs: Path, summarizers: dict[str, 
     if entry["report"] not in summarizers:
         log.warning("warning: %s: no summary for report %r here; its snapshot is kept", entry["id"], entry["report"])
         return None
+    options = entry.get("options") or {}
+    if options.get("ceiling_folders"):  # the planner runs that give the rows their ceiling, under outputs/ too
+        entry = {**entry, "options": {**options, "ceiling_folders": [str(outputs / f) for f in options["ceiling_folders"]]}}
     summary = summarizers[entry["report"]](entry, folders)
     if not summary["rows"]:
         return None
@@ -562,11 +589,11 @@ def _number(value: float | None, percent: bool) -> str:
     return f"{100 * value:.1f}" if percent else f"{value:.3f}"
 
 
-def _learned(learned: dict[str, Any], percent: bool) -> str:
+def _learned(learned: dict[str, Any], percent: bool, planned: bool = False) -> str:
     if learned.get("cell"):  # a recognition row, rendered by aslexp.reports.results_recognition
         return learned["cell"]
     if learned.get("mean") is None:
-        return "pending (no trained run)"
+        return "- (nothing trained: a planner's ceiling)" if planned else "pending (no trained run)"
     text = _number(learned["mean"], percent)
     one_seed = learned.get("n") == 1 and learned.get("spread") == 0  # a population std of one value
     if learned.get("spread") is not None and not one_seed:
@@ -574,6 +601,16 @@ def _learned(learned: dict[str, Any], percent: bool) -> str:
     model = f"{learned['model']}, " if learned.get("model") else ""
     diverged = f"; {learned['diverged']} episode(s) diverged" if learned.get("diverged") else ""
     return f"{text} ({model}n={learned['n']}{diverged})"
+
+
+def _ceiling_cell(ceiling: dict[str, Any] | None) -> str:
+    if not ceiling:
+        return "-"
+    seeds = f" ± {ceiling['spread']:.3f}" if ceiling["n"] > 1 else ""
+    diverged = f"; {ceiling['diverged']} episode(s) diverged" if ceiling.get("diverged") else ""
+    return (f"{ceiling['mean']:.3f}{seeds} (n={ceiling['n']}; its controller alone {ceiling['controller_alone']:.4f}, "
+            f"{ceiling['gain']:+.4f}{', saturated' if ceiling['saturated'] else ''}; "
+            f"{ceiling['seconds_per_step']:.3f} s per control step{diverged})")
 
 
 def _baseline_cell(baseline: dict[str, Any] | None, percent: bool) -> str:
@@ -710,6 +747,9 @@ def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list
     what = next((x["header"] for x in learned if x.get("header")), what)  # recognition: results_recognition
     header = [snapshot.get("row_name") or "", "thesis", *[f"{kind}: {label}" for kind, label in columns], f"**{what}**",
               *extras]
+    ceiling = next((r["ceiling"]["label"] for r in snapshot["rows"] if r.get("ceiling")), None)
+    if ceiling:
+        header.append(f"ceiling: {ceiling}")
     has_steps = any(r.get("steps") for r in snapshot["rows"])
     if has_steps:
         header.append("steps")
@@ -717,8 +757,10 @@ def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list
     for row in snapshot["rows"]:
         by_label = {(b["kind"], b["label"]): b for b in row["baselines"]}
         cells = [row["label"], _thesis_cell(entry, row), *[_baseline_cell(by_label.get(c), percent) for c in columns],
-                 f"**{_learned(row['learned'], percent)}**",
+                 f"**{_learned(row['learned'], percent, planned=bool(row.get('ceiling')))}**",
                  *[_number((row.get("extra") or {}).get(k), percent) for k in extras]]
+        if ceiling:
+            cells.append(_ceiling_cell(row.get("ceiling")))
         if has_steps:
             cells.append(_steps(row.get("steps")))
         lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")

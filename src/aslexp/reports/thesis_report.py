@@ -133,6 +133,52 @@ def plot_panels(runs: dict[str, list[dict[str, Any]]], lines: dict[str, dict[str
     return path
 
 
+SATURATED = 0.005  # a ceiling this close to the controller it plans on leaves nothing to learn (issue 37)
+
+
+def ceiling_columns(planned: list[dict[str, Any]]) -> dict[str, Any]:
+    """A planner's runs (metrics.json ``planner``): its score (mean ± std over seeds), the run's own
+    controller alone under the same protocol, the difference (saturated below :data:`SATURATED`) and
+    its cost per control step."""
+    spec = planned[0]["planner"]
+    scores = [m["last_eval"] for m in planned]
+    alone = float(np.mean([m["planner"]["controller_alone"] for m in planned]))
+    gain = float(np.mean(scores)) - alone
+    label = f"ceiling: {spec['name']} ({spec['method']}, horizon {spec['horizon']}, {spec['samples']} samples)"
+    return {label: f"{mean_std(scores)} (n={len(planned)})", "its controller alone": round(alone, 4),
+            "ceiling - controller": f"{gain:+.4f}" + (" (saturated)" if gain < SATURATED else ""),
+            "s per control step": round(float(np.mean([m["planner"]["seconds_per_step"] for m in planned])), 3)}
+
+
+def plot_levels(lines: dict[str, dict[str, float]], path: Path, title: str) -> Path:
+    """One row per motion, one marker per named level (each baseline, the ceiling): differences of a
+    few thousandths stay visible, which a panel from 0 to 1 hides."""
+    plt = _pyplot()
+    motions = sorted(lines)
+    names = list(dict.fromkeys(name for motion in motions for name in lines[motion]))
+    values = [v for motion in motions for v in lines[motion].values()]
+    fig, ax = plt.subplots(figsize=(9.5, 1.0 + 0.55 * len(motions) + 0.22 * len(names)))
+    markers = "osD^v<>p*hX"
+    for k, name in enumerate(names):
+        ys = [i for i, motion in enumerate(motions) if name in lines[motion]]
+        xs = [lines[motions[i]][name] for i in ys]
+        ax.plot(xs, ys, ls="none", marker=markers[k % len(markers)], ms=7 if "ceiling" in name else 5,
+                color="k" if "ceiling" in name else f"C{k % 10}", label=name, alpha=0.85)
+    ax.set_yticks(range(len(motions)), motions)
+    ax.invert_yaxis()
+    ax.set_xlim(max(0.0, min(values) - 0.01), min(1.0, max(values) + 0.005) + 0.001)
+    ax.set_xlabel("mean reward per step", fontsize=8)
+    ax.grid(axis="x", alpha=0.3)
+    ax.set_title(title, fontsize=9)
+    ax.tick_params(labelsize=7)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.18 - 0.04 * len(motions)), ncol=2)
+    fig.tight_layout()
+    with naming_errors(path):
+        fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
 def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -> dict[str, Any]:
     """``thesis_table.{md,csv}``, ``thesis_baselines.json`` and ``thesis_curves.png`` for the runs under
     ``sweep_dir`` (see the module docstring); returns the rows and the Markdown table."""
@@ -147,11 +193,15 @@ def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -
         all_baselines[motion] = baselines
         text, value = thesis_number(kind, motion)
         trained = [m for m in items if learned(m)]
+        planned = [m for m in items if m.get("planner")]
         last = [m.get("last_eval") for m in trained]
         row = {"motion": f"{motion} ({GLOSSES[motion]})" if motion in GLOSSES else motion, "thesis": text,
-               **{baseline_column(b): _marked(b) for b in baselines},
-               "learned, last evaluation": f"{mean_std(last)} (n={len(trained)})" if trained else "pending",
-               "learned, best so far (secondary)": best_so_far(trained) if trained else "pending"}
+               **{baseline_column(b): _marked(b) for b in baselines}}
+        if planned:  # planner runs (aslexp.control.mpc): the ceiling beside the controller it plans on
+            row.update(ceiling_columns(planned))
+        if trained or not planned:
+            row["learned, last evaluation"] = f"{mean_std(last)} (n={len(trained)})" if trained else "pending"
+            row["learned, best so far (secondary)"] = best_so_far(trained) if trained else "pending"
         for name in dict.fromkeys(k for m in trained for k in m.get("last_eval_scores") or {}):
             values = [m["last_eval_scores"][name] for m in trained if name in (m.get("last_eval_scores") or {})]
             row[f"learned, last evaluation under reward={name}"] = f"{mean_std(values)} (n={len(values)})"
@@ -167,11 +217,17 @@ def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -
             row["seeds above every baseline"] = f"{sum(1 for v in last if v > strongest['reward'])}/{len(trained)}"
         rows.append(row)
         lines[motion] = {**({"thesis": value} if value is not None else {}),
-                         **{baseline_column(b): b["reward"] for b in baselines}}
+                         **{baseline_column(b): b["reward"] for b in baselines},
+                         **({"ceiling (MPC)": float(np.mean([m["last_eval"] for m in planned]))} if planned else {})}
     (out_dir / "thesis_baselines.json").write_text(json.dumps(all_baselines, indent=1))
-    plot_panels(runs, lines, out_dir / "thesis_curves.png",
-                "evaluation reward over training (mean ± std over seeds; step 0: the untrained policy) "
-                "beside every no-learning baseline")
+    if any(learned(m) for items in runs.values() for m in items) or not any(
+            m.get("planner") for items in runs.values() for m in items):
+        plot_panels(runs, lines, out_dir / "thesis_curves.png",
+                    "evaluation reward over training (mean ± std over seeds; step 0: the untrained policy) "
+                    "beside every no-learning baseline")
+    else:  # planner runs only: nothing trains, so no curve: each motion's numbers side by side
+        plot_levels(lines, out_dir / "ceiling_levels.png",
+                    "the planner's score (the ceiling) beside every no-learning baseline, per motion")
     table = write_table(rows, out_dir, "thesis_table")
     return {"rows": rows, "table": table}
 
