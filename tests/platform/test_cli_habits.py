@@ -84,3 +84,23 @@ def test_a_report_module_on_a_folder_without_its_runs_is_one_line_and_exit_2(mod
     missing = run()
     assert missing.returncode == 2 and "Traceback" not in missing.stderr and "folder" in missing.stderr
     assert "usage:" in run("--help").stdout
+
+
+def test_cfg_with_multirun_shows_the_first_job(aslexp):
+    # Hydra refuses -m with --cfg; aslexp shows the multirun's first job and says so (issue 39 item 8)
+    done = aslexp("imitate", "-m", "motion=A,B", "seed=0,1", "+sweeps=mpc_hand", "--cfg", "job")
+    assert "the config of the multirun's first job (motion=A, seed=0)" in done.stderr
+    assert "\nseed: 0\n" in done.stdout and "study_name" not in done.stdout and "planner:" in done.stdout
+
+
+@pytest.mark.parametrize("job, typo, hint", [
+    ("imitate", "motoin=A", "did you mean motion?"),
+    ("imitate", "ppo.totl_steps=3", "did you mean ppo.total_steps?"),
+    ("imitate", "engine=mujuco", "did you mean engine=mujoco?"),
+    ("recognize", "classifier=stgnc", "did you mean classifier=stgcn?"),
+])
+def test_a_typo_gets_a_did_you_mean(aslexp, job, typo, hint):
+    # issue 39 item 8: one line, exit 2, the closest key or option of the job's own config
+    done = aslexp(job, typo, check=False)
+    line = done.stderr.strip().splitlines()[-1]
+    assert done.returncode == 2 and hint in line and "Config search path" not in line

@@ -90,15 +90,15 @@ def one_line(error: BaseException) -> str:
     text = str(error).strip() or type(error).__name__
     lines = [ln.strip() for ln in text.splitlines() if ln.strip()]
     lines = [ln for ln in lines if not ln.startswith(("full_key:", "object_type=", "reference_type="))]
-    text = " ".join(lines)
+    text = " ".join(lines).split(" Config search path:")[0]  # Hydra's list of where it looked: noise here
     if isinstance(error, ConfigError):
         return text  # names the key, the value given and what is expected
-    if isinstance(error, OSError):
-        return describe_os_error(error)  # the file it names; "disk full" for ENOSPC
     name = type(error).__name__
     if name in ("ConfigCompositionException", "MissingConfigException", "OverrideParseException",
                 "ConfigKeyError", "InterpolationResolutionError"):
-        return text  # Hydra's own messages already say what is wrong
+        return text  # Hydra's own messages already say what is wrong (MissingConfigException is an OSError)
+    if isinstance(error, OSError):
+        return describe_os_error(error)  # the file it names; "disk full" for ENOSPC
     return f"{name}: {text}"
 
 
@@ -107,6 +107,41 @@ def _bad_input(error: BaseException) -> bool:
     does not follow its format (DataError: keypoints, motions, checkpoints) or is missing."""
     return (isinstance(error, (ConfigError, DataError, FileNotFoundError))
             or type(error).__module__.split(".")[0] in ("hydra", "omegaconf"))
+
+
+def did_you_mean(message: str, job: str) -> str:
+    """"; did you mean X?" for a mistyped key (Hydra: "Could not override 'ppo.totl_steps'") or a
+    mistyped option of a group ("Could not find 'engine/mujuco' Available options in 'engine': ..."),
+    from the job's own config; "" when nothing is close."""
+    import difflib
+    import re
+
+    option = re.search(r"Could not find '([\w/.-]+)/([\w.-]+)'\s*Available options in '[\w/.-]+':\s*(.*)$",
+                       message)
+    if option:
+        group, name, available = option[1], option[2], option[3].split()
+        close = difflib.get_close_matches(name, available, n=1, cutoff=0.6)
+        return f"; did you mean {group}={close[0]}?" if close else ""
+    key = re.search(r"Could not override '([\w.]+)'", message) or re.search(r"Key '([\w.]+)' is not in struct", message)
+    if not key:
+        return ""
+    try:
+        from hydra import compose, initialize_config_dir
+        from hydra.core.global_hydra import GlobalHydra
+
+        GlobalHydra.instance().clear()
+        with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
+            config = OmegaConf.to_container(compose(job), resolve=False)
+    except Exception:  # noqa: BLE001 - a hint only
+        return ""
+
+    def keys(node, prefix=""):
+        for name, value in (node.items() if isinstance(node, dict) else ()):
+            yield prefix + str(name)
+            yield from keys(value, f"{prefix}{name}.")
+
+    close = difflib.get_close_matches(key[1], list(keys(config)), n=1, cutoff=0.75)
+    return f"; did you mean {close[0]}?" if close else ""
 
 
 def _debug_requested(argv: list[str]) -> bool:
@@ -137,8 +172,30 @@ def _exit_for(error: BaseException, prog: str, debug: bool) -> int:
         traceback.print_exception(error)
     where = f" (run folder {run_dir})" if run_dir else ""
     hint = "" if debug or run_dir or isinstance(error, ConfigError) else "; --debug shows the traceback"
-    print(f"{prog}: {one_line(error)}{where}{hint}", file=sys.stderr, flush=True)
+    print(f"{prog}: {one_line(error)}{did_you_mean(one_line(error), prog.split()[-1])}{where}{hint}",
+          file=sys.stderr, flush=True)
     return 2 if _bad_input(error) else 1
+
+
+def _first_job_of_multirun_cfg(argv: list[str], prog: str) -> list[str]:
+    """``-m ... --cfg job`` (Hydra refuses the pair): the config of the multirun's first job, each
+    swept override at its first value, said on stderr."""
+    args = argv[1:]
+    multirun = {"-m", "--multirun"} & set(args)
+    if not multirun or not ({"-c", "--cfg"} & set(args)):
+        return argv
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    words = [a for a in args if a not in multirun]
+    overrides = [a for a in words if "=" in a and not a.startswith("-")]
+    first = {}
+    for override in OverridesParser.create().parse_overrides(overrides):
+        if override.is_sweep_override():
+            first[override.input_line] = f"{override.get_key_element()}={next(iter(override.sweep_string_iterator()))}"
+    if first:
+        print(f"{prog}: --cfg with -m: the config of the multirun's first job ({', '.join(first.values())})",
+              file=sys.stderr, flush=True)
+    return [argv[0], *[first.get(w, w) for w in words]]
 
 
 def job_main(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Callable[[], Any]]:
@@ -161,6 +218,7 @@ def job_main(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Callab
             os.environ[_DEBUG_ENV] = "1" if debug else "0"
             os.environ["HYDRA_FULL_ERROR"] = "1"  # Hydra re-raises; the report is ours
             try:
+                sys.argv = _first_job_of_multirun_cfg(sys.argv, prog)
                 return hydra_app()
             except SystemExit:
                 raise

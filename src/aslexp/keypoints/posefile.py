@@ -409,17 +409,25 @@ class PoseFormatSource:
             files = sorted(self.directory.glob(f"*{SUFFIX}"))
             if not files:
                 raise DataError(f"{self.directory}: no {SUFFIX} files")
-            first = self._first = files[0]
-            header = read_pose(first).header  # pose-format's reader: every version it knows
+            header = None
+            for first in files:  # the first readable file: a damaged one is skipped here and when loaded
+                try:
+                    header = read_pose(first).header  # pose-format's reader: every version it knows
+                    break
+                except DataError as error:
+                    log.warning("%s (the folder's layout is read from the next file)", error)
+            if header is None:
+                raise DataError(f"{self.directory}: none of its {len(files)} {SUFFIX} files is readable")
+            self._first = first
             if self.mode == "header":
                 self._layout = register_layout(header_layout(header, str(first))[0])
             else:
                 self._layout = choose_layout(header, str(first), self.mode)
-                unused = [c.name for c in header.components
-                          if c.name in (POSE, LEFT, RIGHT) and c.name not in self._uses()]  # fmt: skip
-                if unused:
-                    log.info("%s: .pose layout %s (from %s); components %s not used", self.directory,
-                             self._layout.name, first.name, unused)  # fmt: skip
+            unused = [] if self.mode == "header" else [
+                c.name for c in header.components if c.name in (POSE, LEFT, RIGHT) and c.name not in self._uses()]
+            log.info("%s: .pose layout %s (pose.options.layout=%s, read from %s)%s", self.directory,
+                     self._layout.name, self.mode, first.name,
+                     f"; components {unused} not used" if unused else "")  # fmt: skip
         return self._layout
 
     def _uses(self) -> set[str]:
