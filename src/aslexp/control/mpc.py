@@ -98,8 +98,7 @@ class SamplingPlanner:
         self.scale = (self.high - self.low) / 2  # a perturbation's std is noise x this
         self.rng = np.random.default_rng(spec.seed)
         self.plan = np.zeros((spec.horizon, self.size))
-        hold = np.arange(spec.horizon) * spec.knots // spec.horizon
-        self._hold = hold  # horizon step -> knot
+        self._hold = np.arange(spec.horizon) * spec.knots // spec.horizon  # horizon step -> its knot
         self.rollouts = 0  # candidate control steps simulated (the cost)
 
     def reset(self) -> None:
