@@ -20,6 +20,7 @@ import logging
 import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -116,8 +117,9 @@ class ImitationSetup:
         return self._parse(self.motion, groups, self.data_root, self.defaults, self.score_rewards)
 
     # -- what the consumers build ---------------------------------------------------------------------------
-    @property
+    @cached_property
     def reference(self) -> ReferenceMotion:
+        """The motion read through the body's layout (its velocity tables built once per setup)."""
         return ReferenceMotion(self.motion, self.layout)
 
     def physics(self) -> PhysicsConfig:

@@ -159,10 +159,10 @@ class BatchedImitationEnv(VectorEnv):
                 targets, velocities = self._targets(physical, (i + 1) / self.substeps)
                 self.body.step(self.states, self.body.controls(targets, velocities), 1)
                 peak = np.maximum(peak, self.body.peak_speeds)
-            self.body.peak_speeds = peak
         else:
             targets, velocities = self._targets(physical)
             self.body.step(self.states, self.body.controls(targets, velocities), self.substeps)
+            peak = self.body.peak_speeds
         self.time += self.control_dt
         self.steps += 1
 
@@ -173,7 +173,7 @@ class BatchedImitationEnv(VectorEnv):
         # or by the ~(<=) of the speed)
         diverged = ~np.isfinite(sim_frames.reshape(n, -1).sum(axis=1) + qd.sum(axis=1))
         # the speed before the joint-speed clamp (BatchedBody.peak_speeds), so the clamp hides no blow-up
-        diverged |= ~(np.maximum(np.max(np.abs(qd), axis=1), self.body.peak_speeds) <= self.spec_env.max_joint_velocity)
+        diverged |= ~(np.maximum(np.max(np.abs(qd), axis=1), peak) <= self.spec_env.max_joint_velocity)
         diverged &= finite
         root = sim_frames[:, 0]
         sim = PoseSnapshot(q, qd, sim_tips, root[:, 0:3], root[:, 3:7], root[:, 7:10], root[:, 10:13])

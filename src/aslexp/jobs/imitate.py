@@ -128,7 +128,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     make_train_env, eval_env = build_envs(cfg, data_root, ppo.vector_env)
     base = baselines(eval_env, ppo.eval_steps, ppo.phases)  # the policy's evaluation protocol
     log.info("motion %s: baselines %s", cfg["motion"]["name"], {k: round(v, 4) for k, v in base.items()})
-    report_baselines = measure_report_baselines(cfg, eval_env, ppo, data_root)
+    report_baselines = measure_report_baselines(cfg, eval_env, ppo)
 
     history_logger: HistoryLogger | None = None
 
@@ -230,12 +230,10 @@ def plan(cfg: dict[str, Any], out_dir: Path, data_root: Path, ppo) -> dict[str, 
     """``planner=...``: the planner drives the body (aslexp.control.mpc), scored under the run's
     evaluation protocol (``ppo.eval_phases``/``eval_episodes``, ``ppo.eval_steps``) beside the same
     baselines a trained run measures; its cost per control step. Nothing is trained."""
-    import numpy as np
-
     from aslexp.control.mpc import PlannerSpec, evaluate_planner
     from aslexp.envs.assembly import ImitationSetup
     from aslexp.envs.imitation import ImitationEnv
-    from aslexp.rl.evaluate import baselines, evaluate_phases
+    from aslexp.rl.evaluate import baselines, evaluate_phases, reference_policy
 
     spec = PlannerSpec.from_dict(dict(cfg["planner"]))
     setup = ImitationSetup.from_config(cfg, data_root, score_rewards=score_rewards(cfg))
@@ -243,11 +241,13 @@ def plan(cfg: dict[str, Any], out_dir: Path, data_root: Path, ppo) -> dict[str, 
     try:
         base = baselines(eval_env, ppo.eval_steps, ppo.phases)
         log.info("motion %s: baselines %s", cfg["motion"]["name"], {k: round(v, 4) for k, v in base.items()})
-        report_baselines = measure_report_baselines(cfg, eval_env, ppo, data_root)
-        # the run's own controller with a zero correction (the planner's zero sequence): what it adds to
-        zero = np.zeros(eval_env.physical_action_space.shape)
-        controller = evaluate_phases(eval_env, lambda obs, env: env.normalize_action(zero), ppo.eval_steps,
-                                     ppo.phases).mean_reward
+        report_baselines = measure_report_baselines(cfg, eval_env, ppo)
+        # the run's own controller with a zero correction (the planner's zero sequence): what it adds to;
+        # rl.evaluate.baselines measures it already when the controller has target options
+        controller = base.get("reference_velocity_pd")
+        if controller is None:
+            controller = evaluate_phases(eval_env, reference_policy(eval_env.spec_env.reference_lookahead),
+                                         ppo.eval_steps, ppo.phases).mean_reward
     finally:
         eval_env.close()
     started = time.perf_counter()
@@ -264,7 +264,7 @@ def plan(cfg: dict[str, Any], out_dir: Path, data_root: Path, ppo) -> dict[str, 
     }
 
 
-def measure_report_baselines(cfg: dict[str, Any], eval_env, ppo, data_root: Path) -> list[dict[str, Any]] | None:
+def measure_report_baselines(cfg: dict[str, Any], eval_env, ppo) -> list[dict[str, Any]] | None:
     """The overlay's ``report.baselines`` (aslexp.envs.baselines), measured now under the run's own
     evaluation protocol (its start phases, ``ppo.eval_steps`` at the run's control rate), reward and
     ``report.score_rewards``: a report reads them from metrics.json and simulates nothing. None when

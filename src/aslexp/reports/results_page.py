@@ -434,22 +434,20 @@ def imitation_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, A
 
 
 def ceiling_summary(planned: list[dict[str, Any]]) -> dict[str, Any]:
-    """A motion's ceiling from its planner runs: the score (mean, std over seeds), the planner, the
-    controller it plans on alone, the difference (saturated below 0.005) and the cost per control step."""
+    """A motion's ceiling (:func:`aslexp.reports.thesis_report.ceiling`) as a snapshot stores it,
+    labelled with the planner and the controller it plans on."""
     from aslexp.reports.report import run_config
-    from aslexp.reports.thesis_report import SATURATED
+    from aslexp.reports.thesis_report import ceiling
 
-    spec = planned[0]["planner"]
-    scores = [float(m["last_eval"]) for m in planned]
-    alone = float(np.mean([m["planner"]["controller_alone"] for m in planned]))
+    found = ceiling(planned)
+    spec = found["spec"]
     controller = (run_config(Path(planned[0]["run_dir"])).get("controller") or {}).get("name", "?")
     return {"label": f"MPC ({spec['method'].replace('_', ' ')}, horizon {spec['horizon']}, {spec['samples']} "
                      f"samples) on {controller}",
-            "mean": _round(np.mean(scores)), "spread": _round(np.std(scores)), "n": len(scores),
-            "controller_alone": _round(alone), "gain": _round(np.mean(scores) - alone),
-            "saturated": bool(np.mean(scores) - alone < SATURATED),
-            "seconds_per_step": _round(np.mean([m["planner"]["seconds_per_step"] for m in planned])),
-            "diverged": sum(int(m.get("last_eval_diverged") or 0) for m in planned)}
+            "mean": _round(found["mean"]), "spread": _round(found["spread"]), "n": found["n"],
+            "controller_alone": _round(found["controller_alone"]), "gain": _round(found["gain"]),
+            "saturated": bool(found["saturated"]), "seconds_per_step": _round(found["seconds_per_step"]),
+            "diverged": found["diverged"]}
 
 
 def thesis_differences(entry: dict[str, Any], configs: list[dict[str, Any]], metrics: list[dict[str, Any]],

@@ -136,18 +136,28 @@ def plot_panels(runs: dict[str, list[dict[str, Any]]], lines: dict[str, dict[str
 SATURATED = 0.005  # a ceiling this close to the controller it plans on leaves nothing to learn (issue 37)
 
 
-def ceiling_columns(planned: list[dict[str, Any]]) -> dict[str, Any]:
-    """A planner's runs (metrics.json ``planner``): its score (mean ± std over seeds), the run's own
-    controller alone under the same protocol, the difference (saturated below :data:`SATURATED`) and
-    its cost per control step."""
-    spec = planned[0]["planner"]
-    scores = [m["last_eval"] for m in planned]
+def ceiling(planned: list[dict[str, Any]]) -> dict[str, Any]:
+    """A motion's ceiling from its planner runs (metrics.json ``planner``): the planner's settings,
+    its score (mean and std over seeds), the run's own controller alone under the same protocol, the
+    difference (saturated below :data:`SATURATED`), the cost per control step and blow-ups."""
+    scores = [float(m["last_eval"]) for m in planned]
     alone = float(np.mean([m["planner"]["controller_alone"] for m in planned]))
-    gain = float(np.mean(scores)) - alone
+    mean = float(np.mean(scores))
+    return {"spec": planned[0]["planner"], "scores": scores, "mean": mean, "spread": float(np.std(scores)),
+            "n": len(scores), "controller_alone": alone, "gain": mean - alone, "saturated": mean - alone < SATURATED,
+            "seconds_per_step": float(np.mean([m["planner"]["seconds_per_step"] for m in planned])),
+            "diverged": sum(int(m.get("last_eval_diverged") or 0) for m in planned)}
+
+
+def ceiling_columns(planned: list[dict[str, Any]]) -> dict[str, Any]:
+    """The thesis table's columns of a planner's runs (:func:`ceiling`)."""
+    found = ceiling(planned)
+    spec = found["spec"]
     label = f"ceiling: {spec['name']} ({spec['method']}, horizon {spec['horizon']}, {spec['samples']} samples)"
-    return {label: f"{mean_std(scores)} (n={len(planned)})", "its controller alone": round(alone, 4),
-            "ceiling - controller": f"{gain:+.4f}" + (" (saturated)" if gain < SATURATED else ""),
-            "s per control step": round(float(np.mean([m["planner"]["seconds_per_step"] for m in planned])), 3)}
+    return {label: f"{mean_std(found['scores'])} (n={found['n']})",
+            "its controller alone": round(found["controller_alone"], 4),
+            "ceiling - controller": f"{found['gain']:+.4f}" + (" (saturated)" if found["saturated"] else ""),
+            "s per control step": round(found["seconds_per_step"], 3)}
 
 
 def plot_levels(lines: dict[str, dict[str, float]], path: Path, title: str) -> Path:
@@ -218,7 +228,7 @@ def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -
         rows.append(row)
         lines[motion] = {**({"thesis": value} if value is not None else {}),
                          **{baseline_column(b): b["reward"] for b in baselines},
-                         **({"ceiling (MPC)": float(np.mean([m["last_eval"] for m in planned]))} if planned else {})}
+                         **({"ceiling (MPC)": ceiling(planned)["mean"]} if planned else {})}
     (out_dir / "thesis_baselines.json").write_text(json.dumps(all_baselines, indent=1))
     if any(learned(m) for items in runs.values() for m in items) or not any(
             m.get("planner") for items in runs.values() for m in items):

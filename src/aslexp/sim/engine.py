@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -164,7 +164,6 @@ class Simulation:
     batch: BatchedBody | None = None
     render_fn: Callable[[dict[str, float], tuple[int, int]], np.ndarray] | None = None
     close_fn: Callable[[], None] | None = None
-    extras: dict[str, Any] = field(default_factory=dict)
 
     def render(self, camera: dict[str, float], size: tuple[int, int]) -> np.ndarray:
         """The reference (left) and the simulation (right) side by side, (H, 2W, 3) uint8."""

@@ -235,7 +235,7 @@ class Character:
         """Hold ``targets`` for ``substeps`` physics steps: a position motor is set once, a stable-PD
         command is re-sent before every step (PyBullet clears it after each). A mixed controller
         re-sends both: the position motors' command is the same, so sending it again changes nothing."""
-        if "stable_pd" not in controller.by_mode:
+        if not controller.resend_every_substep:
             self.apply_pd(controller, targets, target_velocities)
             self.world.step(substeps)
             return
