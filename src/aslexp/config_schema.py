@@ -364,9 +364,65 @@ JOBS: dict[str, dict[str, Key | dict[str, Key]]] = {
 }
 
 
+@dataclass(frozen=True)
+class Requirement:
+    """A choice in one group that needs a value in another: when ``when(value of key)`` holds,
+    ``needs`` must equal ``value`` (``because`` says why)."""
+
+    key: str
+    when: Any
+    needs: str
+    value: Any
+    because: str
+
+
+#: Per job: what one group's choice needs from another. All are checked together, against the
+#: config with the fixes already found applied, so the first refusal names the whole fix.
+REQUIREMENTS: dict[str, tuple[Requirement, ...]] = {
+    "imitate": (
+        Requirement("controller.target_rate", lambda v: v == "physics", "env.action_mode", "residual",
+                    "re-samples the reference under the policy's correction, held over the control step"),
+        Requirement("env.residual_base_smoothing", lambda v: isinstance(v, (int, float)) and v > 0,
+                    "env.action_mode", "residual", "filters the base a correction is added to"),
+        Requirement("env.action_mode", lambda v: v == "residual", "env.action_range", "joint",
+                    "a correction's range is the joint's; action_range motion bounds absolute targets"),
+    ),
+}
+
+
+def check_requirements(job: str, select) -> None:
+    """Refuse a set of choices that needs more overrides, naming all of them at once."""
+    fixes: dict[str, Any] = {}
+
+    def value(path: str) -> Any:
+        if path in fixes:
+            return fixes[path]
+        try:
+            return select(path)
+        except KeyError:
+            return None
+
+    reasons: list[str] = []
+    changed = True
+    while changed:  # a fix can need another (residual then needs action_range joint)
+        changed = False
+        for rule in REQUIREMENTS.get(job, ()):
+            given = value(rule.key)
+            if rule.when(given) and value(rule.needs) != rule.value:
+                fixes[rule.needs] = rule.value
+                group, _, key = rule.key.partition(".")
+                chosen = f"{group} {value(group + '.name')}: {key}" if value(group + ".name") else rule.key
+                reasons.append(f"{chosen}={shown(given)} needs {rule.needs}={shown(rule.value)} ({rule.because})")
+                changed = True
+    if fixes:
+        add = " ".join(f"{key}={shown(v)}" for key, v in fixes.items())
+        raise ConfigError(f"{'; '.join(reasons)}. Add: {add}")
+
+
 def check_job(job: str, select) -> None:
     """Check ``job``'s keys; ``select(dotted_key)`` returns a key's resolved value (a section as a
-    plain dict) or raises ``KeyError`` when the config has no such key. Jobs without a schema pass."""
+    plain dict) or raises ``KeyError`` when the config has no such key. Jobs without a schema pass.
+    Then what one group's choice needs from another (:data:`REQUIREMENTS`)."""
     for path, rule in JOBS.get(job, {}).items():
         try:
             value = select(path)
@@ -378,3 +434,4 @@ def check_job(job: str, select) -> None:
             check_section(path, value, rule)
         else:
             check_value(path, value, rule)
+    check_requirements(job, select)

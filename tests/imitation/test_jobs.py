@@ -153,3 +153,23 @@ def test_tune_pd_thesis_objective_is_eq_5_14(tmp_path, motion_a, data_root):
     metrics = json.loads((tmp_path / "metrics.json").read_text())
     assert metrics["objective_kind"] == "thesis"
     assert metrics["objective"] == pytest.approx(metrics["pose_error"] + metrics["velocity_error"])
+
+
+def test_a_run_that_trains_nothing_measures_baselines_only_in_a_folder_named_by_engine(tmp_path):
+    """Issue 39 item 8: ppo.total_steps=0 starts no worker processes, keeps the untrained policy's
+    level as such (never the run's result or main metric), and the folder name says the engine."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "ASLEXP_DATA_ROOT": str(ROOT.parent / "shared" / "data")}
+    proc = subprocess.run([sys.executable, "-m", "aslexp.jobs.imitate", "motion=B", "ppo.total_steps=0",
+                           "ppo.num_envs=4", "ppo.vector_env=workers", "ppo.eval_steps=20", "plots=false",
+                           "render.gif=false", "render.mp4=false"], cwd=tmp_path, env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    [run] = (tmp_path / "outputs" / "imitate").iterdir()
+    assert run.name.endswith("_B_pybullet_s0")
+    log = (run / "imitate.log").read_text()
+    assert "worker process" not in log and "nothing trained (ppo.total_steps=0)" in log
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["last_eval"] is None and metrics["best_eval"] is None and metrics["stopped"] == "no_training"
+    assert 0 <= metrics["untrained_eval"] <= 1 and set(metrics["baselines"]) >= {"reference", "lookahead"}
+    info = json.loads((run / "run.json").read_text())
+    assert info["status"] == "completed" and info["main_metric"] is None

@@ -37,6 +37,27 @@ def test_a_bad_value_is_one_line_exit_2_and_no_run_folder(aslexp, tmp_path, job,
     assert not run_dir.exists()  # refused before Hydra wrote anything: no folder, no run
 
 
+def test_a_choice_that_needs_more_names_the_whole_fix_at_once(aslexp, tmp_path):
+    """Issue 39 item 1: the 240 Hz tracking PD on the thesis' hand took three tries, each error naming
+    one more override; the first refusal names them all, and the overrides it names then compose."""
+    from hydra import compose, initialize_config_dir
+
+    from aslexp.jobs.validation import check_config
+
+    run_dir = tmp_path / "run"
+    chosen = ["experiment=letters_thesis", "controller=reference_velocity_tuned", "env.action_range=motion"]
+    proc = aslexp("imitate", *chosen, f"hydra.run.dir={run_dir}", check=False, timeout=120)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    [line] = error_lines(proc.stderr)
+    assert line.startswith("aslexp imitate: controller reference_velocity_tuned: target_rate=physics needs "
+                           "env.action_mode=residual")
+    assert line.endswith("Add: env.action_mode=residual env.action_range=joint")
+    assert not run_dir.exists()
+    with initialize_config_dir(config_dir=str(CONF.resolve()), version_base=None):
+        fixed = compose("imitate", overrides=chosen + line.split("Add: ")[1].split())
+    check_config("imitate", fixed)  # nothing more needed
+
+
 def test_a_multirun_refuses_a_shared_bad_value_and_fails_only_the_job_with_a_swept_one(aslexp, tmp_path):
     shared = tmp_path / "shared"
     proc = aslexp("imitate", "-m", "ppo.total_steps=abc", "seed=0,1", f"hydra.sweep.dir={shared}", check=False,

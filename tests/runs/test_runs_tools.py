@@ -51,6 +51,17 @@ def test_runs_diff_reports_added_and_removed_keys(small_sweep: Path, tmp_path: P
     assert "+note=extra" in d.overrides_b_only
 
 
+def test_runs_list_shows_every_override_whole(tmp_path: Path) -> None:
+    """Issue 39 item 8: the override that tells runs apart is often the last; the table never cuts it."""
+    run = tmp_path / "run"
+    tail = "+note=the_override_that_tells_this_run_apart_from_the_one_beside_it"
+    subprocess.run([sys.executable, "-m", "aslexp.jobs.quadratic", "x=0.25", "y=-0.75", "+label=a_long_label_first",
+                    tail, f"hydra.run.dir={run}"], check=True, capture_output=True, cwd=tmp_path)
+    text = run_cli("runs", "list", str(tmp_path)).stdout
+    header, _, row = text.splitlines()
+    assert header.split()[-1] == "overrides" and row.endswith(tail) and "…" not in text
+
+
 def test_runs_list_filters_and_sorts(small_sweep: Path) -> None:
     runs = list_runs([small_sweep])
     assert len(runs) == 5
@@ -64,8 +75,8 @@ def test_runs_list_filters_and_sorts(small_sweep: Path) -> None:
     assert [r.path for r in list_runs([small_sweep], where=[f"x={x}"])] == [best[0].path]
     assert list_runs([small_sweep], job="recognize") == []
     table = run_cli("runs", "list", str(small_sweep), "--sort", "metric").stdout
-    assert table.splitlines()[0].split() == ["started", "job", "run", "overrides", "status",
-                                             "main", "metric"]
+    assert table.splitlines()[0].split() == ["started", "job", "run", "status", "main", "metric",
+                                             "overrides"]
     assert "objective=" in table and "failed" in table
     rows = json.loads(run_cli("runs", "list", str(small_sweep), "--format", "json",
                               "--where", "seed=11").stdout)

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.envs.config import CONF_DIR, DEFAULTS, deep_merge, load_group_file, resolve_group
+from aslexp.envs.config import CONF_DIR, DEFAULTS, body_groups, deep_merge, load_group_file, resolve_group
 from aslexp.envs.reward import ImitationReward, RewardSpec
 from aslexp.envs.spec import EnvSpec
 from aslexp.sim.body import BodyLayout, BodySpec, load_layout
@@ -66,8 +66,12 @@ class ImitationSetup:
                     engine=None, data_root: str | os.PathLike | None = None, complete: bool = False,
                     defaults: Mapping[str, str] | None = None,
                     score_rewards: Mapping[str, str | dict] | None = None) -> "ImitationSetup":
-        """Each group a name, a (partial) dict or None (``defaults``: group -> file name)."""
+        """Each group a name, a (partial) dict or None (``defaults``: group -> file name; a body
+        named brings its own controller, reward and env, as ``body=NAME`` does in the jobs)."""
         defaults = {**HAND_DEFAULTS, **(defaults or {})}
+        body_name = body if isinstance(body, str) else defaults["body"] if body is None else None
+        if body_name:
+            defaults.update(body_groups(body_name))
         given = {"body": body, "controller": controller, "reward": reward, "env": env, "engine": engine}
         groups = {}
         for name, value in given.items():

@@ -1,7 +1,8 @@
 """Config groups without Hydra: ``gym.make`` and tests name a group file or pass a dict.
 
 A name (``"hand15"``) reads ``conf/<group>/<name>.yaml`` (following a group file's own
-``defaults`` list of same-group names, as Hydra would); a dict is merged over the group's
+``defaults`` list of same-group names, as Hydra would; a body's choices of other groups are
+:func:`body_groups`); a dict is merged over the group's
 default file, so a partial dict changes only what it names. The jobs pass fully composed
 dicts from Hydra, so both paths read the same YAML: the configuration lives in one place.
 """
@@ -27,7 +28,27 @@ def job_defaults(job: str) -> dict[str, str]:
             if isinstance(value, str) and "/" not in key and " " not in key}
 
 
-DEFAULTS = {**job_defaults("imitate"), "ppo": "base"}  # ppo: every key's default (ppo/base)
+def body_groups(body: str) -> dict[str, str]:
+    """The groups a body brings (``{"controller": "upper_body", ...}``): its file's ``override
+    /GROUP@_global_.GROUP: NAME`` defaults, its same-group parents' first (as Hydra composes them)."""
+    path = CONF_DIR / "body" / f"{body}.yaml"
+    if not path.is_file():
+        return {}
+    with open(path, encoding="utf-8") as fh:
+        entries = (yaml.safe_load(fh) or {}).get("defaults") or []
+    groups: dict[str, str] = {}
+    for entry in entries:
+        if isinstance(entry, str) and entry != "_self_":
+            groups.update(body_groups(entry))
+        elif isinstance(entry, dict):
+            for key, value in entry.items():
+                if key.startswith("override /"):
+                    groups[key.removeprefix("override /").split("@", 1)[0]] = value
+    return groups
+
+
+_JOB = job_defaults("imitate")
+DEFAULTS = {**_JOB, **body_groups(_JOB["body"]), "ppo": "base"}  # ppo: every key's default (ppo/base)
 
 
 def deep_merge(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
@@ -54,6 +75,8 @@ def load_group_file(group: str, name: str) -> dict[str, Any]:
         return values
     merged: dict[str, Any] = {}
     for entry in defaults:
+        if isinstance(entry, dict):  # another group's choice (a body's controller): body_groups reads it
+            continue
         merged = deep_merge(merged, values if entry == "_self_" else load_group_file(group, entry))
     if "_self_" not in defaults:
         merged = deep_merge(merged, values)

@@ -13,10 +13,10 @@ position control 0.22 / 0.87; the authors' code's all-stable-PD gains: ``upper_b
 
 from __future__ import annotations
 
+from aslexp.envs.config import body_groups
 from aslexp.envs.imitation import ImitationEnv
 
-UPPER_BODY_DEFAULTS = {"body": "upper_body", "controller": "upper_body", "reward": "upper_body_thesis",
-                       "env": "upper_body"}
+UPPER_BODY_DEFAULTS = {"body": "upper_body", **body_groups("upper_body")}  # the body file's choices
 
 
 class UpperBodyImitationEnv(ImitationEnv):

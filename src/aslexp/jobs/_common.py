@@ -379,8 +379,9 @@ def _log_to_files_only(message: str) -> None:
             handler.handle(record)
 
 
-def run_guarded(job: str, cfg: DictConfig, body: Callable[[Run], float]) -> float:
-    """Run ``body(run) -> float`` inside a run record and return its objective.
+def run_guarded(job: str, cfg: DictConfig, body: Callable[[Run], float | None]) -> float | None:
+    """Run ``body(run) -> float`` inside a run record and return its objective (None: a run that
+    measures and has no objective, e.g. ``aslexp imitate ppo.total_steps=0``).
 
     run.json ends as: completed; failed (an exception, or an objective that is not a finite
     number), with the error's one line and its traceback; pruned (optuna.TrialPruned); or
@@ -402,7 +403,8 @@ def run_guarded(job: str, cfg: DictConfig, body: Callable[[Run], float]) -> floa
     log.info("%s: run folder %s", job, run.dir)
     try:
         with sigterm_raises():
-            value = float(body(run))
+            value = body(run)
+        value = None if value is None else float(value)
     except optuna.TrialPruned as exc:
         run.finish("pruned", str(exc))
         log.info("%s pruned: run folder %s", job, run.dir)
@@ -426,7 +428,7 @@ def run_guarded(job: str, cfg: DictConfig, body: Callable[[Run], float]) -> floa
     except BaseException as exc:  # SystemExit and the like: the run did not finish
         run.finish("failed", one_line(exc))
         raise
-    if math.isfinite(value):
+    if value is None or math.isfinite(value):
         run.finish("completed")
         log.info("%s completed: run folder %s", job, run.dir)
         return value

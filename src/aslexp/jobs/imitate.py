@@ -125,6 +125,9 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         return plan(cfg, out_dir, data_root, ppo)
     ppo = dataclasses.replace(ppo, vector_env=engine_vector_env(cfg, ppo.vector_env))
     resume = _resume_path(cfg.get("resume"), cfg)  # a wrong run folder stops here, before any work
+    untrained = ppo.total_steps == 0 and resume is None
+    if untrained:  # only the baselines are measured: one environment in this process, no workers
+        ppo = dataclasses.replace(ppo, num_envs=1, vector_env="sync", batched_workers=0)
     make_train_env, eval_env = build_envs(cfg, data_root, ppo.vector_env)
     base = baselines(eval_env, ppo.eval_steps, ppo.phases)  # the policy's evaluation protocol
     log.info("motion %s: baselines %s", cfg["motion"]["name"], {k: round(v, 4) for k, v in base.items()})
@@ -154,9 +157,10 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         result_eval, action_rms = round(summary.mean_reward, 5), summary.action_rms  # rounded as the trainer's are
         last_scores, last_diverged = {k: round(v, 5) for k, v in summary.scores.items()}, summary.diverged
         # A resumed checkpoint with no steps left is re-evaluated ("evaluated": e.g. a finished run
-        # under more start phases); with total_steps=0 only the baselines were measured.
+        # under more start phases); with total_steps=0 only the baselines were measured, and the
+        # untrained policy's level is kept as such, never as the run's result.
         stopped = "evaluated" if trainer.steps > 0 else "no_training"
-        best_eval, last_eval = result_eval, result_eval
+        best_eval, last_eval = (None, None) if untrained else (result_eval, result_eval)
     else:
         best_eval, last_eval, stopped = result.best_eval, result.last_eval, result.stopped
         action_rms = next((h["eval_action_rms"] for h in reversed(trainer.history) if "eval_action_rms" in h),
@@ -177,16 +181,21 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     render = cfg.get("render") or {}
     frames_every = int(render.get("frames_every", 2)) if render.get("gif", True) else 0
     policy = trainer.evaluation_agent()
-    final = evaluate(eval_env, lambda obs, env: policy.act(obs), ppo.eval_steps, record=True,
-                     frames_every=frames_every)
+    if untrained:  # nothing learned: the figures show the controller on the reference one step ahead
+        final = evaluate(eval_env, lambda obs, env: env.reference_action(1), ppo.eval_steps, record=True,
+                         frames_every=frames_every)
+    else:
+        final = evaluate(eval_env, lambda obs, env: policy.act(obs), ppo.eval_steps, record=True,
+                         frames_every=frames_every)
     look = evaluate(eval_env, lambda obs, env: env.reference_action(1), ppo.eval_steps, record=True)
     joint_names = [j.name for j in eval_env.layout.joints]
     if not eval_env.layout.all_revolute:  # spherical joints: rotation angle and angular speed
         final.trajectory = report.per_joint_trajectory(final.trajectory, eval_env.layout)
         look.trajectory = report.per_joint_trajectory(look.trajectory, eval_env.layout)
     if cfg.get("plots", True):
+        shown = "nothing trained, the controller on the reference one step ahead" if untrained else "last policy"
         report.plot_tracking(final.trajectory, joint_names, out_dir / "tracking.png",
-                             f"{cfg['motion']['name']}: last policy from phase 0 (reward {final.mean_reward:.3f})")
+                             f"{cfg['motion']['name']}: {shown} from phase 0 (reward {final.mean_reward:.3f})")
         # This run's controller driven by the reference one step ahead (the thesis-controller
         # baselines in metrics.json are the bar; with controller options they differ).
         controller = HydraConfig.get().runtime.choices.get("controller", "?") if HydraConfig.initialized() else "?"
@@ -206,12 +215,13 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     metrics = {
         "motion": cfg["motion"]["name"], "seed": cfg.get("seed"), "baselines": base,
         "last_eval": last_eval, "best_eval": best_eval, "eval_protocol": ppo.eval_protocol,
+        **({"untrained_eval": result_eval} if untrained else {}),
         # The last evaluation's episodes that blew up (a number they touched is not a score), and the
         # last evaluation under report.score_rewards (the same episodes under another reward scale).
         "last_eval_diverged": int(last_diverged), "last_eval_scores": last_scores,
         "last_eval_divergences": list(trainer.last_evaluation.divergences) if trainer.last_evaluation else [],
         **({"report_baselines": report_baselines} if report_baselines is not None else {}),
-        "final_eval_terms": final.terms, "num_envs": ppo.num_envs, "device": str(trainer.device),
+        ("lookahead_terms" if untrained else "final_eval_terms"): final.terms, "num_envs": ppo.num_envs, "device": str(trainer.device),
         "steps": trainer.steps, "seconds": trainer.elapsed, "stopped": stopped,
         "steps_per_s": float(np.mean([h["steps_per_s"] for h in rows])) if rows else None,
         "env_steps_per_s": float(np.mean([h["env_steps_per_s"] for h in rows])) if rows else None,
@@ -300,7 +310,7 @@ def refuse_blown_up(metrics: dict[str, Any], cfg: DictConfig) -> None:
         f"the last evaluation is not a score (kept in metrics.json as last_eval_diverged). Try {hints}")
 
 
-def _imitate_run(cfg: DictConfig, run: Run) -> float:
+def _imitate_run(cfg: DictConfig, run: Run) -> float | None:
     check_config("imitate", cfg)  # swept values (the rest: ConfigCheck); a bad one fails this run
     import torch
 
@@ -313,6 +323,10 @@ def _imitate_run(cfg: DictConfig, run: Run) -> float:
         metric_logger.close(metrics)
     run.save_metrics(metrics)
     refuse_blown_up(metrics, cfg)  # after the metrics are written: nothing computed is lost
+    if metrics["last_eval"] is None:  # ppo.total_steps=0: nothing learned, so no learned score (no main metric)
+        log.info("nothing trained (ppo.total_steps=0): baselines %s; the untrained policy scores %.4f "
+                 "(not a result); metrics.json holds them", metrics["baselines"], metrics["untrained_eval"])
+        return None  # no objective: a sweep has nothing to rank
     run.set_main_metric("eval_reward", metrics["last_eval"], "maximize")
     log.info("last eval %.4f (best %.4f; lookahead baseline %.4f) after %d steps, %.0f s",
              metrics["last_eval"], metrics["best_eval"], metrics["baselines"]["lookahead"], metrics["steps"],
@@ -321,8 +335,9 @@ def _imitate_run(cfg: DictConfig, run: Run) -> float:
 
 
 @job_main("imitate")
-def main(cfg: DictConfig) -> float:
-    """Hydra entry point; returns the last evaluation reward (the sweep objective; never the best of many)."""
+def main(cfg: DictConfig) -> float | None:
+    """Hydra entry point; returns the last evaluation reward (the sweep objective; never the best of
+    many; None when nothing was trained)."""
     from aslexp.jobs.validation import name_motion_after_its_file
 
     name_motion_after_its_file(cfg, list(HydraConfig.get().overrides.task))  # multirun jobs too

@@ -150,6 +150,10 @@ def summarize_residual(sweep_dir: str | Path, out_dir: str | Path | None = None)
     for motion, items in sorted(runs.items()):
         cfg = run_config(items[0]["run_dir"])
         settings = (cfg.get("report") or {}).get("residual") or {}
+        trained = [m for m in items if learned(m)]
+        if not trained and "random_corrections" in settings:  # they size a learned correction: none here
+            settings = {k: v for k, v in settings.items() if k != "random_corrections"}
+            cfg = {**cfg, "report": {**cfg["report"], "residual": settings}}
         base = residual_baselines(cfg, out_dir / "baselines" / f"{motion}.json")
         everything[motion] = base
         controller = base["controller"]
@@ -158,7 +162,6 @@ def summarize_residual(sweep_dir: str | Path, out_dir: str | Path | None = None)
         min_loss = float(settings.get("min_loss", 0.05))
         smoothed = base.get("smoothed") or {}
         best_alpha = max(smoothed, key=smoothed.get) if smoothed else None
-        trained = [m for m in items if learned(m)]
         last = np.asarray([m["last_eval"] for m in trained], dtype=float)
         row: dict[str, Any] = {
             "sign": f"{motion} ({GLOSSES[motion]})" if motion in GLOSSES else motion,

@@ -151,13 +151,10 @@ def list_runs(roots: Iterable[str | os.PathLike], job: str | None = None,
     return runs[:limit] if limit else runs
 
 
-def _short(text: str, width: int) -> str:
-    return text if len(text) <= width else text[: width - 1] + "…"
-
-
-def format_table(runs: list[RunSummary], base: Path | None = None, width: int = 60) -> str:
-    """A fixed-width text table: time, job, run dir, key overrides, status, main metric."""
-    rows = [("started", "job", "run", "overrides", "status", "main metric")]
+def format_table(runs: list[RunSummary], base: Path | None = None) -> str:
+    """A text table: time, job, run dir, status, main metric, then the overrides, whole (the last
+    column, never cut: the override that tells two runs apart is often the last one)."""
+    rows = [("started", "job", "run", "status", "main metric", "overrides")]
     for r in runs:
         where = r.path
         if base is not None:
@@ -170,8 +167,8 @@ def format_table(runs: list[RunSummary], base: Path | None = None, width: int = 
             shown = "nan" if r.metric_value is None else f"{r.metric_value:.4g}"
             metric = f"{r.metric_name}={shown}"
         overrides = " ".join(o for o in r.overrides if not o.startswith("hydra."))
-        rows.append(((r.started or "-")[:19].replace("T", " "), r.job or "-", str(where),
-                     _short(overrides or "-", width), r.status or "-", metric))
+        rows.append(((r.started or "-")[:19].replace("T", " "), r.job or "-", str(where), r.status or "-", metric,
+                     overrides or "-"))
     widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
     lines = ["  ".join(cell.ljust(w) for cell, w in zip(row, widths)).rstrip() for row in rows]
     lines.insert(1, "  ".join("-" * w for w in widths))
