@@ -58,6 +58,17 @@ def test_a_choice_that_needs_more_names_the_whole_fix_at_once(aslexp, tmp_path):
     check_config("imitate", fixed)  # nothing more needed
 
 
+def test_an_experiment_that_cannot_be_assembled_is_refused_before_its_run_folder(aslexp, tmp_path):
+    """Issue 39 item 8: a refusal found when the experiment is assembled (here a whole sign on the
+    hand) used to leave a failed run folder; it is found at the edge now, exit 2, no folder."""
+    run_dir = tmp_path / "run"
+    proc = aslexp("imitate", "motion='00433'", f"hydra.run.dir={run_dir}", check=False, timeout=120)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    [line] = error_lines(proc.stderr)
+    assert line.startswith("aslexp imitate: MotionFormatError: ") and "body=upper_body" in line
+    assert "run folder" not in line and not run_dir.exists()
+
+
 def test_a_multirun_refuses_a_shared_bad_value_and_fails_only_the_job_with_a_swept_one(aslexp, tmp_path):
     shared = tmp_path / "shared"
     proc = aslexp("imitate", "-m", "ppo.total_steps=abc", "seed=0,1", f"hydra.sweep.dir={shared}", check=False,

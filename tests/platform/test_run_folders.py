@@ -55,19 +55,19 @@ def test_three_runs_started_at_the_same_instant_get_three_folders(tmp_path):
             next(o for o in json.loads((p / "run.json").read_text())["overrides"] if o.startswith("x="))[2:])
 
 
-def test_the_default_folder_names_hold_seed_and_motion():
+def test_the_default_folder_names_hold_seed_motion_and_engine():
     from hydra import compose, initialize_config_dir
 
     with initialize_config_dir(str(PROJECT_ROOT / "conf"), version_base="1.3"):
-        for job, overrides, parts in (("imitate", ["motion=C", "seed=3"], ["_C_s3"]),
+        for job, overrides, parts in (("imitate", ["motion=C", "seed=3"], ["_C_mujoco_s3"]),
                                       ("recognize", ["seed=2"], ["_s2"]),
-                                      ("tune_pd", ["seed=5"], ["hand15_s5"])):
+                                      ("tune_pd", ["seed=5"], ["hand15_mujoco_s5"])):
             cfg = compose(job, overrides=overrides, return_hydra_config=True)
             raw = cfg.hydra.run._get_node("dir")._value()
             assert "${now:" in raw, raw
             for part in parts:
                 assert part in raw.replace("${motion.name}", "C").replace("${seed}", overrides[-1][5:]) \
-                    .replace("${body.name}", "hand15"), (job, raw)
+                    .replace("${body.name}", "hand15").replace("${engine.name}", "mujoco"), (job, raw)
 
 
 def test_two_jobs_into_one_explicit_folder_one_runs_the_other_is_refused(tmp_path):

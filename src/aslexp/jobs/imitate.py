@@ -50,6 +50,15 @@ def score_rewards(cfg: dict[str, Any]) -> dict[str, dict[str, Any]]:
     return {str(name): resolve_group("reward", str(name)) for name in names}
 
 
+def check_setup(cfg: DictConfig) -> None:
+    """Assemble the experiment without simulating (raises what the run would raise at its start)."""
+    from aslexp.envs.assembly import ImitationSetup
+
+    plain = {key: to_dict(cfg[key]) if isinstance(cfg[key], DictConfig) else cfg[key]
+             for key in ("motion", "body", "controller", "reward", "env", "engine", "data_root") if key in cfg}
+    ImitationSetup.from_config(plain, resolve_data_root(plain.get("data_root")))
+
+
 def build_envs(cfg: dict[str, Any], data_root: Path, vector_env: str = "auto"):
     """A factory of training envs (picklable: PPO may build them in worker processes) and the
     evaluation env (no early termination: evaluations score whole episodes; also scored under

@@ -2,7 +2,9 @@
 
 * A single run is checked by :class:`ConfigCheck`, a Hydra callback that every job config lists
   (``conf/hydra/callbacks/aslexp.yaml``), in ``on_run_start``: before Hydra writes ``.hydra/`` or
-  opens the job's log, so a refused run leaves no folder at all. One line on stderr names the key,
+  opens the job's log, so a refused run leaves no folder at all. The imitate job's experiment is
+  also assembled there (:func:`aslexp.jobs.imitate.check_setup`: a motion of another body's width,
+  a bad group value). One line on stderr names the key,
   the value given and what is expected (``aslexp imitate: ppo.total_steps=abc: expected an integer
   >= 0``); exit 2.
 * A multirun is checked once in ``on_multirun_start``, for the values every job shares (exit 2,
@@ -75,10 +77,25 @@ class ConfigCheck(Callback):
             # A BaseException: Hydra turns an Exception raised in a callback into a warning.
             raise JobAbort(str(err), code=2) from None
 
+    def _check_setup(self, config: DictConfig) -> None:
+        """The imitate job's experiment parsed once here (motion, body, every group; no simulation,
+        ~10 ms): a motion of the wrong width or a bad group value is refused before the run folder."""
+        from aslexp.jobs._common import JobAbort, one_line
+
+        if OmegaConf.select(config, "hydra.job.config_name", default=None) != "imitate":
+            return
+        from aslexp.jobs.imitate import check_setup
+
+        try:
+            check_setup(config)
+        except (ValueError, OSError, KeyError, TypeError) as err:
+            raise JobAbort(one_line(err), code=2) from None
+
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         self._check(config)
         if OmegaConf.select(config, "motion", default=None) is not None:
             name_motion_after_its_file(config, list(config.hydra.overrides.task))
+        self._check_setup(config)
 
     def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
         self._check(config)
