@@ -24,7 +24,7 @@ TINY = {
                        "ppo.eval_steps=30", "ppo.hidden_sizes=[32,32]", "render.gif=false", "plots=false",
                        "hydra.run.dir={tmp}/run"],
     "aslexp tune_pd": ["tuning.random.seconds=1.0", "hydra.run.dir={tmp}/tune"],
-    "python -m aslexp.reports.engine_agreement": ["--letters", "A", "--signs", "", "--seconds", "0.3"],
+    "python -m aslexp.measure.engine_agreement": ["--letters", "A", "--signs", "", "--seconds", "0.3"],
     "python bench/engine.py": ["--seconds", "0.2", "--sizes", "4", "--bodies", "hand 30 Hz",
                                "--ppo-steps-per-rollout", "256"],
 }

@@ -163,7 +163,7 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
 
     # What the exploration noise alone costs the controller in the run's training episodes (the
     # documented command, two short episodes per noise): no noise is the controller itself.
-    cost = subprocess.run([sys.executable, "-m", "aslexp.reports.noise_cost", str(sweep / "0"), "--betas", "0,2",
+    cost = subprocess.run([sys.executable, "-m", "aslexp.measure.noise_cost", str(sweep / "0"), "--betas", "0,2",
                            "--log-std", "-1.75", "--episodes", "2", "--steps", "12"],
                           capture_output=True, text=True, timeout=300)
     assert cost.returncode == 0, cost.stderr[-2000:]
@@ -459,7 +459,7 @@ def test_residual_base_smoothing_groups_must_name_joints(motion_a):
 def test_the_residual_baselines_ignore_a_smoothed_base(data_root, tmp_path):
     """The report's rows (controller, smoothed references, chance) are measured on the reference's own
     base for a smoothed-base variant too: the same rows, and the same cache entry."""
-    from aslexp.reports.residual_report import residual_baselines
+    from aslexp.measure.residual import residual_baselines
 
     small = {"eval_steps": 15, "eval_episodes": 2}
     settings = {"smoothing": [0.6], "smoothing_groups": ["chest", "neck", "shoulder", "elbow"],

@@ -38,13 +38,14 @@ LEVELS: dict[str, int] = {
     "rl": 5,             # imports no environment: evaluation takes any env with ImitationEnv's interface
     "tuning": 5,         # a sweep reads run.json through runfile, not through runs
     "runs": 6,           # run records and tools; the sweep tools read studies (tuning)
-    "reports": 6,        # imitation reports: build envs, evaluate with rl
+    "reports": 6,        # reports read run folders: nothing of envs, sim or rl (recognition's metrics and resplits)
+    "measure": 7,        # what simulates and learns nothing (baselines, engine agreement): envs, rl; run configs via reports
     "control": 6,        # planners (model-predictive control): build batched envs (envs)
     # the edge
-    "jobs": 7,
-    "tools": 7,
-    "cli": 8,
-    "aslexp": 9,         # the package's __init__: registers the gymnasium environments (envs)
+    "jobs": 8,
+    "tools": 8,
+    "cli": 9,
+    "aslexp": 10,         # the package's __init__: registers the gymnasium environments (envs)
 }
 
 
@@ -206,3 +207,13 @@ def test_the_checks_catch_the_seams_they_were_written_for():
     assert sorted(cycles(room_graph(graph))) == [["envs", "rl"], ["runs", "tuning"]]
     assert [line.split(" imports ")[0] for line in upward_imports(graph)] == [
         "aslexp.envs.multi_clip:118", "aslexp.rl.evaluate:19", "aslexp.tuning.worker:59"]
+
+
+def test_reports_only_read_run_folders():
+    """Issue 36 item 4: a report reads what its runs measured; nothing under reports/ builds an
+    environment, an engine or a learner (what simulates lives in measure/ and runs with the job)."""
+    simulating = ("envs", "sim", "rl", "measure", "control")
+    found = [f"{module}:{line} imports {target}" for module, targets in import_graph().items()
+             if module.startswith("aslexp.reports") for target, line in targets.items()
+             if target.split(".")[1] in simulating]
+    assert not found, "\n".join(found)

@@ -47,12 +47,6 @@ class Baseline:
         return cls(**values)
 
 
-def ended_early(row: dict[str, Any]) -> str:
-    """How a baseline row's episodes ended early, for a mark beside its number: "diverged", "fell",
-    both, or "" (the row's ``diverged`` count and ``fell`` flag)."""
-    return ", ".join(end for end in ("diverged", "fell") if row.get(end))
-
-
 def no_learning_baselines(setup: ImitationSetup, rows: list[Baseline], seconds: float = 10.0,
                           phases: tuple[float, ...] = (0.0,)) -> list[dict[str, Any]]:
     """Mean reward per step of every row x lookahead over ``seconds`` of simulated time from each

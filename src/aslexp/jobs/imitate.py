@@ -50,15 +50,6 @@ def score_rewards(cfg: dict[str, Any]) -> dict[str, dict[str, Any]]:
     return {str(name): resolve_group("reward", str(name)) for name in names}
 
 
-def check_setup(cfg: DictConfig) -> None:
-    """Assemble the experiment without simulating (raises what the run would raise at its start)."""
-    from aslexp.envs.assembly import ImitationSetup
-
-    plain = {key: to_dict(cfg[key]) if isinstance(cfg[key], DictConfig) else cfg[key]
-             for key in ("motion", "body", "controller", "reward", "env", "engine", "data_root") if key in cfg}
-    ImitationSetup.from_config(plain, resolve_data_root(plain.get("data_root")))
-
-
 def build_envs(cfg: dict[str, Any], data_root: Path, vector_env: str = "auto"):
     """A factory of training envs (picklable: PPO may build them in worker processes) and the
     evaluation env (no early termination: evaluations score whole episodes; also scored under
@@ -141,6 +132,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     base = baselines(eval_env, ppo.eval_steps, ppo.phases)  # the policy's evaluation protocol
     log.info("motion %s: baselines %s", cfg["motion"]["name"], {k: round(v, 4) for k, v in base.items()})
     report_baselines = measure_report_baselines(cfg, eval_env, ppo)
+    residual_baselines = measure_residual_baselines(cfg, out_dir, learns=not untrained)
 
     history_logger: HistoryLogger | None = None
 
@@ -230,6 +222,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         "last_eval_diverged": int(last_diverged), "last_eval_scores": last_scores,
         "last_eval_divergences": list(trainer.last_evaluation.divergences) if trainer.last_evaluation else [],
         **({"report_baselines": report_baselines} if report_baselines is not None else {}),
+        **({"residual_baselines": residual_baselines} if residual_baselines is not None else {}),
         ("lookahead_terms" if untrained else "final_eval_terms"): final.terms, "num_envs": ppo.num_envs, "device": str(trainer.device),
         "steps": trainer.steps, "seconds": trainer.elapsed, "stopped": stopped,
         "steps_per_s": float(np.mean([h["steps_per_s"] for h in rows])) if rows else None,
@@ -297,6 +290,23 @@ def measure_report_baselines(cfg: dict[str, Any], eval_env, ppo) -> list[dict[st
     measured = no_learning_baselines(eval_env.setup, [Baseline.from_dict(dict(b)) for b in rows], seconds,
                                      phases=ppo.phases)
     return [{**row, "seconds": seconds} for row in measured]
+
+
+def measure_residual_baselines(cfg: dict[str, Any], out_dir: Path, learns: bool) -> dict[str, Any] | None:
+    """The overlay's ``report.residual`` comparison rows (aslexp.measure.residual), measured now under
+    the run's protocol; the seeds of a multirun share one measurement (cached in the sweep folder).
+    The constant random corrections size a learned correction: a run that learns nothing skips them."""
+    settings = (cfg.get("report") or {}).get("residual")
+    if not settings:
+        return None
+    from aslexp.jobs._common import in_multirun
+    from aslexp.measure.residual import residual_baselines
+
+    if not learns:
+        settings = {k: v for k, v in settings.items() if k != "random_corrections"}
+        cfg = {**cfg, "report": {**cfg["report"], "residual": settings}}
+    cache = out_dir.parent / "baselines" / f"{cfg['motion']['name']}.json" if in_multirun() else None
+    return residual_baselines(cfg, cache)
 
 
 def refuse_blown_up(metrics: dict[str, Any], cfg: DictConfig) -> None:

@@ -3,7 +3,7 @@
 * A single run is checked by :class:`ConfigCheck`, a Hydra callback that every job config lists
   (``conf/hydra/callbacks/aslexp.yaml``), in ``on_run_start``: before Hydra writes ``.hydra/`` or
   opens the job's log, so a refused run leaves no folder at all. The imitate job's experiment is
-  also assembled there (:func:`aslexp.jobs.imitate.check_setup`: a motion of another body's width,
+  also assembled there (:func:`check_imitation_setup`: a motion of another body's width,
   a bad group value). One line on stderr names the key,
   the value given and what is expected (``aslexp imitate: ppo.total_steps=abc: expected an integer
   >= 0``); exit 2.
@@ -61,6 +61,17 @@ def name_motion_after_its_file(cfg: DictConfig, overrides: list[str]) -> None:
             cfg.motion.name = Path(str(file)).stem
 
 
+def check_imitation_setup(cfg: DictConfig) -> None:
+    """Assemble the imitate job's experiment without simulating (raises what the run would raise at
+    its start: a motion of another body's width, a bad group value)."""
+    from aslexp.data.root import resolve_data_root
+    from aslexp.envs.assembly import ImitationSetup
+
+    groups = ("motion", "body", "controller", "reward", "env", "engine")
+    plain = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in groups if key in cfg}
+    ImitationSetup.from_config(plain, resolve_data_root(OmegaConf.select(cfg, "data_root", default=None)))
+
+
 class ConfigCheck(Callback):
     """Refuse bad values before Hydra writes anything (see the module docstring)."""
 
@@ -84,10 +95,8 @@ class ConfigCheck(Callback):
 
         if OmegaConf.select(config, "hydra.job.config_name", default=None) != "imitate":
             return
-        from aslexp.jobs.imitate import check_setup
-
         try:
-            check_setup(config)
+            check_imitation_setup(config)
         except (ValueError, OSError, KeyError, TypeError) as err:
             raise JobAbort(one_line(err), code=2) from None
 

@@ -155,20 +155,10 @@ def run_config(run_dir: str | Path) -> dict[str, Any]:
     return OmegaConf.to_container(OmegaConf.create(config), resolve=True)
 
 
-def run_env(cfg: dict[str, Any], env_overrides: dict[str, Any] | None = None,
-            body_overrides: dict[str, Any] | None = None):
-    """The imitation environment a run's composed config describes (:func:`run_config`), with
-    ``env_overrides`` and ``body_overrides`` merged over its env and body configs."""
-    from aslexp.data.root import resolve_data_root
-    from aslexp.envs.config import deep_merge
-    from aslexp.envs.assembly import resolve_motion_path
-    from aslexp.envs.imitation import ImitationEnv
-
-    data_root = resolve_data_root(cfg.get("data_root"))
-    return ImitationEnv(resolve_motion_path(cfg["motion"]["file"], data_root),
-                        body=deep_merge(cfg["body"], body_overrides or {}), controller=cfg["controller"],
-                        reward=cfg["reward"], env=deep_merge(cfg["env"], env_overrides or {}), data_root=data_root,
-                        complete_configs=True, engine=cfg.get("engine"))
+def ended_early(row: dict[str, Any]) -> str:
+    """How a baseline row's episodes ended early, for a mark beside its number: "diverged", "fell",
+    both, or "" (the row's ``diverged`` count and ``fell`` flag)."""
+    return ", ".join(end for end in ("diverged", "fell") if row.get(end))
 
 
 def best_so_far(trained: list[dict[str, Any]]) -> str:

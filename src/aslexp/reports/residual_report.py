@@ -2,7 +2,8 @@
 physical reason, against that controller and the simple baselines (``experiment=signs_free_residual``).
 
 Per sign, every number under the runs' reward AND the policy's evaluation protocol (``ppo.eval_steps``
-control steps from each of ``ppo.phases``; deterministic):
+control steps from each of ``ppo.phases``; deterministic), measured by the runs
+(:mod:`aslexp.measure.residual`, metrics.json ``residual_baselines``) and only read here:
 
 * ``controller``: the run's controller with no correction on the reference one step ahead (the
   residual policy's zero action; a variant that filters its base, ``env.residual_base_smoothing``,
@@ -33,110 +34,25 @@ control steps from each of ``ppo.phases``; deterministic):
 from __future__ import annotations
 
 import json
-import logging
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from aslexp.reports.report import (best_so_far, learned, mean_std, plot_curves, read_runs, run_config, run_env,
-                              write_table)
+from aslexp.reports.report import best_so_far, learned, mean_std, plot_curves, read_runs, run_config, write_table
 from aslexp.reports.thesis_report import GLOSSES
 
-log = logging.getLogger("aslexp.residual")
 
-
-def root_drift(env, policy, steps: int) -> dict[str, float]:
-    """Where the root went under ``policy`` from phase 0: its largest tilt from vertical and its
-    largest yaw against the reference's root (degrees), over ``steps`` control steps."""
-    from aslexp import quaternion
-    from aslexp.envs.spec import UP_AXIS
-
-    obs, _ = env.reset(options={"phase": 0.0})
-    tilt = yaw = 0.0
-    for _ in range(steps):
-        obs, _, terminated, _, _ = env.step(policy(obs, env))
-        _, rotation, _, _ = env.sim.base_state()
-        _, reference, _, _ = env.reference.root(env.time)
-        up = quaternion.to_matrix(rotation)[:, UP_AXIS]
-        tilt = max(tilt, float(np.degrees(np.arccos(np.clip(up[UP_AXIS], -1.0, 1.0)))))
-        yaw = max(yaw, abs(float(np.degrees(quaternion.twist_angle(reference, rotation, UP_AXIS)))))
-        if terminated:
-            break
-    return {"max_tilt_deg": tilt, "max_yaw_deg": yaw}
-
-
-def residual_baselines(cfg: dict[str, Any], cache: Path) -> dict[str, Any]:
-    """The comparison rows for one motion (deterministic: computed once, cached in ``cache``)."""
-    from aslexp.envs.imitation import ImitationEnv
-    from aslexp.envs.spec import RESIDUAL_BASE_KEYS, TRAINING_ONLY_KEYS
-    from aslexp.rl.evaluate import (constant_correction_policy, evaluate_phases, reference_policy,
-                                    smoothed_reference_policy)
-    from aslexp.rl.ppo import PPOConfig
-
-    settings = (cfg.get("report") or {}).get("residual") or {}
-    ppo = PPOConfig.from_dict(cfg["ppo"])
-    # Shaping scores nothing, and every row is measured on the reference's own base (the controller
-    # is the reference one step ahead): a variant that filters its base is compared with the same bar.
-    scored_env = {k: v for k, v in cfg["env"].items() if k not in TRAINING_ONLY_KEYS + RESIDUAL_BASE_KEYS}
-    key = {"settings": settings, "body": cfg["body"], "controller": cfg["controller"], "reward": cfg["reward"],
-           "env": scored_env, "motion": cfg["motion"], "protocol": ppo.eval_protocol}
-    if (cfg.get("engine") or {}).get("name", "pybullet") != "pybullet":  # PyBullet caches stay valid
-        key["engine"] = cfg["engine"]
-    key = json.loads(json.dumps(key))
-    if cache.is_file():
-        stored = json.loads(cache.read_text())
-        if stored.get("key") == key:
-            return stored["rows"]
-    def make(body_overrides: dict[str, Any]) -> ImitationEnv:  # evaluations score whole episodes
-        return run_env({**cfg, "env": scored_env}, {"early_termination": {"min_reward": None}}, body_overrides)
-
-    chance = settings.get("random_corrections") or {}
-    if set(chance) - {"count", "rms", "seed"} or (chance and "rms" not in chance):
-        raise ValueError(f"report.residual.random_corrections: keys {sorted(chance)}; expected rms and "
-                         f"optionally count (default 1) and seed (default 0)")
-    planned = (2 + len(settings.get("smoothing", [])) + (int(chance.get("count", 1)) if chance else 0)
-               + bool(settings.get("compare")))  # controller, its drift, smoothing, chance, compare
-    started, done = time.perf_counter(), [0]
-
-    def score(env: ImitationEnv, policy) -> float:
-        value = evaluate_phases(env, policy, ppo.eval_steps, ppo.phases).mean_reward
-        tick()
-        return value
-
-    def tick() -> None:  # minutes of evaluations per sign: say how far along they are
-        done[0] += 1
-        each = (time.perf_counter() - started) / done[0]
-        log.info("residual baselines %s: %d/%d evaluations (%.1f s each, ETA %.0f s)", cfg["motion"]["name"],
-                 done[0], planned, each, each * (planned - done[0]))
-
-    lookahead = int(cfg["env"].get("reference_lookahead", 1))
-    rows: dict[str, Any] = {}
-    env = make({})
-    try:
-        rows["controller"] = score(env, reference_policy(lookahead))
-        rows["controller_drift"] = root_drift(env, reference_policy(lookahead), ppo.eval_steps)
-        tick()
-        groups = settings.get("smoothing_groups")
-        rows["smoothed"] = {str(a): score(env, smoothed_reference_policy(float(a), tuple(groups) if groups else None))
-                            for a in settings.get("smoothing", [])}
-        if chance:
-            first, rms = int(chance.get("seed", 0)), float(chance["rms"])
-            seeds = [first + k for k in range(int(chance.get("count", 1)))]
-            rows["random_corrections"] = {"rms": rms, "seeds": seeds,
-                                          "scores": [score(env, constant_correction_policy(rms, seed)) for seed in seeds]}
-    finally:
-        env.close()
-    compare = settings.get("compare") or {}
-    if compare:
-        env = make(compare.get("body") or {})
-        try:
-            rows["compare"] = score(env, reference_policy(lookahead))
-        finally:
-            env.close()
-    cache.parent.mkdir(parents=True, exist_ok=True)
-    cache.write_text(json.dumps({"key": key, "rows": rows}, indent=1))
+def measured_rows(motion: str, items: list[dict[str, Any]], cache: Path) -> dict[str, Any]:
+    """The comparison rows the runs measured (metrics.json ``residual_baselines``, since session 21),
+    else those this report measured for older runs (``cache``); never simulated here."""
+    rows = next((m["residual_baselines"] for m in items if m.get("residual_baselines")), None)
+    if rows is None and cache.is_file():
+        rows = json.loads(cache.read_text()).get("rows")
+    if rows is None:
+        raise ValueError(f"the runs of {motion} ({Path(items[0]['run_dir']).parent}) measured no residual baselines "
+                         f"(metrics.json residual_baselines: runs before session 21); re-evaluate them, which "
+                         f"measures them: aslexp imitate -m <the sweep's overrides> 'resume=SWEEP/${{hydra:job.num}}'")
     return rows
 
 
@@ -151,10 +67,7 @@ def summarize_residual(sweep_dir: str | Path, out_dir: str | Path | None = None)
         cfg = run_config(items[0]["run_dir"])
         settings = (cfg.get("report") or {}).get("residual") or {}
         trained = [m for m in items if learned(m)]
-        if not trained and "random_corrections" in settings:  # they size a learned correction: none here
-            settings = {k: v for k, v in settings.items() if k != "random_corrections"}
-            cfg = {**cfg, "report": {**cfg["report"], "residual": settings}}
-        base = residual_baselines(cfg, out_dir / "baselines" / f"{motion}.json")
+        base = measured_rows(motion, items, out_dir / "baselines" / f"{motion}.json")
         everything[motion] = base
         controller = base["controller"]
         compare = base.get("compare")

@@ -334,7 +334,7 @@ def _imitation_runs(folders: list[Path]) -> tuple[dict[str, list[dict[str, Any]]
 
 
 def _thesis_baselines(entry, cfg, motion, items, cache) -> tuple[list[dict[str, Any]], str, float | None]:
-    from aslexp.envs.baselines import ended_early
+    from aslexp.reports.report import ended_early
     from aslexp.reports.thesis_report import baseline_column, motion_baselines, thesis_number
 
     rows = motion_baselines(cfg, cache, items)
@@ -356,9 +356,9 @@ def _scratch_baselines(entry, cfg, motion, items, cache) -> tuple[list[dict[str,
 
 
 def _residual_baselines(entry, cfg, motion, items, cache) -> tuple[list[dict[str, Any]], str, float | None]:
-    from aslexp.reports.residual_report import residual_baselines
+    from aslexp.reports.residual_report import measured_rows
 
-    base = residual_baselines(cfg, cache)
+    base = measured_rows(motion, items, cache)
     settings = (cfg.get("report") or {}).get("residual") or {}
     rows = [{"label": "controller (zero correction)", "kind": "no-learning", "value": _round(base["controller"])}]
     if base.get("compare") is not None:

@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.reports.report import _pyplot, best_so_far, learned, mean_std, read_runs, run_config, write_table
+from aslexp.reports.report import (_pyplot, best_so_far, ended_early, learned, mean_std, read_runs, run_config,
+                                   write_table)
 from aslexp.files import naming_errors
 
 # Thesis Table 6.7 (THESIS.md 4.8): sign -> (Run 1 mean, std, Run 2 mean, std), 10 seeds, 50 M steps.
@@ -43,38 +44,25 @@ def thesis_number(kind: str, motion: str) -> tuple[str, float | None]:
 
 
 def motion_baselines(cfg: dict[str, Any], cache: Path, items: list[dict[str, Any]] = ()) -> list[dict[str, Any]]:
-    """The no-learning rows of ``cfg["report"]`` for the run config's motion: those the runs
-    (``items``: their metrics.json) measured under their own evaluation protocol
-    (``report_baselines``, since session 19), else simulated here from phase 0 as they always were,
-    cached in ``cache`` (deterministic: computed once per motion, not per seed)."""
+    """The no-learning rows of ``cfg["report"]`` for the run config's motion, as the runs (``items``:
+    their metrics.json) measured them under their own evaluation protocol (``report_baselines``,
+    since session 19), else as this report measured them for older runs (``cache``, the same
+    config); never simulated here."""
     measured = next((m["report_baselines"] for m in items if m.get("report_baselines")), None)
     if measured is not None:
         return measured
-    report = cfg.get("report") or {}
-    key = {"report": report, "body": cfg["body"], "reward": cfg["reward"], "env": cfg["env"],
-           "motion": cfg["motion"]}
-    if (cfg.get("engine") or {}).get("name", "pybullet") != "pybullet":  # PyBullet caches stay valid
-        key["engine"] = cfg["engine"]
-    if cache.is_file():
-        stored = json.loads(cache.read_text())
-        if stored.get("key") == json.loads(json.dumps(key)):
-            return stored["rows"]
-    from aslexp.data.root import resolve_data_root
-    from aslexp.envs.assembly import ImitationSetup
-    from aslexp.envs.baselines import Baseline, no_learning_baselines
-
-    setup = ImitationSetup.from_config(cfg, resolve_data_root(cfg.get("data_root")))
-    rows = no_learning_baselines(setup, [Baseline.from_dict(b) for b in report.get("baselines", [])],
-                                 float(report.get("baseline_seconds", 10.0)))
-    cache.parent.mkdir(parents=True, exist_ok=True)
-    cache.write_text(json.dumps({"key": key, "rows": rows}, indent=1))
-    return rows
+    if not (cfg.get("report") or {}).get("baselines"):
+        return []  # the overlay names none
+    if cache.is_file():  # written by this report, in these runs' own folder, when it still simulated
+        return json.loads(cache.read_text())["rows"]
+    where = Path(items[0]["run_dir"]).parent if items else cache.parent.parent
+    raise ValueError(f"the runs of {cfg['motion']['name']} ({where}) measured no report.baselines (metrics.json "
+                     f"report_baselines: runs before session 19); re-evaluate them, which measures them: "
+                     f"aslexp imitate -m <the sweep's overrides> 'resume=SWEEP/${{hydra:job.num}}'")
 
 
 def _marked(row: dict[str, Any]) -> float | str:
     """A baseline's reward, with how its episodes ended where one ended early."""
-    from aslexp.envs.baselines import ended_early
-
     ends = ended_early(row)
     return round(row["reward"], 3) if not ends else f"{row['reward']:.3f} ({ends})"
 

@@ -1,6 +1,6 @@
 """How far the engines agree: the no-learning baselines in PyBullet and in MuJoCo, side by side.
 
-    python -m aslexp.reports.engine_agreement [--letters A,B,C,D,E] [--signs 00433,52861,69318,69546]
+    python -m aslexp.measure.engine_agreement [--letters A,B,C,D,E] [--signs 00433,52861,69318,69546]
                                          [--seconds 10] [--out outputs/engine_agreement]
 
 For each letter (the hand, the thesis reward ``hand_thesis``) and each sign (the upper body,
@@ -23,8 +23,9 @@ from typing import Any
 
 from aslexp.data.root import resolve_data_root
 from aslexp.envs.assembly import ImitationSetup
-from aslexp.envs.baselines import Baseline, ended_early, no_learning_baselines
+from aslexp.envs.baselines import Baseline, no_learning_baselines
 from aslexp.envs.config import resolve_group
+from aslexp.reports.report import ended_early
 
 # (body, reward, env, rows): the settings whose baselines the thesis and aslexp report.
 HAND_ROWS = [
@@ -86,7 +87,7 @@ def table(rows: list[dict[str, Any]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m aslexp.reports.engine_agreement", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m aslexp.measure.engine_agreement", description=__doc__.split("\n")[0])
     parser.add_argument("--letters", default="A,B,C,D,E")
     parser.add_argument("--signs", default="00433,52861,69318,69546", help="'' for none")
     parser.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per baseline")

@@ -6,7 +6,7 @@ PPO learns from these episodes and is scored on deterministic ones; the further 
 the less an update that helps the first need help the second. Per noise: the mean reward per step,
 the episode length and how many episodes fell.
 
-    python -m aslexp.reports.noise_cost outputs/imitate-multirun/<sweep>/<run> --betas 0,1,2 --log-std -1.75 --episodes 24
+    python -m aslexp.measure.noise_cost outputs/imitate-multirun/<sweep>/<run> --betas 0,1,2 --log-std -1.75 --episodes 24
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ def noise_cost(env, beta: float | None, log_std: float, episodes: int, seed: int
 
 
 def main(argv: list[str] | None = None) -> str:
-    parser = argparse.ArgumentParser(prog="python -m aslexp.reports.noise_cost", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m aslexp.measure.noise_cost", description=__doc__.split("\n\n")[0])
     parser.add_argument("run_dir", type=Path, help="a run folder (its .hydra/config.yaml builds the env)")
     parser.add_argument("--betas", default="0,0.5,1,2", help="noise colours: 0 white, 1 pink, 2 red")
     parser.add_argument("--log-std", default="-1.75", help="noise sizes, log of box half-widths (comma-separated)")
@@ -59,7 +59,8 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--horizon", type=int, default=300, help="steps of one coloured sequence")
     args = parser.parse_args(argv)
 
-    from aslexp.reports.report import run_config, run_env
+    from aslexp.measure.residual import run_env
+    from aslexp.reports.report import run_config
 
     cfg = run_config(args.run_dir)
     env = run_env(cfg)  # as trained: its training episodes
