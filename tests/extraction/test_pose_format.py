@@ -1,8 +1,10 @@
 """`.pose` files (pose-format): the project's own MediaPipe output written as `.pose`, read back
 with pose-format's own reader and with the `pose_format` keypoint source, retargeted from a
-`.pose`; a foreign layout is one clear line."""
+`.pose`; a foreign layout is read from its own header."""
 
 from __future__ import annotations
+
+import logging
 
 import numpy as np
 import pytest
@@ -86,21 +88,34 @@ def _foreign_pose(path, component="BODY_135"):
         Pose(header, NumPyPoseBody(25, data, confidence)).write(handle)
 
 
-def test_unknown_layout_is_one_line_naming_file_and_component(tmp_path):
+def test_a_foreign_layout_is_read_from_its_header(tmp_path, caplog):
+    """layout=auto on a file no MediaPipe layout fits reads the header's own layout (and says so);
+    a MediaPipe layout asked for by name is one line naming the file and its components; a subset
+    the layout lacks is one line naming the whole fix."""
     _foreign_pose(tmp_path / "clip1.pose")
     source = open_keypoint_source("pose_format", path=tmp_path)
-    with pytest.raises(DataError) as error:
-        source.layout
-    message = str(error.value)
-    assert "\n" not in message and "clip1.pose" in message and "BODY_135 (3 points, XYC)" in message
-    assert "pose.options.layout=header" in message and "mediapipe_hands: both hands" in message
-    # The header itself describes the layout: read it with layout=header.
-    source = open_keypoint_source("pose_format", path=tmp_path, layout="header")
-    assert source.layout.names == ("BODY_135:NOSE", "BODY_135:NECK", "BODY_135:RSHOULDER")
-    assert source.layout.edges == ((0, 1), (1, 2)) and source.layout.channels == ("x", "y", "confidence")
+    with caplog.at_level(logging.INFO):
+        layout = source.layout
+    assert layout.names == ("BODY_135:NOSE", "BODY_135:NECK", "BODY_135:RSHOULDER")
+    assert layout.edges == ((0, 1), (1, 2)) and layout.channels == ("x", "y", "visibility")
+    said = " ".join(r.getMessage() for r in caplog.records)
+    assert f"layout {layout.name} (pose.options.layout=auto, read from clip1.pose): no MediaPipe layout fits" in said
+    assert "BODY_135 (3 points, XYC)" in said and "subsets all)" in said  # no SL-GCN points in 3 nodes
     clip = source.load("clip1")
     assert clip.shape == (4, 3, 3) and np.isnan(clip[2, 1]).all()
     np.testing.assert_allclose(clip[0, 0], [1 / 640, 2 / 480, 1.0])
+    header = open_keypoint_source("pose_format", path=tmp_path, layout="header")  # the same, asked for
+    assert header.layout == layout
+    np.testing.assert_array_equal(header.load("clip1"), clip)
+    with pytest.raises(DataError) as error:
+        open_keypoint_source("pose_format", path=tmp_path, layout="mediapipe_holistic").layout
+    message = str(error.value)
+    assert "\n" not in message and "clip1.pose" in message and "BODY_135 (3 points, XYC)" in message
+    with pytest.raises(DataError) as error:
+        SubsetSource(source, "slgcn27")  # conf/pose/pose_format.yaml's default subset
+    message = str(error.value)
+    assert "\n" not in message and "no keypoint subset 'slgcn27'" in message and "channels x, y, visibility" in message
+    assert "set pose.subset=all" in message
     (tmp_path / "broken.pose").write_bytes(b"not a pose file")
     with pytest.raises(DataError, match="broken.pose"):
         source.load("broken")

@@ -8,6 +8,7 @@ is needed."""
 from __future__ import annotations
 
 import io
+import logging
 import struct
 
 import numpy as np
@@ -178,6 +179,49 @@ def test_a_body_only_file_gives_the_upper_body(whistle, tmp_path, capsys):
     assert np.all(got["r_index_prox"] == 0)  # no hand: the fingers stay open
 
 
+def test_a_mediapipe_hands_array_gives_the_hand_motion(whistle, tmp_path, capsys):
+    """The clip's hands as hand-only pipelines store them, (T, 126) with zeros for a hand not found:
+    the same hand motion as its `.pose` without metric hands (image hands made metric the same
+    way); no body, so no upper body, said once."""
+    _, image, reference = whistle
+    folder = tmp_path / "hands"
+    folder.mkdir()
+    hands = np.nan_to_num(image[:, H.LEFT_HAND_OFFSET :, :3], nan=0.0)
+    np.save(folder / f"{CLIP}.npy", hands.reshape(len(hands), 126))
+    rc = extract_main([str(folder), "--motions", "--out", str(tmp_path / "out"), "--frame-size", f"{WIDTH}x{HEIGHT}"])
+    printed = capsys.readouterr().out
+    assert rc == 0 and "hand ok: 1" in printed and "upper_body skipped: 1" in printed, printed
+    assert "upper_body not made for 1 input(s): a MediaPipe Hands array (T, 126) holds no body" in printed
+    got = _frames(tmp_path / "out" / "motions" / "hand" / f"{CLIP}.txt", "hand")
+    np.testing.assert_allclose(got, _frames(reference, "hand"), atol=1e-4)
+
+
+def test_implausible_motions_are_warned_and_plausible_ones_are_not(whistle, extracted, tmp_path, capsys):
+    """The clip's metric landmarks (MediaPipe's world pose and Hands): no warning. Its image only
+    (pose-format's video_to_pose without the world component, lifted from MediaPipe's image depth;
+    its image hands too) and its depth scaled by 5: warnings naming the proportions, the joints held
+    at their limits and the frames."""
+    _, image, _ = whistle
+    metric = R.retarget_video(extracted[0], CLIP, tmp_path / "metric")
+    assert not metric["hand"]["warnings"] and not metric["upper_body"]["warnings"]
+    assert metric["upper_body"]["depth_to_width"] < 1.5  # a body: 1.33 shoulder widths deep here
+    from aslexp.keypoints.posefile import write_holistic_pose
+
+    image_only = write_holistic_pose(tmp_path / "in" / f"{CLIP}.pose", image, 25.0, WIDTH, HEIGHT)
+    deep = image.copy()
+    deep[..., 2] *= 5
+    deep = write_holistic_pose(tmp_path / "in" / f"{CLIP}_deep.pose", deep, 25.0, WIDTH, HEIGHT)
+    rc = extract_main([str(image_only), str(deep), "--motions", "--out", str(tmp_path / "out")])
+    printed = capsys.readouterr().out
+    assert rc == 0 and "hand ok: 2" in printed and "upper_body ok: 2" in printed, printed
+    warnings = [line for line in printed.splitlines() if "motion WARNING" in line]
+    for name in (CLIP, f"{CLIP}_deep"):
+        depth = next(line for line in warnings if f"WARNING {name} upper_body: implausible proportions" in line)
+        assert "shoulder widths deep" in depth and "of 57 frames (frames 0-56)" in depth
+        assert any(f"WARNING {name} hand: ring_inter held at its limit" in line and "(frames " in line
+                   for line in warnings)  # fmt: skip
+
+
 def test_components_and_points_are_found_by_name(whistle, tmp_path):
     pose, image, _ = whistle
     shuffled = pose.get_components([RIGHT, POSE_WORLD, LEFT, POSE], {LEFT: list(reversed(HAND_POINTS))})
@@ -195,10 +239,28 @@ def test_components_and_points_are_found_by_name(whistle, tmp_path):
     assert f"chosen from its first file {CLIP}.pose" in message
 
 
-def test_an_openpose_file_says_what_it_has_and_what_is_needed(whistle, tmp_path, capsys):
-    """pose-format's own OpenPose reader on the clip's real hands and arms (pixels, 2D): the
-    MediaPipe layouts and the motions need MediaPipe's components, so each says so in one line."""
-    _, image, _ = whistle
+def test_mediapipe_components_lacking_points_are_read_as_they_are_with_a_warning(whistle, tmp_path, caplog):
+    """A hands-only file whose right hand lacks a point fits no MediaPipe layout: layout=auto reads
+    its header's own layout, and says louder than for a foreign format what the nearest one lacks."""
+    pose, image, _ = whistle
+    partial = pose.get_components([LEFT, RIGHT], {RIGHT: list(HAND_POINTS[:-1])})
+    path = _write(partial, tmp_path / "partial" / f"{CLIP}.pose")
+    source = open_keypoint_source("pose_format", path=path.parent)
+    with caplog.at_level(logging.WARNING, logger="aslexp"):
+        layout = source.layout
+    assert layout.num_nodes == 41 and layout.names[21] == "RIGHT_HAND_LANDMARKS:WRIST"
+    warning = next(r.getMessage() for r in caplog.records if r.levelno == logging.WARNING)
+    assert "lack points every MediaPipe layout needs (nearest: mediapipe_hands: component RIGHT_HAND_LANDMARKS " \
+           "(20 points) lacks 1 needed point(s): PINKY_TIP)" in warning
+    np.testing.assert_allclose(source.load(CLIP)[:, 21:, :2], image[:, H.RIGHT_HAND_OFFSET : -1, :2], atol=1e-5)
+
+
+def test_an_openpose_file_reads_as_sl_gcns_27_points_and_says_why_it_gives_no_motion(whistle, tmp_path, capsys):
+    """pose-format's own OpenPose reader on the clip's real hands and arms (pixels, 2D): layout=auto
+    reads the header's own layout (no MediaPipe layout fits), whose names give SL-GCN's 27 points,
+    the same as Holistic's 27 of the clip (conf/pose/pose_format.yaml's defaults need no other
+    override); the motions need 3D MediaPipe points, so they are one line saying so."""
+    pose, image, _ = whistle
     body_index = {"RShoulder": 12, "RElbow": 14, "RWrist": 16, "LShoulder": 11, "LElbow": 13, "LWrist": 15, "Nose": 0}
     from pose_format.utils.openpose import BODY_POINTS
 
@@ -217,18 +279,22 @@ def test_an_openpose_file_says_what_it_has_and_what_is_needed(whistle, tmp_path,
                                  "hand_right_keypoints_2d": flat(frame[H.RIGHT_HAND_OFFSET :])}]}  # fmt: skip
     openpose = load_openpose(frames, fps=25, width=WIDTH, height=HEIGHT)
     path = _write(openpose, tmp_path / "openpose" / f"{CLIP}.pose")
-    with pytest.raises(DataError) as error:
-        open_keypoint_source("pose_format", path=path.parent).layout
-    message = str(error.value)
-    assert "\n" not in message and f"{CLIP}.pose" in message and "'openpose'" in message
-    assert "hand_right_keypoints_2d (21 points, XYC)" in message and "mediapipe_hands: both hands" in message
-    assert "pose.options.layout=header" in message
-    header = open_keypoint_source("pose_format", path=path.parent, layout="header")  # its own layout
-    assert header.layout.num_nodes == 137 and header.load(CLIP).shape == (57, 137, 3)
-    # Motions: nothing a MediaPipe part needs; one line, no recognition option in it; exit 1.
+    source = open_keypoint_source("pose_format", path=path.parent)  # layout=auto
+    assert source.layout.num_nodes == 137 and source.layout.channels == ("x", "y", "visibility")
+    assert source.load(CLIP).shape == (57, 137, 3)
+    thesis = SubsetSource(source, "slgcn27")
+    holistic = _write(pose, tmp_path / "holistic" / f"{CLIP}.pose")
+    reference = SubsetSource(open_keypoint_source("pose_format", path=holistic.parent), "slgcn27")
+    assert thesis.layout.names == reference.layout.names and thesis.layout.edges == reference.layout.edges
+    got, expected = thesis.load(CLIP), reference.load(CLIP)
+    np.testing.assert_array_equal(np.isnan(got[..., 0]), np.isnan(expected[..., 0]))
+    np.testing.assert_allclose(got[..., :2], expected[..., :2], atol=1e-5)  # x, y of the same 27 points
+    assert np.isfinite(got[..., 0]).sum() == 57 * 17  # nose, arms, the right hand; the left never seen
+    # Motions: 2D hands and no MediaPipe part; one line, no recognition option in it; exit 1.
     rc, printed = _motions(path, tmp_path / "out", capsys)
     assert rc == 1, printed
     line = next(line for line in printed.splitlines() if "FAILED" in line)
     assert "nothing to retarget" in line and "LEFT_HAND_LANDMARKS or RIGHT_HAND_LANDMARKS" in line
+    assert "hand_left_keypoints_2d, hand_right_keypoints_2d are 2D (XYC)" in line
     assert "aslexp extract VIDEO --motions" in line and "pose.options" not in printed
     assert "none of the 1 input(s) succeeded" in printed

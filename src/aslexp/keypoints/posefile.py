@@ -35,10 +35,17 @@ not available without mediapipe, so its limbs are left empty).
 
 The ``pose_format`` keypoint source reads a folder of ``<video_id>.pose`` files. ``layout``:
 ``auto`` (default) takes the first of the layouts above that the first file has everything for
-(every file must then have it too), and otherwise says in one line which components the file has
-and what each layout needs; a layout name forces that layout; ``header`` builds the layout from
-the file's own header (every point of the non-world components, ``COMPONENT:POINT`` names, limbs
-as edges), for OpenPose, AlphaPose or any other layout the library writes.
+(every file must then have it too) and, when none fits (OpenPose, AlphaPose, ...), the file's own
+layout, as ``header`` does, saying in the log which it chose and why; a layout name forces that
+layout (or is one line saying which components the file has and what the layout needs);
+``header`` builds the layout from the file's own header: every point of the non-world components,
+``COMPONENT:POINT`` names, limbs as edges, channels the components' x, y (z) and ``visibility``
+(pose-format's per-point confidence, the same channel name as in the MediaPipe layouts, so that
+``pose.channels=[x, y, visibility]`` means position and confidence whatever the file). An OpenPose
+header (BODY_25 + hands, or BODY_135, as pose-format writes them) also offers
+``pose.subset=slgcn27`` (:mod:`aslexp.keypoints.slgcn27`), so ``conf/pose/pose_format.yaml``'s
+defaults read such a folder as they read a MediaPipe one: ``aslexp recognize pose=pose_format
+pose.path=DIR`` needs no other override.
 
 For retargeting, :func:`holistic_arrays` takes whatever MediaPipe points a file has (NaN for the
 rest) and says which parts are missing and why.
@@ -61,6 +68,8 @@ from aslexp.keypoints import holistic as H
 from aslexp.keypoints.layout import KeypointLayout
 from aslexp.keypoints.layouts import MEDIAPIPE_HANDS, MEDIAPIPE_HOLISTIC, MEDIAPIPE_HOLISTIC_REDUCED, MEDIAPIPE_POSE
 from aslexp.keypoints.registry import get_layout, register_layout, register_source
+from aslexp.keypoints.slgcn27 import register_header_map
+from aslexp.keypoints.subsets import subset_names
 
 log = logging.getLogger(__name__)
 
@@ -248,6 +257,25 @@ def choose_layout(header, origin: str, mode: str = "auto") -> KeypointLayout:
                     "own layout instead")  # fmt: skip
 
 
+def auto_layout(header, origin: str) -> KeypointLayout | None:
+    """``layout=auto``: the first MediaPipe layout the header has everything for, or None when
+    none fits (the file's own layout is then read: :func:`header_layout`)."""
+    try:
+        return choose_layout(header, origin, "auto")
+    except LayoutMismatch:
+        return None
+
+
+def nearest_mediapipe_layout(header) -> str:
+    """For a header with MediaPipe components that no MediaPipe layout fits: the nearest layout
+    and what it lacks (``name: reasons``); '' when the header has no MediaPipe component."""
+    if not {POSE, LEFT, RIGHT} & {c.name for c in header.components}:
+        return ""
+    fits = [(lay, *_fit(header, lay)) for lay in AUTO_LAYOUTS]
+    layout, _, reasons = min(fits, key=lambda fit: sum(where is None for where in fit[1]))  # fewest points missing
+    return f"{layout.name}: {'; '.join(reasons.values())}"
+
+
 def header_layout(header, origin: str) -> tuple[KeypointLayout, list[int]]:
     """A layout made from a header's own components (world components left out), and the point
     indices it takes from the body."""
@@ -260,13 +288,14 @@ def header_layout(header, origin: str) -> tuple[KeypointLayout, list[int]]:
         names += [f"{component.name}:{p}" for p in component.points]
         edges += [(base + int(i), base + int(j)) for i, j in component.limbs if int(i) != int(j)]
         take += range(start, start + len(component.points))
-        fmt = component.format.upper()
-        component_channels = [c.lower() for c in fmt.replace("C", "")] + (["confidence"] if "C" in fmt else [])
+        # pose-format keeps a confidence per point whatever the point format: the visibility channel
+        component_channels = [c.lower() for c in component.format.upper().replace("C", "")] + ["visibility"]
         if channels is None:
             channels = component_channels
         elif channels != component_channels:
             raise DataError(f"{origin}: component {component.name!r} has point format {component.format!r}, "
-                            f"unlike the others ({channels}): one layout needs one set of channels")  # fmt: skip
+                            f"unlike the others ({channels}): one layout needs one set of channels; keep the "
+                            "components of one format (pose-format's Pose.get_components)")  # fmt: skip
     if not names:
         raise DataError(f"{origin}: no (non-world) component in the header")
     signature = "|".join(f"{c.name}:{','.join(c.points)}" for c in header.components)
@@ -274,6 +303,13 @@ def header_layout(header, origin: str) -> tuple[KeypointLayout, list[int]]:
     layout = KeypointLayout(name=name, names=tuple(names), edges=tuple(sorted(set(edges))), center=0,
                             channels=tuple(channels))  # fmt: skip
     return layout, take
+
+
+def register_header_layout(header, origin: str) -> tuple[KeypointLayout, str | None]:
+    """Register a header's own layout (:func:`header_layout`) with the subsets its names allow
+    (``slgcn27`` on OpenPose headers); returns it and the known format it was matched to (or None)."""
+    layout = register_layout(header_layout(header, origin)[0])
+    return layout, register_header_map(layout)
 
 
 def _scaled(data: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -326,8 +362,11 @@ def pose_to_arrays(pose, origin: str, layout: str = "auto", person: int = 0) -> 
     width, height = int(header.dimensions.width), int(header.dimensions.height)
     data, confidence = _person(pose, origin, person)
     fps = float(pose.body.fps)
+    chosen = auto_layout(header, origin) if layout == "auto" else None
+    if layout == "auto" and chosen is None:
+        layout = "header"  # no MediaPipe layout fits: the file's own, as the folder source reads it
     if layout != "header":
-        chosen = choose_layout(header, origin, layout)
+        chosen = chosen or choose_layout(header, origin, layout)
         found, _ = _fit(header, chosen)
         clip = _gather(data, confidence, found, width, height, with_confidence="visibility" in chosen.channels)
         world = None
@@ -337,10 +376,8 @@ def pose_to_arrays(pose, origin: str, layout: str = "auto", person: int = 0) -> 
         return PoseFile(Path(origin), chosen, clip, fps, width, height, world,
                         components=describe_components(header))  # fmt: skip
     layout_obj, take = header_layout(header, origin)
-    dims = len(layout_obj.channels) - (1 if layout_obj.channels[-1] == "confidence" else 0)
-    clip = _scaled(data[:, take, :dims], width, height)
-    if layout_obj.channels[-1] == "confidence":
-        clip = np.concatenate([clip, confidence[:, take, None]], axis=-1)
+    dims = len(layout_obj.channels) - 1  # the spatial ones, then visibility
+    clip = np.concatenate([_scaled(data[:, take, :dims], width, height), confidence[:, take, None]], axis=-1)
     clip[confidence[:, take] <= 0] = np.nan
     return PoseFile(Path(origin), layout_obj, clip, fps, width, height, components=describe_components(header))
 
@@ -377,8 +414,12 @@ def holistic_arrays(path: str | Path, person: int = 0) -> PoseFile:
     result = PoseFile(Path(origin), MEDIAPIPE_HOLISTIC, clip, float(pose.body.fps), width, height, world,
                       missing, describe_components(header))  # fmt: skip
     if len(missing) == 3:
+        # Hands without depth (OpenPose's are 2D): the reason a hand motion cannot come from them
+        flat_hands = [c for c in header.components if "hand" in c.name.lower() and "Z" not in c.format.upper()]
+        flat = (f"; its {', '.join(c.name for c in flat_hands)} are 2D ({flat_hands[0].format}): finger angles "
+                "need depth" if flat_hands else "")  # fmt: skip
         raise DataError(f"{origin}: nothing to retarget: the file has components "
-                        f"{', '.join(result.components) or 'none'} ({known_format(header)}); by name, "
+                        f"{', '.join(result.components) or 'none'} ({known_format(header)}){flat}; by name, "
                         f"the hand motion needs {LEFT} or {RIGHT} (21 MediaPipe hand points), the upper "
                         f"body {POSE} with both shoulders, elbows and wrists (MediaPipe Pose names), each "
                         "with x, y, z; make MediaPipe keypoints from the video with "
@@ -399,6 +440,7 @@ class PoseFormatSource:
             raise DataError(f"{self.directory}: pose.options.layout = {layout!r}; expected one of {list(LAYOUT_MODES)}")
         self.mode, self.person = layout, int(person)
         self._layout: KeypointLayout | None = None
+        self._from_header = layout == "header"  # the folder's layout is its first file's own
 
     def available(self) -> set[str]:
         return {path.stem for path in self.directory.glob(f"*{SUFFIX}")}
@@ -419,14 +461,35 @@ class PoseFormatSource:
             if header is None:
                 raise DataError(f"{self.directory}: none of its {len(files)} {SUFFIX} files is readable")
             self._first = first
-            if self.mode == "header":
-                self._layout = register_layout(header_layout(header, str(first))[0])
+            why, chosen = "", None
+            if self.mode == "auto":
+                chosen = auto_layout(header, str(first))
+                self._from_header = chosen is None
+            if self.mode == "auto" and chosen is None:
+                why = (f": no MediaPipe layout fits its components {', '.join(describe_components(header))} "
+                       f"({known_format(header)}), so the header's own")  # fmt: skip
+                nearest = nearest_mediapipe_layout(header)
+                if nearest:  # MediaPipe components that lack points: likely not what was meant, say it louder
+                    log.warning("%s: its MediaPipe components lack points every MediaPipe layout needs (nearest: "
+                                "%s); reading the header's own layout instead (pose.options.layout=%s names what "
+                                "one needs)", first, nearest, nearest.split(":")[0])  # fmt: skip
+            if self._from_header:
+                try:
+                    self._layout, known = register_header_layout(header, str(first))
+                except DataError as error:
+                    if self.mode != "auto":
+                        raise
+                    raise DataError(f"{error}; nor does a MediaPipe layout fit: pose.options.layout=<one of "
+                                    f"{[lay.name for lay in AUTO_LAYOUTS]}> says what it needs") from None  # fmt: skip
+                why += (f" ({self._layout.num_nodes} nodes, channels {', '.join(self._layout.channels)}, subsets "
+                        f"{', '.join(subset_names(self._layout))}"
+                        + (f"; slgcn27 mapped by {known} point names" if known else "") + ")")  # fmt: skip
             else:
-                self._layout = choose_layout(header, str(first), self.mode)
-            unused = [] if self.mode == "header" else [
+                self._layout = chosen or choose_layout(header, str(first), self.mode)
+            unused = [] if self._from_header else [
                 c.name for c in header.components if c.name in (POSE, LEFT, RIGHT) and c.name not in self._uses()]
-            log.info("%s: .pose layout %s (pose.options.layout=%s, read from %s)%s", self.directory,
-                     self._layout.name, self.mode, first.name,
+            log.info("%s: .pose layout %s (pose.options.layout=%s, read from %s)%s%s", self.directory,
+                     self._layout.name, self.mode, first.name, why,
                      f"; components {unused} not used" if unused else "")  # fmt: skip
         return self._layout
 
@@ -437,7 +500,7 @@ class PoseFormatSource:
         path = self.directory / f"{video_id}{SUFFIX}"
         layout = self.layout
         try:
-            result = read_pose_file(path, "header" if self.mode == "header" else layout.name, self.person)
+            result = read_pose_file(path, "header" if self._from_header else layout.name, self.person)
         except DataError as error:
             if self.mode != "auto" or not isinstance(error, LayoutMismatch):
                 raise

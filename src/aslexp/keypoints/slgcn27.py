@@ -32,6 +32,12 @@ an honest layout, not 27 nodes of which some are always zero. What the 27 points
   26, exact; no nose, so the centre is the left shoulder and the two shoulders are joined.
 - ``mediapipe_hands`` (two hands, e.g. a hands-only ``.pose``): the 20 hand points, exact; the
   centre is the left hand root, joined to the right one.
+- OpenPose ``.pose`` files read with their header's own layout (:mod:`aslexp.keypoints.posefile`),
+  found by component and point name as pose-format writes them (:data:`HEADER_POINTS`): BODY_25 +
+  both hands (``pose_keypoints_2d``, ``hand_left_keypoints_2d``, ``hand_right_keypoints_2d``;
+  pose-format's ``load_openpose``): all 27, exact; BODY_135 (``load_openpose_135_directory``): 25,
+  the hand roots being the body wrists (duplicate). :func:`register_header_map` offers the subset
+  on such a layout.
 - ``mediapipe_pose`` (the shared data's 291 clips: 33 body landmarks, no fingers): 13 points.
   Exact: nose, shoulders, elbows, wrists (7). Approximate: per hand the index MCP (Pose's "index",
   the first knuckle), the little-finger MCP (Pose's "pinky", the first knuckle) and the thumb tip
@@ -123,6 +129,77 @@ MAPS: dict[str, dict[str, tuple[int | None, str]]] = {
     "mediapipe_holistic_reduced": _by_name(tuple(H.NAMES[i] for i in H.REDUCED_BODY + H.HAND_NODES)),
     "mediapipe_hands": _by_name(tuple(H.NAMES[i] for i in H.HAND_NODES)),
 }
+# SL-GCN's points in the headers pose-format writes for OpenPose, by (component, point) name;
+# components are matched without case and without a _2d / _3d suffix, points without case.
+# OpenPose's hand points are the same 21 as MediaPipe's, in the same order; pose-format names them
+# one joint off the anatomy (its I_CMC is OpenPose's point 5, the index knuckle; I_DIP point 8,
+# the tip), so the names below are pose-format's for those points. None: the point is another
+# kept node (BODY_135's hands have no root of their own: the body wrist is it).
+_OPENPOSE_BODY = {"nose": "Nose", "left_shoulder": "LShoulder", "right_shoulder": "RShoulder",
+                  "left_elbow": "LElbow", "right_elbow": "RElbow", "left_wrist": "LWrist", "right_wrist": "RWrist"}  # fmt: skip
+_OPENPOSE_HAND = {"root": "BASE", "thumb_tip": "T_IP", "index_mcp": "I_CMC", "index_tip": "I_DIP",
+                  "middle_mcp": "M_CMC", "middle_tip": "M_DIP", "ring_mcp": "R_CMC", "ring_tip": "R_DIP",
+                  "little_mcp": "P_CMC", "little_tip": "P_DIP"}  # fmt: skip
+_BODY135_HAND = {"root": None, "thumb_tip": "Thumb4FingerTip", "index_mcp": "Index1Knuckles",
+                 "index_tip": "Index4FingerTip", "middle_mcp": "Middle1Knuckles", "middle_tip": "Middle4FingerTip",
+                 "ring_mcp": "Ring1Knuckles", "ring_tip": "Ring4FingerTip", "little_mcp": "Pinky1Knuckles",
+                 "little_tip": "Pinky4FingerTip"}  # fmt: skip
+HEADER_POINTS: dict[str, dict[str, tuple[str, str] | None]] = {
+    "openpose": {
+        **{node: ("pose_keypoints", point) for node, point in _OPENPOSE_BODY.items()},
+        **{f"{side}_hand_{node}": (f"hand_{side}_keypoints", point)
+           for side in ("left", "right") for node, point in _OPENPOSE_HAND.items()},
+    },
+    "openpose_135": {
+        **{node: ("body_135", point) for node, point in _OPENPOSE_BODY.items()},
+        **{f"{side}_hand_{node}": (("body_135", side[0].upper() + point) if point else None)
+           for side in ("left", "right") for node, point in _BODY135_HAND.items()},
+    },
+}  # fmt: skip
+ARMS = NAMES[1:7]  # shoulders, elbows, wrists
+
+
+def _component_key(name: str) -> str:
+    key = name.lower()
+    return key[:-3] if key.endswith(("_2d", "_3d")) else key
+
+
+def header_map(names: tuple[str, ...]) -> tuple[str, dict[str, tuple[int | None, str]]] | None:
+    """The SL-GCN map onto a layout read from a ``.pose`` header (node names ``COMPONENT:POINT``):
+    the format of :data:`HEADER_POINTS` it fits best and the map, or None when no format gives
+    the arms (both shoulders, elbows, wrists) or a whole hand (its 10 points): fewer is no
+    skeleton to sign with."""
+    position = {}
+    for k, name in enumerate(names):
+        component, _, point = name.partition(":")
+        position.setdefault((_component_key(component), point.lower()), k)
+    hands = [{f"{side}_hand_{p}" for p in HAND_POINTS} - {f"{side}_hand_root"} for side in ("left", "right")]
+    best = None
+    for fmt, points in HEADER_POINTS.items():
+        mapping: dict[str, tuple[int | None, str]] = {}
+        for node in NAMES:
+            where = points.get(node)
+            k = None if where is None else position.get((where[0], where[1].lower()))
+            quality = "exact" if k is not None else ("duplicate" if node in points and where is None else "missing")
+            mapping[node] = (k, quality)
+        exact = {node for node, (_, quality) in mapping.items() if quality == "exact"}
+        usable = set(ARMS) <= exact or any(hand <= exact for hand in hands)
+        if usable and (best is None or len(exact) > best[0]):
+            best = (len(exact), fmt, mapping)
+    return None if best is None else (best[1], best[2])
+
+
+def register_header_map(layout: KeypointLayout) -> str | None:
+    """Offer ``pose.subset=slgcn27`` on a layout read from a ``.pose`` header when its names fit
+    :data:`HEADER_POINTS`; returns the format's name (None: not offered)."""
+    found = header_map(layout.names)
+    if found is None:
+        return None
+    MAPS[layout.name] = found[1]
+    register_subset_builder(NAME, MAPS, slgcn27_subset)  # the builder's layouts, with this one
+    return found[0]
+
+
 NOTES = {
     "mediapipe_pose": {
         "thumb_tip": "Pose 'thumb' (a thumb knuckle, BlazePose topology), not the tip",

@@ -54,8 +54,12 @@ def subset_indices(layout: KeypointLayout, subset: str | None) -> tuple[int, ...
         return _SUBSET_BUILDERS[subset][1](layout)[1]
     options = _SUBSETS.get(layout.name, {})
     if subset not in options:
-        raise DataError(f"layout {layout.name!r} has no keypoint subset {subset!r}; "
-                        f"expected one of {list(subset_names(layout))}")  # fmt: skip
+        # The whole fix in one line: the data layer checks pose.channels after the subset, so a
+        # layout from elsewhere (a .pose header) names its channels here too.
+        raise DataError(f"layout {layout.name!r} ({layout.num_nodes} nodes, channels "
+                        f"{', '.join(layout.channels) or 'unknown'}) has no keypoint subset {subset!r}; expected "
+                        f"one of {list(subset_names(layout))}: set pose.subset=all to keep every node (and "
+                        "pose.channels to some of its channels, or null for all)")  # fmt: skip
     return options[subset]
 
 

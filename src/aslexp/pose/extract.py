@@ -125,7 +125,7 @@ class ExtractSummary:
 # ----------------------------------------------------------------------------- inputs
 
 
-def _video_files(directory: Path) -> list[Path]:
+def video_files(directory: Path) -> list[Path]:
     return sorted(p for p in directory.iterdir() if p.suffix.lower() in VIDEO_SUFFIXES and p.is_file())
 
 
@@ -144,7 +144,7 @@ def jobs_from_wlasl(
     video_dir = Path(video_dir)
     if not video_dir.is_dir():
         raise ExtractionError(f"video folder not found: {video_dir}")
-    available = {p.stem: p for p in _video_files(video_dir)}
+    available = {p.stem: p for p in video_files(video_dir)}
     jobs = []
     for entry in entries:
         for inst in entry.get("instances", []):
@@ -193,8 +193,11 @@ def collect_jobs(
                 jobs.setdefault(job.video_id, job)
     if not jsons:
         for d in folders:
-            for p in _video_files(d):
+            for p in video_files(d):
                 jobs.setdefault(p.stem, VideoJob(p.stem, str(p)))
+            for p in sorted(set(d.iterdir()) - set(video_files(d))):  # counted, so that "no videos" says why
+                if p.is_file():
+                    skipped[f"{p.suffix or 'no suffix'} file in a folder (not a video)"] += 1
     for p in files:
         jobs.setdefault(p.stem, VideoJob(p.stem, str(p)))
     result = list(jobs.values())

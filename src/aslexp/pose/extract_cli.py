@@ -8,11 +8,15 @@ Examples::
     aslexp extract clip.mp4 --frames 11:60 --out DIR --format pose   # frames 11..60 -> DIR/clip.pose
     aslexp extract VIDEOS/ --out DIR --workers 8                     # 8 MediaPipe processes
     aslexp extract VIDEOS/ --out DIR --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT
+    aslexp extract clip.pose --motions --out DIR                     # keypoints already: retarget
+    aslexp extract hands/ --motions --frame-size 640x480 --out DIR   # MediaPipe Hands arrays (T, 126)
 
 Exit code (as every aslexp command): 0 when the batch ran, also when some videos, overlays or
 motions failed (a video without hands, an unreadable file: each listed with its reason, and a
 last line counting them); 1 when nothing succeeded (every video failed, or no MediaPipe
-environment); 2 for bad input (bad arguments, no videos in the inputs).
+environment); 2 for bad input (bad arguments, no videos in the inputs, keypoints without
+--motions, hand arrays without --frame-size). Motions that are written but implausible (a joint
+held at its limit, arms deeper than a body reaches) are WARNING lines, not failures.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+from aslexp.keypoints.hands import HANDEDNESS_SUFFIX
 from aslexp.pose.extract import (
     ExtractionError,
     ExtractOptions,
@@ -33,6 +38,7 @@ from aslexp.pose.extract import (
     parse_shard,
     render_overlays,
     select_shard,
+    video_files,
     write_pose_files,
 )
 
@@ -43,8 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Extract MediaPipe Holistic keypoints from sign videos (cached per video), "
         "optionally with skeleton overlays and DeepMimic reference motions.",
     )
-    p.add_argument("inputs", nargs="*", help="video files, folders of videos, or a WLASL json; or .pose "
-                   "files (pose-format) with --motions, retargeted as they are (MediaPipe points by name)")
+    p.add_argument("inputs", nargs="*", help="video files, folders of videos, or a WLASL json; or, with "
+                   "--motions, keypoints retargeted as they are: .pose files (pose-format; MediaPipe points by "
+                   "name), .npy keypoint arrays (MediaPipe Hands (T, 126), ...), or folders of them")
     p.add_argument("--out", required=True, help="output folder (a 'directory' keypoint source)")
     p.add_argument("--wlasl", help="WLASL json: cut each video to its instance's frame range "
                    "(the videos come from --videos DIR or a folder among the inputs)")
@@ -76,6 +83,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--torso", choices=("vertical", "hips"), default="vertical",
                    help="chest pitch: upright (default; waist-framed videos) or from the hips")
     p.add_argument("--sigma", type=float, default=1.0, help="temporal smoothing of angles (frames)")
+    p.add_argument("--frame-size", metavar="WIDTHxHEIGHT",
+                   help="keypoint arrays: the video's frame size in pixels (normalised hand landmarks need it "
+                   "for the hand's proportions), e.g. 640x480")
+    p.add_argument("--fps", type=float, default=25.0,
+                   help="keypoint arrays: their frame rate (default 25, WLASL's; arrays hold none)")
+    p.add_argument("--hand-order", choices=("left_right", "detection"), default="left_right",
+                   help="two-hand arrays: the signer's left hand first (default), or MediaPipe's detection "
+                   "order (sides per frame, from <id>.handedness.npy when present; see pose.options.hand_order)")
+    p.add_argument("--mirrored", action="store_true",
+                   help="two-hand arrays in detection order from a mirrored (selfie) video")
     p.add_argument("--data-root", help="data root with models/ (default: ../shared/data)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     return p
@@ -84,14 +101,26 @@ def build_parser() -> argparse.ArgumentParser:
 def extract_main(argv: list[str]) -> int:
     """Entry point for `aslexp extract`; returns the exit code."""
     args = build_parser().parse_args(argv)
-    pose_files = [i for i in args.inputs if i.endswith(".pose")]
-    if pose_files:  # already keypoints: retarget them (no MediaPipe)
-        if len(pose_files) < len(args.inputs) or not args.motions:
-            print("aslexp extract: .pose inputs are keypoints already: give only .pose files, with "
-                  "--motions, to retarget them", file=sys.stderr)  # fmt: skip
+    keypoints, keypoint_skips = keypoint_inputs(args.inputs, read_handedness=args.hand_order == "detection")
+    if keypoints:  # already keypoints: retarget them (no MediaPipe)
+        others = [i for i in args.inputs if not _is_keypoints(Path(i))]
+        if others or not args.motions:
+            kinds = Counter(path.suffix for path in keypoints)
+            print(f"aslexp extract: {', '.join(f'{n} {suffix}' for suffix, n in sorted(kinds.items()))} "
+                  "input(s) are keypoints already: give only keypoint files and folders, with --motions, to "
+                  "retarget them" + (f" (not keypoints: {', '.join(others)})" if others else ""),
+                  file=sys.stderr)  # fmt: skip
             return 2
-        problems, written = _write_motions(pose_files, args, from_pose=True)
-        return _batch_end(len(pose_files), written, problems)
+        if keypoint_skips:
+            print(f"skipped inputs: {dict(keypoint_skips)}")
+        from aslexp.pose.landmarks import NeedsOption
+
+        try:
+            problems, written = _write_motions([str(path) for path in keypoints], args, from_files=True)
+        except NeedsOption as err:  # the same for every array of the batch: one line, not one per file
+            print(f"aslexp extract: {err}", file=sys.stderr)
+            return 2
+        return _batch_end(len(keypoints), written, problems)
     skipped: Counter = Counter()
     summary_name = "summary.json"
     try:
@@ -164,34 +193,105 @@ def _batch_end(total: int, succeeded: int, problems: list[str]) -> int:
     return 0
 
 
-def _write_motions(video_ids: list[str], args, from_pose: bool = False) -> tuple[list[str], int]:
-    """Motions for extracted videos (ids in --out), or for .pose files (paths) into --out/motions;
-    returns the FAILED lines (printed too) and how many inputs gave at least one motion."""
+KEYPOINT_SUFFIXES = (".pose", ".npy")
+
+
+def _is_keypoints(path: Path) -> bool:
+    """A keypoint file, or a folder of keypoint files without videos."""
+    if path.suffix in KEYPOINT_SUFFIXES and not path.is_dir():
+        return True
+    return path.is_dir() and not video_files(path) and any(_keypoint_files(path))
+
+
+def _keypoint_files(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix in KEYPOINT_SUFFIXES
+                  and not p.name.endswith(HANDEDNESS_SUFFIX))  # fmt: skip
+
+
+def keypoint_inputs(inputs: list[str], read_handedness: bool = False) -> tuple[list[Path], Counter]:
+    """The keypoint files among the inputs (files, and folders holding keypoints and no videos)
+    and what those folders hold besides, counted by why it is not taken: other files (handedness
+    files too, unless ``read_handedness``: --hand-order detection reads them), and an ``<id>.npy``
+    beside an ``<id>.pose`` (the .pose is taken: it is the documented container, and aslexp
+    writes both from one extraction)."""
+    files: list[Path] = []
+    skipped: Counter = Counter()
+    for item in inputs:
+        path = Path(item)
+        if not _is_keypoints(path):
+            continue
+        if not path.is_dir():
+            files.append(path)
+            continue
+        found = _keypoint_files(path)
+        poses = {p.stem for p in found if p.suffix == ".pose"}
+        for p in found:
+            if p.suffix == ".npy" and p.stem in poses:
+                skipped[".npy beside a .pose of the same id (the .pose is taken)"] += 1
+            else:
+                files.append(p)
+        for p in path.iterdir():
+            if not p.is_file() or p in found:
+                continue
+            if p.name.endswith(HANDEDNESS_SUFFIX):
+                if not read_handedness:
+                    skipped["handedness file (read with --hand-order detection)"] += 1
+            else:
+                skipped[f"{p.suffix or 'no suffix'} file (not keypoints)"] += 1
+    return files, skipped
+
+
+def _write_motions(video_ids: list[str], args, from_files: bool = False) -> tuple[list[str], int]:
+    """Motions for extracted videos (ids in --out), or for keypoint files (.pose, .npy paths) into
+    --out/motions; prints the counts, each failure, each warning (implausible joints or
+    proportions, an input's own) and, once per reason, the parts an input kind never holds;
+    returns the FAILED lines and how many inputs gave at least one motion."""
     from aslexp.errors import DataError
-    from aslexp.pose.retarget import retarget_video
+    from aslexp.pose.landmarks import NeedsOption, landmarks_from_array, parse_frame_size
+    from aslexp.pose.retarget import retarget_landmarks, retarget_video
 
     counts: Counter = Counter()
     problems: list[str] = []
+    warnings: list[str] = []
+    not_made: Counter = Counter()  # (part, reason) -> inputs
     written = 0
+    out = Path(args.out) / "motions"
+    options = dict(hand=args.hand, sigma=args.sigma, data_root=args.data_root, torso=args.torso)
     for vid in video_ids:
+        name = Path(vid).stem if from_files else vid
         try:
-            result = retarget_video(vid if from_pose else args.out, None if from_pose else vid,
-                                    Path(args.out) / "motions", hand=args.hand, sigma=args.sigma,
-                                    data_root=args.data_root, torso=args.torso)  # fmt: skip
-        except (DataError, OSError) as err:
-            text = str(err)  # a .pose file's message names it already
+            if from_files and vid.endswith(".npy"):
+                try:
+                    size = parse_frame_size(args.frame_size) if args.frame_size else None
+                except ValueError as err:
+                    raise NeedsOption(f"--frame-size: {err}") from None
+                landmarks = landmarks_from_array(vid, size, args.fps, args.hand, args.hand_order, args.mirrored)
+                result = retarget_landmarks(landmarks, out, **options)
+            else:
+                result = retarget_video(vid if from_files else args.out, None if from_files else vid, out, **options)
+        except NeedsOption:
+            raise
+        except (DataError, OSError, ValueError) as err:
+            text = str(err)  # a keypoint file's message names it already
             problems.append(f"  motion FAILED {text if text.startswith(str(vid)) else f'{vid}: {text}'}")
             continue
+        warnings += [f"  motion WARNING {name}: {line}" for line in result.get("warnings", [])]
         for part in ("hand", "upper_body"):
             r = result[part]
             counts[f"{part} {r['status']}"] += 1
-            if r["status"] != "ok":
-                problems.append(f"  motion FAILED {vid} {part}: {r['error']}")
+            if r["status"] == "failed":
+                problems.append(f"  motion FAILED {name} {part}: {r['error']}")
+            elif r["status"] == "skipped":
+                not_made[(part, r["detail"])] += 1
+            warnings += [f"  motion WARNING {name} {part}: {line}" for line in r.get("warnings", [])]
         written += any(result[part]["status"] == "ok" for part in ("hand", "upper_body"))
-    print(f"motions in {Path(args.out) / 'motions'}: "
-          + (", ".join(f"{k}: {v}" for k, v in sorted(counts.items())) or "none"))  # fmt: skip
-    for line in problems:
+    print(f"motions in {out}: " + (", ".join(f"{k}: {v}" for k, v in sorted(counts.items())) or "none"))
+    for (part, reason), n in sorted(not_made.items()):
+        print(f"  {part} not made for {n} input(s): {reason}")
+    for line in problems + warnings:
         print(line)
+    if warnings:
+        print(f"{len(warnings)} warning(s) above (WARNING lines): those motions are written, but check them")
     return problems, written
 
 

@@ -31,6 +31,11 @@ forearm twist, so the palm's roll about the forearm is not reproduced.
 
 Gaps (frames without a hand or a body) are filled by linear interpolation over time, then the
 angles are smoothed with a Gaussian (``sigma`` frames) and clipped to the URDF limits.
+
+Plausibility: a motion whose keypoints hold a joint far past its limit most of the time, or whose
+arms are deeper than a body reaches, gets ``warnings`` in its report naming the joints or the
+proportions and the frames (:func:`limit_warnings`, :func:`depth_warning`; the thresholds and
+their measurements are beside them); ``aslexp extract --motions`` prints them.
 """
 
 from __future__ import annotations
@@ -384,24 +389,113 @@ def _quaternion_offsets() -> list[int]:
     return offsets
 
 
-def _clip_report(raw: np.ndarray, lower: np.ndarray, upper: np.ndarray, tol: float = 0.05) -> float:
+# ----------------------------------------------------------------------------- plausibility
+
+# What the terminal warns about (issue 39.5), measured on the six WLASL clips' MediaPipe world
+# landmarks (normal), the same clips as .pose files without a world component (lifted from the
+# image, as pose-format's video_to_pose writes them) and with their depth scaled by 5:
+# - A joint held at its URDF limit while the keypoints ask for more than LIMIT_MARGIN beyond it, in
+#   more than LIMIT_SHARE_WARN of the frames it was seen in. A small excess is routine: the fingers'
+#   [0, 2] rad is passed by more than 0.05 rad in up to 87% of frames on the normal clips (the
+#   thumb's first joint, which MediaPipe reads hyperextended); by more than 0.35 rad (20 degrees)
+#   in at most a third (the whistle's right ring and little fingers 0.33, its right wrist 0.32: the
+#   hand at the mouth), the most of any joint. Half the frames leaves a margin above that; the
+#   issue's foreign .pose held the right wrist past its limit in 92%.
+# - Arms deeper than DEPTH_RATIO_WARN shoulder widths (the front-to-back extent of the shoulders,
+#   elbows and wrists) in more than LIMIT_SHARE_WARN of the frames. A person's arm is about 1.6
+#   shoulder widths long; the normal clips reach at most 1.37 in any frame, the thesis' four signs
+#   1.04; lifted from the image 1.5-4.1 (median per clip: MediaPipe's image depth is on another
+#   scale), 5.7-16.7 with the depth scaled by 5.
+LIMIT_TOLERANCE = 0.05  # rad: past a limit by this much counts in the reports' fractions
+LIMIT_MARGIN = 0.35  # rad: past a limit by this much is more than landmark noise
+LIMIT_SHARE_WARN = 0.5
+DEPTH_RATIO_WARN = 2.0
+ARM_POINTS = ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist")
+
+
+def _clip_report(raw: np.ndarray, lower: np.ndarray, upper: np.ndarray, tol: float = LIMIT_TOLERANCE) -> float:
     finite = np.isfinite(raw)
     outside = finite & ((raw < lower - tol) | (raw > upper + tol))
     return float(outside.sum() / max(finite.sum(), 1))
 
 
+def frame_ranges(frames: np.ndarray, shown: int = 4) -> str:
+    """Frame indices as ranges, '3-40, 45, 50-56' (the first ``shown`` ranges, then a count)."""
+    frames = np.asarray(frames, dtype=int)
+    if not len(frames):
+        return "none"
+    breaks = np.flatnonzero(np.diff(frames) > 1)
+    starts = np.concatenate([[frames[0]], frames[breaks + 1]])
+    ends = np.concatenate([frames[breaks], [frames[-1]]])
+    spans = [f"{a}" if a == b else f"{a}-{b}" for a, b in zip(starts, ends)]
+    more = f", ... ({len(spans)} ranges)" if len(spans) > shown else ""
+    return ", ".join(spans[:shown]) + more
+
+
+def limit_warnings(raw: np.ndarray, lower: np.ndarray, upper: np.ndarray, names,
+                   margin: float = LIMIT_MARGIN, share: float = LIMIT_SHARE_WARN) -> tuple[dict, list[str]]:  # fmt: skip
+    """Per joint (columns of a (T, J) raw angle array, NaN where unseen): the share of its seen
+    frames whose raw angle lies more than ``margin`` past a limit (joints with any), and one
+    warning per joint where that share exceeds ``share``, naming the joint, its limits and the
+    frames (0-based, as in the motion)."""
+    raw = np.asarray(raw, dtype=float).reshape(len(raw), -1)
+    seen = np.isfinite(raw)
+    with np.errstate(invalid="ignore"):
+        beyond = seen & ((raw < np.asarray(lower) - margin) | (raw > np.asarray(upper) + margin))
+    shares, warnings = {}, []
+    for j, name in enumerate(names):
+        if not beyond[:, j].any():
+            continue
+        fraction = float(beyond[:, j].sum() / seen[:, j].sum())
+        shares[name] = round(fraction, 3)
+        if fraction > share:
+            low, high = float(np.ravel(lower)[j]), float(np.ravel(upper)[j])
+            warnings.append(f"{name} held at its limit ([{low:.2f}, {high:.2f}] rad; the keypoints ask for more "
+                            f"than {margin} rad beyond) in {fraction:.0%} of its {int(seen[:, j].sum())} frames "
+                            f"(frames {frame_ranges(np.flatnonzero(beyond[:, j]))})")  # fmt: skip
+    return shares, warnings
+
+
+def depth_warning(body: dict[str, np.ndarray], ratio: float = DEPTH_RATIO_WARN,
+                  share: float = LIMIT_SHARE_WARN) -> tuple[float | None, list[str]]:  # fmt: skip
+    """The arms' depth over the shoulder width (front-to-back extent, humanoid x, of the shoulders,
+    elbows and wrists, over the shoulders' distance), median over the frames with both arms; and a
+    warning naming the frames above ``ratio`` when they are more than ``share`` of them."""
+    points = np.stack([np.asarray(body[n], dtype=float) for n in ARM_POINTS], axis=1)  # (T, 6, 3)
+    width = np.linalg.norm(points[:, 1] - points[:, 0], axis=-1)
+    ok = np.isfinite(points).all(axis=(1, 2)) & (width > 1e-9)
+    if not ok.any():
+        return None, []
+    depth = np.full(len(points), np.nan)
+    depth[ok] = np.ptp(points[ok, :, 0], axis=1) / width[ok]
+    median = float(np.median(depth[ok]))
+    with np.errstate(invalid="ignore"):
+        deep = np.flatnonzero(depth > ratio)
+    if len(deep) <= share * ok.sum():
+        return round(median, 3), []
+    return round(median, 3), [f"implausible proportions: the arms are {median:.1f} shoulder widths deep (median; "
+                              f"a person's arm is about 1.6 long) and more than {ratio:g} in {len(deep)} of "
+                              f"{int(ok.sum())} frames (frames {frame_ranges(deep)}): the depth axis is likely on "
+                              "another scale than x and y (e.g. MediaPipe's image z, lifted as it is where a file "
+                              "has no world component)"]  # fmt: skip
+
+
 def finger_angles(
     kp: np.ndarray, model: HandModel, sigma: float = 1.0, min_coverage: float = 0.0
 ) -> tuple[np.ndarray, dict]:
-    """(T, 21, 3) landmarks (NaN where missing) -> (T, 15) filled, smoothed, clipped angles."""
+    """(T, 21, 3) landmarks (NaN where missing) -> (T, 15) filled, smoothed, clipped angles; the
+    report counts the frames and, per joint, the share of frames far past its limits
+    (``past_limits``; ``warnings`` for those held there most of the time: :func:`limit_warnings`)."""
     raw = hand_angles(kp, model)
     filled, observed = fill_gaps(raw)
     coverage = float(observed.mean()) if len(observed) else 0.0
     if not observed.any() or coverage < min_coverage:
         raise ValueError(f"hand seen in {observed.sum()} of {len(observed)} frames")
     angles = np.clip(smooth(filled, sigma), model.lower, model.upper)
+    shares, warnings = limit_warnings(raw, model.lower, model.upper, model.joint_names)
     report = {"frames_observed": int(observed.sum()), "coverage": round(coverage, 3),
-              "fraction_outside_limits": round(_clip_report(raw, model.lower, model.upper), 3)}  # fmt: skip
+              "fraction_outside_limits": round(_clip_report(raw, model.lower, model.upper), 3),
+              "past_limits": shares, "warnings": warnings}  # fmt: skip
     return angles, report
 
 
@@ -653,7 +747,8 @@ def retarget_upper_body(
         neck_q[ok] = matrix_to_quat(neck_rot)
 
     joints: dict[str, np.ndarray] = {}
-    report: dict = {"frames": T, "body_frames": int(body_ok.sum())}
+    report: dict = {"frames": T, "body_frames": int(body_ok.sum()), "past_limits": {}}  # arms; fingers per hand
+    report["depth_to_width"], warnings = depth_warning(body)  # implausible proportions, said on the terminal
     for side in ("right", "left"):
         q = np.full((T, 4), np.nan)
         elbow = np.full(T, np.nan)
@@ -672,10 +767,16 @@ def retarget_upper_body(
             fingers = np.zeros((T, 15))
             hand_report = {"frames_observed": 0, "coverage": 0.0, "note": f"{err}: fingers left open (0)"}
         report[f"{side}_hand"] = hand_report
+        warnings += hand_report.get("warnings", [])
         elbow_lim = model.kinematics.limits([f"{side}_elbow"])
         wrist_lim = model.kinematics.limits([f"{side}_wrist"])
         report[f"{side}_elbow_outside_limits"] = round(_clip_report(elbow, *elbow_lim), 3)
         report[f"{side}_wrist_outside_limits"] = round(_clip_report(wrist, *wrist_lim), 3)
+        arm_lower, arm_upper = model.kinematics.limits([f"{side}_elbow", f"{side}_wrist"])
+        arm_shares, arm_warnings = limit_warnings(np.stack([elbow, wrist], axis=1), arm_lower, arm_upper,
+                                                  [f"{side}_elbow", f"{side}_wrist"])  # fmt: skip
+        report["past_limits"].update(arm_shares)
+        warnings += arm_warnings
         wrist_filled, wrist_seen = fill_gaps(wrist[:, None])
         if not wrist_seen.any():
             wrist_filled = np.zeros((T, 1))
@@ -690,6 +791,7 @@ def retarget_upper_body(
     report["torso"] = torso
     report["head_frames"] = int(ok.sum())
     report["hip_frames"] = int(hips_ok.sum())
+    report["warnings"] = warnings
     return RetargetResult(upper_body_frames(joints, T), 1.0 / fps, report)
 
 
@@ -722,11 +824,22 @@ def retarget_video(
 
     kdir = Path(keypoint_dir)
     out = Path(out_dir) if out_dir else (kdir.parent if kdir.suffix == ".pose" else kdir) / "motions"
-    landmarks = load_world(kdir, video_id)
+    return retarget_landmarks(load_world(kdir, video_id), out, hand, sigma, data_root, torso)
+
+
+def retarget_landmarks(landmarks, out_dir: str | os.PathLike, hand: str = "dominant", sigma: float = 1.0,
+                       data_root=None, torso: str = "vertical") -> dict:  # fmt: skip
+    """:func:`retarget_video` on :class:`~aslexp.pose.landmarks.Landmarks` from any source (an
+    extraction folder, a ``.pose``, a keypoint array). Each part's entry has a ``status``: ok (with
+    its ``path`` and report, whose ``warnings`` name implausible joints and proportions), failed
+    (``error``: why), or skipped (``error``: the input's kind never holds that part)."""
+    out = Path(out_dir)
     world, fps, video_id, missing = landmarks.world.astype(float), landmarks.fps, landmarks.video_id, landmarks.missing
     result: dict = {"video_id": video_id, "fps": fps, "frames": len(world)}
     if missing:
-        result["unavailable"] = dict(missing)  # parts a .pose does not have, and why
+        result["unavailable"] = dict(missing)  # parts the input does not have, and why
+    if landmarks.warnings:
+        result["warnings"] = list(landmarks.warnings)
     side = dominant_side(world) if hand == "dominant" else hand
     offset = H.LEFT_HAND_OFFSET if side == "left" else H.RIGHT_HAND_OFFSET
     no_hand = hand == "dominant" and {"left_hand", "right_hand"} <= set(missing)  # else the dominant one is there
@@ -744,12 +857,16 @@ def retarget_video(
     except ValueError as err:
         result["hand"] = {"status": "failed", "reason": "no_hand", "error": f"{video_id}: {which}: {err}"}
     try:
-        if "body" in missing:
+        if "upper_body" in landmarks.skip:
+            result["upper_body"] = {"status": "skipped", "reason": "not_in_input", "detail": landmarks.skip["upper_body"],
+                                    "error": f"{video_id}: upper body: {landmarks.skip['upper_body']}"}  # fmt: skip
+        elif "body" in missing:
             raise ValueError(f"{missing['body']} (the upper body needs both shoulders, elbows and wrists)")
-        body, hands = humanoid_inputs_from_world(world)
-        motion = retarget_upper_body(body, hands, fps, sigma, data_root, torso)
-        path = motion.save(out / "upper_body" / f"{video_id}.txt")
-        result["upper_body"] = {"status": "ok", "path": str(path), **motion.report}
+        else:
+            body, hands = humanoid_inputs_from_world(world)
+            motion = retarget_upper_body(body, hands, fps, sigma, data_root, torso)
+            path = motion.save(out / "upper_body" / f"{video_id}.txt")
+            result["upper_body"] = {"status": "ok", "path": str(path), **motion.report}
     except ValueError as err:
         result["upper_body"] = {"status": "failed", "reason": "no_body", "error": f"{video_id}: upper body: {err}"}
     report_path = out / "reports" / f"{video_id}.json"
