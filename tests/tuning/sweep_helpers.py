@@ -19,10 +19,11 @@ def sweep_command(sweep_dir: Path, *overrides: str, overlay: str = "quadratic") 
 
 
 def run_sweep(sweep_dir: Path, *overrides: str, overlay: str = "quadratic", check: bool = True,
-              timeout: float = 120) -> subprocess.CompletedProcess:
+              timeout: float = 120, env: dict | None = None) -> subprocess.CompletedProcess:
+    """The sweep as a process of its own; ``env``: variables added to this one's environment."""
     result = subprocess.run(sweep_command(sweep_dir, *overrides, overlay=overlay),
                             cwd=sweep_dir.parent, capture_output=True, text=True, timeout=timeout,
-                            env={**os.environ, "HYDRA_FULL_ERROR": "0"})
+                            env={**os.environ, "HYDRA_FULL_ERROR": "0", **(env or {})})
     if check and result.returncode != 0:
         raise AssertionError(f"sweep failed ({result.returncode}):\n{result.stdout}\n{result.stderr}")
     return result

@@ -1,4 +1,6 @@
-"""A full disk never costs a study (issue 26.1): journal appends are all-or-nothing.
+"""A full disk never costs a study (issue 26.1): journal appends are all-or-nothing; and never
+costs its budget (issue 39.6): a trial whose own files find the disk full does not count, the
+sweep waits for room (or stops in one line naming the file), and the trial's point runs again.
 
 The disk is a real small tmpfs filled by a real file (root can mount one here and in CI); where
 mounting is not permitted, the in-process test uses a file-size limit (``RLIMIT_FSIZE``), under
@@ -10,6 +12,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import re
 import resource
 import subprocess
 import threading
@@ -21,6 +24,7 @@ from optuna.trial import TrialState
 from sweep_helpers import load_study, run_cli, sweep_command, wait_for
 
 from aslexp.tuning.storage import AtomicJournalFileBackend, FlockJournalLock, JournalWriteError
+from aslexp.tuning.worker import ATTR_ERROR, ATTR_RERUN_OF, ATTR_STATE, INTERRUPTED
 
 
 class SmallDisk:
@@ -129,7 +133,7 @@ def test_a_full_disk_during_a_sweep_costs_nothing_and_a_resume_completes_the_bud
     sweep = small_disk.path / "sweep"
     env = {**os.environ, "HYDRA_FULL_ERROR": "0", "ASLEXP_JOURNAL_FULL_DISK_WAIT": "2"}
     command = sweep_command(sweep, "hydra.sweeper.n_trials=4", "hydra.sweeper.heartbeat_interval=0.2",
-                            "steps=4", "sleep=0.5")
+                            "steps=4", "sleep=0.25")
     proc = subprocess.Popen(command, cwd=small_disk.path, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     try:
@@ -140,13 +144,17 @@ def test_a_full_disk_during_a_sweep_costs_nothing_and_a_resume_completes_the_bud
         if proc.poll() is None:
             proc.kill()
         small_disk.free()
-    # The sweep stopped on the full disk, in one line that names the journal (or finished with
-    # failed trials whose own files could not be written); either way the journal is whole.
+    # The sweep stopped on the full disk, in one line that names the journal or the trial's file
+    # (whichever the disk refused first); either way the journal is whole.
     journal = sweep / "optuna.journal"
     assert all(line.endswith(b"\n") for line in journal.read_bytes().splitlines(keepends=True))
     assert "Traceback" not in err
     if proc.returncode != 0:
-        assert f"journal file {journal}: the disk is full" in err, err[-2000:]
+        assert proc.returncode == 1
+        last = err.strip().splitlines()[-1]
+        named = (rf"aslexp quadratic: (journal file {re.escape(str(journal))}: the disk is full|"
+                 rf"disk full: cannot write (in )?{re.escape(str(sweep))}/)")
+        assert re.match(named, last), err[-2000:]
     resumed = subprocess.run(command, cwd=small_disk.path, env=env, capture_output=True, text=True,
                              timeout=180)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
@@ -154,6 +162,94 @@ def test_a_full_disk_during_a_sweep_costs_nothing_and_a_resume_completes_the_bud
     counted = [t for t in study.trials if t.state in (TrialState.COMPLETE, TrialState.PRUNED)
                or (t.state == TrialState.FAIL and t.user_attrs.get("aslexp_state") != "interrupted")]
     assert len(counted) == 4  # the budget, exactly
+    assert [t for t in counted if t.state == TrialState.FAIL] == []  # no disk-full "result"
     assert len({t.number for t in study.trials}) == len(study.trials)
     status = run_cli("sweep", "status", str(sweep), "--json")
     assert json.loads(status.stdout)["trials"] == len(study.trials)
+    assert _run_statuses(sweep).count("running") == 0
+
+
+def _run_statuses(sweep: Path) -> list[str]:
+    return [json.loads(p.read_text())["status"] for p in sorted(sweep.glob("*/run.json"))]
+
+
+def _trial_files_fill_the_disk(small_disk, tmp_path, wait: float) -> tuple[list, dict, Path, Path]:
+    """A 2-trial sweep whose trial folders are on the small disk and whose journal is not (the
+    disk refuses the trial's own files only); the command, its environment, sweep and journal."""
+    sweep, journal = small_disk.path / "sweep", tmp_path / "optuna.journal"
+    env = {**os.environ, "HYDRA_FULL_ERROR": "0", "ASLEXP_JOURNAL_FULL_DISK_WAIT": str(wait)}
+    command = sweep_command(sweep, "hydra.sweeper.n_trials=2", f"hydra.sweeper.storage={journal}",
+                            "sleep=1")  # the disk fills while trial 0 sleeps
+    return command, env, sweep, journal
+
+
+def _assert_the_point_ran_again(study, sweep: Path) -> None:
+    """Trial 0 (the disk refused its files) is interrupted, uncounted, its run.json says so with
+    the same reason; trial 1 ran its point again; trial 2 is new: the budget of 2, exactly."""
+    trials = study.trials
+    assert [t.state for t in trials] == [TrialState.FAIL, TrialState.COMPLETE, TrialState.COMPLETE]
+    lost = trials[0]
+    assert lost.user_attrs[ATTR_STATE] == INTERRUPTED
+    assert lost.user_attrs[ATTR_ERROR].startswith(f"disk full: cannot write {sweep}/0/")
+    assert trials[1].params == lost.params and trials[1].user_attrs[ATTR_RERUN_OF] == 0
+    assert trials[2].params != lost.params
+    run = json.loads((sweep / "0" / "run.json").read_text())
+    assert run["status"] == INTERRUPTED and run["error"] == lost.user_attrs[ATTR_ERROR]
+    assert _run_statuses(sweep) == [INTERRUPTED, "completed", "completed"]
+
+
+def _sweep_while_trial_0_fills_the_disk(small_disk, command, env, sweep, cwd, while_full=None):
+    """Run the sweep, fill the disk once trial 0 has started; ``while_full`` (then space is freed),
+    else the disk stays full until the sweep ends. Returns exit code, stdout and stderr."""
+    proc = subprocess.Popen(command, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_for(lambda: (sweep / "0" / "run.json").is_file(), 60, "trial 0 to start")
+        small_disk.fill()
+        if while_full is not None:
+            while_full()
+            small_disk.free()
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        small_disk.free()
+    return proc.returncode, out, err
+
+
+def test_a_trial_whose_own_files_find_the_disk_full_does_not_count_and_the_sweep_waits(
+        small_disk, tmp_path):
+    """The disk fills while trial 0 runs (its run.json cannot be finished) and is freed a moment
+    later: the sweep pauses instead of burning trials, then completes its budget exactly."""
+    command, env, sweep, journal = _trial_files_fill_the_disk(small_disk, tmp_path, wait=60)
+
+    def while_full() -> None:
+        wait_for(lambda: load_study(sweep, storage=str(journal)).trials[0].state == TrialState.FAIL,
+                 60, "trial 0 to be recorded")
+        time.sleep(0.5)  # the sweep waits; no trial starts meanwhile
+        assert len(load_study(sweep, storage=str(journal)).trials) == 1
+
+    code, out, err = _sweep_while_trial_0_fills_the_disk(small_disk, command, env, sweep, tmp_path, while_full)
+    assert code == 0, err[-3000:]
+    assert "its parameters run again; waiting up to 60 s for room in" in out + err
+    assert "has room again" in out + err
+    _assert_the_point_ran_again(load_study(sweep, storage=str(journal)), sweep)
+
+
+def test_a_disk_that_stays_full_stops_the_sweep_in_one_line_and_the_resume_reruns_the_point(
+        small_disk, tmp_path):
+    command, env, sweep, journal = _trial_files_fill_the_disk(small_disk, tmp_path, wait=1)
+    code, out, err = _sweep_while_trial_0_fills_the_disk(small_disk, command, env, sweep, tmp_path)
+    assert code == 1, err[-3000:]
+    lines = [ln for ln in err.splitlines() if ln.startswith("aslexp quadratic: ")]
+    assert len(lines) == 1 and "Traceback" not in err, err[-3000:]
+    assert lines[0].startswith(f"aslexp quadratic: disk full: cannot write {sweep}/0/")
+    assert ("within 1 s (ASLEXP_JOURNAL_FULL_DISK_WAIT); trial 0 is recorded interrupted and does "
+            "not count toward the budget: free space, then run the same command") in lines[0]
+    study = load_study(sweep, storage=str(journal))
+    assert [t.state for t in study.trials] == [TrialState.FAIL]  # nothing burned while full
+    assert _run_statuses(sweep) == ["running"]  # no room to say more, until the resume
+
+    resumed = subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True,
+                             timeout=120)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    _assert_the_point_ran_again(load_study(sweep, storage=str(journal)), sweep)

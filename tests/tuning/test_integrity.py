@@ -21,7 +21,7 @@ from sweep_helpers import load_study, run_cli, run_sweep, sweep_command, wait_fo
 
 from aslexp.process import process_identity, process_is_gone
 from aslexp.tuning.storage import StorageError, _lock_key, open_storage
-from aslexp.tuning.worker import ATTR_ERROR, ATTR_RUN_DIR, ATTR_STATE, INTERRUPTED
+from aslexp.tuning.worker import ATTR_ERROR, ATTR_RERUN_OF, ATTR_RUN_DIR, ATTR_STATE, INTERRUPTED
 
 
 def _hashes(folder: Path) -> dict[str, bytes]:
@@ -53,6 +53,33 @@ def test_two_studies_in_one_sweep_folder_both_complete_and_never_share_a_folder(
     assert "other studies in this folder" in run_cli("sweep", "status", str(sweep)).stdout
     status = json.loads(run_cli("sweep", "status", str(home), "--json").stdout)
     assert status["study_name"] == "other" and status["counts"] == {"complete": 2}
+
+
+def test_a_sweep_with_another_search_space_into_a_study_s_folder_is_refused_untouched(tmp_path):
+    """Issue 39.7: another space and fixed override (``x=interval(2,3) noise=0.5`` beside x in
+    [-1, 1]) is another sweep, not a resume: refused in one line (exit 2) that names the folder,
+    what differs and the ways on, with every file of the first study byte-identical (its journal
+    too). The same space written otherwise is the same sweep: it resumes."""
+    sweep = tmp_path / "sweep"
+    run_sweep(sweep, "hydra.sweeper.n_trials=2")
+    def everything() -> dict[str, bytes]:  # the journal too
+        return _hashes(sweep) | {"journal": (sweep / "optuna.journal").read_bytes()}
+
+    before = everything()
+    refused = run_sweep(sweep, "hydra.sweeper.n_trials=3", "x=interval(2,3)", "noise=0.5",
+                        check=False)
+    assert refused.returncode == 2, refused.stderr[-3000:]
+    lines = [ln for ln in refused.stderr.splitlines() if ln.startswith("aslexp quadratic: ")]
+    assert len(lines) == 1 and "Traceback" not in refused.stderr, refused.stderr[-3000:]
+    assert lines[0].startswith(f"aslexp quadratic: {sweep} holds study 'quadratic' of another "
+                               "sweep (its sweep.json differs: x=interval(2,3) here, interval(-1, "
+                               "1) there; fixed noise=0.5 is new here); nothing was changed: ")
+    assert "hydra.sweeper.study_name=NEW" in lines[0] and "hydra.sweeper.continue_study=true" in lines[0]
+    assert everything() == before
+    assert sorted(p.name for p in sweep.iterdir() if p.is_dir()) == ["0", "1"]
+
+    run_sweep(sweep, "hydra.sweeper.n_trials=3", "x=interval(-1,1)")  # the same space: a resume
+    assert [t.state for t in load_study(sweep).trials] == [TrialState.COMPLETE] * 3
 
 
 def test_a_trial_folder_that_holds_anything_is_never_reused(tmp_path):
@@ -246,12 +273,14 @@ def test_after_sigkill_the_resume_records_the_lost_trial_in_its_run_folder_too(t
     assert json.loads((sweep / "0" / "run.json").read_text())["status"] == "running"
     status = run_cli("sweep", "status", str(sweep)).stdout
     assert "running 1" in status and "1 of the running trials' workers are gone" in status
-    run_sweep(sweep, "hydra.sweeper.n_trials=1", "sleep=0")
-    lost = load_study(sweep).trials[0]
+    # Resumed without the sleep: another fixed override, so continuing the study is asked for.
+    run_sweep(sweep, "hydra.sweeper.n_trials=1", "sleep=0", "hydra.sweeper.continue_study=true")
+    lost, rerun = load_study(sweep).trials
     assert lost.state == TrialState.FAIL and lost.user_attrs[ATTR_STATE] == INTERRUPTED
     run = json.loads((sweep / "0" / "run.json").read_text())
     assert run["status"] == "interrupted" and run["error"] == lost.user_attrs[ATTR_ERROR]
-    assert [t.state for t in load_study(sweep).trials][1:] == [TrialState.COMPLETE]
+    assert rerun.state == TrialState.COMPLETE and rerun.params == lost.params  # its point, again
+    assert rerun.user_attrs[ATTR_RERUN_OF] == 0
 
 
 # --------------------------------------------------------------------------- 11.7

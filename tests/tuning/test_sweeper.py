@@ -8,14 +8,13 @@ import os
 import signal
 import subprocess
 import sys
-import time
 import uuid
 from pathlib import Path
 
 from sweep_helpers import load_study, run_cli, run_sweep, sweep_command, wait_for
 from optuna.trial import TrialState
 
-from aslexp.tuning.worker import ATTR_ERROR, ATTR_STATE, ATTR_WORKER, INTERRUPTED
+from aslexp.tuning.worker import ATTR_ERROR, ATTR_RERUN_OF, ATTR_STATE, ATTR_WORKER, INTERRUPTED
 
 
 def _completed(study):
@@ -133,7 +132,7 @@ def test_sigkill_mid_sweep_then_resume_loses_no_finished_trial(tmp_path: Path) -
     killed = [t.number for t in load_study(sweep).trials if t.state == TrialState.RUNNING]
     assert len(killed) == 1
 
-    run_sweep(sweep, "hydra.sweeper.n_trials=6")
+    run_sweep(sweep, "hydra.sweeper.n_trials=6", "sleep=0.6")  # the same command
     study = load_study(sweep)
     after = _completed(study)
     assert {n: after[n] for n in before} == before  # every finished trial survived
@@ -141,6 +140,8 @@ def test_sigkill_mid_sweep_then_resume_loses_no_finished_trial(tmp_path: Path) -
     lost = study.trials[killed[0]]
     assert lost.state == TrialState.FAIL and lost.user_attrs[ATTR_STATE] == INTERRUPTED
     assert "died while running this trial" in lost.user_attrs[ATTR_ERROR]
+    rerun = study.trials[killed[0] + 1]  # the resume's first trial runs the lost point again
+    assert rerun.params == lost.params and rerun.user_attrs[ATTR_RERUN_OF] == lost.number
 
 
 def test_sigint_marks_the_running_trial_interrupted_and_resume_completes(tmp_path: Path) -> None:
@@ -164,6 +165,7 @@ def test_sigint_marks_the_running_trial_interrupted_and_resume_completes(tmp_pat
     os.killpg(proc.pid, signal.SIGINT)
     _, stderr = proc.communicate(timeout=30)
     assert proc.returncode != 0, stderr[-3000:]
+    assert "recorded as interrupted; the same command resumes the sweep and runs it again" in stderr
     study = load_study(sweep)
     interrupted = [t for t in study.trials if t.user_attrs.get(ATTR_STATE) == INTERRUPTED]
     assert len(interrupted) == 1 and interrupted[0].state == TrialState.FAIL
@@ -172,8 +174,13 @@ def test_sigint_marks_the_running_trial_interrupted_and_resume_completes(tmp_pat
     assert run["status"] == "interrupted"
 
     completed = _count(sweep, TrialState.COMPLETE)
-    run_sweep(sweep, f"hydra.sweeper.n_trials={completed + 2}")  # interrupted trials do not count
+    # The same command with a budget that ends sooner (interrupted trials do not count).
+    run_sweep(sweep, f"hydra.sweeper.n_trials={completed + 2}", "sleep=0.8")
     assert _count(sweep, TrialState.COMPLETE) == completed + 2
+    # It runs the interrupted point again, as the Ctrl-C line said (issue 39.8).
+    rerun = [t for t in load_study(sweep).trials if t.user_attrs.get(ATTR_RERUN_OF) is not None]
+    assert len(rerun) == 1 and rerun[0].user_attrs[ATTR_RERUN_OF] == interrupted[0].number
+    assert rerun[0].params == interrupted[0].params and rerun[0].state == TrialState.COMPLETE
 
 
 def _assert_each_trial_ran_once(sweep: Path, study, n_trials: int) -> set[int]:
@@ -287,3 +294,36 @@ def test_best_trial_command_reproduces_its_metric(tmp_path: Path) -> None:
                     f"hydra.run.dir={rerun_dir}"], check=True, cwd=tmp_path, capture_output=True)
     rerun = json.loads((rerun_dir / "run.json").read_text())
     assert rerun["main_metric"]["value"] == best["value"]  # exactly the same number
+
+
+def test_a_sweep_that_completes_its_budget_exits_0_although_a_worker_was_killed(tmp_path: Path) -> None:
+    """Issue 39.8: worker 1 is killed (SIGKILL) in its trial; worker 0 finds the trial lost, runs
+    its point again and completes the budget: the sweep did its work, exit 0 with a warning."""
+    sweep = tmp_path / "sweep"
+    proc = subprocess.Popen(sweep_command(sweep, "hydra.sweeper.n_trials=3",
+                                          "hydra.sweeper.n_workers=2", "sleep=1.5"),
+                            cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    def worker_1_s_trial():
+        if not (sweep / "optuna.journal").exists() or not (sweep / "sweep.json").exists():
+            return None
+        return next((t for t in load_study(sweep).trials if t.state == TrialState.RUNNING
+                     and t.user_attrs[ATTR_WORKER]["pid"] != proc.pid
+                     and (sweep / str(t.number) / "run.json").exists()), None)
+
+    try:
+        wait_for(lambda: worker_1_s_trial() is not None, 60, "worker 1 running a trial")
+        victim = worker_1_s_trial()
+        os.kill(victim.user_attrs[ATTR_WORKER]["pid"], signal.SIGKILL)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err[-3000:]
+    assert "ended abnormally; the study's budget of 3 trials is complete all the same" in out + err
+    trials = load_study(sweep).trials
+    lost = trials[victim.number]
+    assert lost.state == TrialState.FAIL and lost.user_attrs[ATTR_STATE] == INTERRUPTED
+    rerun = [t for t in trials if t.user_attrs.get(ATTR_RERUN_OF) == lost.number]
+    assert len(rerun) == 1 and rerun[0].params == lost.params
+    assert [t.state for t in trials if t is not lost] == [TrialState.COMPLETE] * 3

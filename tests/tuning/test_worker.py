@@ -20,14 +20,17 @@ from aslexp.tuning.storage import open_storage, redact
 from aslexp.tuning.study import StudyError, create_or_resume_study, resolve_study_name
 from aslexp.tuning.worker import (
     ATTR_HEARTBEAT,
+    ATTR_RERUN_OF,
     ATTR_STATE,
     ATTR_WORKER,
     INTERRUPTED,
     Outcome,
     WorkerSettings,
     ask_claimed,
+    budget_complete,
     budget_used,
     fail_stale_trials,
+    interrupted_to_rerun,
     run_worker,
     worker_identity,
 )
@@ -175,3 +178,31 @@ def test_specs_and_names_fail_clearly(journal: str) -> None:
         create_or_resume_study(journal, "unit", "minimize")
     assert redact("postgresql://u:secret@h:5432/db") == "postgresql://u@h:5432/db"
     assert json.loads(TrialContext("s", "n", 1, 2).to_json())["number"] == 2
+
+
+def test_an_interrupted_trial_s_point_runs_again_and_a_point_gets_three_runs_at_most(journal):
+    """Issue 39.8: the point an interruption stopped is run again (the next trial takes it), not
+    replaced by another; one that is interrupted every time is given up after three runs."""
+    study = _study(journal)
+    settings = WorkerSettings(storage_spec=journal, study_name="unit", n_trials=2,
+                              heartbeat_interval=0)
+    first: dict = {}
+
+    def launch(trial):  # the first point is interrupted whenever it runs
+        first.setdefault("x", trial.params["x"])
+        if trial.params["x"] == first["x"]:
+            return Outcome(INTERRUPTED, error="interrupted (Ctrl-C) in worker 0")
+        return Outcome("complete", value=-trial.params["x"] ** 2)
+
+    run_worker(study, SPACE, settings, launch)
+    trials = study.trials
+    assert [t.params["x"] == first["x"] for t in trials] == [True, True, True, False, False]
+    assert [t.user_attrs.get(ATTR_RERUN_OF) for t in trials] == [None, 0, 1, None, None]
+    assert [t.state for t in trials] == [TrialState.FAIL] * 3 + [TrialState.COMPLETE] * 2
+    assert budget_complete(study, 2) and not budget_complete(study, 3)
+
+    # A point the search space no longer holds (a study continued with another) is not re-run.
+    lost = trials[0]
+    assert interrupted_to_rerun([lost], SPACE) is lost
+    assert interrupted_to_rerun([lost], {"x": FloatDistribution(2, 3)}) is None
+    assert interrupted_to_rerun([lost], {**SPACE, "y": FloatDistribution(0, 1)}) is None

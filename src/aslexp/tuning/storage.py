@@ -20,6 +20,10 @@ is cut off by the next writer, under the write lock, after a backup copy and a w
 file and the byte offset; the torn record was never acknowledged to anyone, so nothing that
 happened is lost. Readers (``open_storage(spec, read_only=True)``: the sweep tools) write nothing,
 take no lock and skip a torn tail. Damage inside the file is refused with the file, line and byte.
+
+A trial whose own files (run folder, run.json, metrics, checkpoints) find the disk full pauses its
+sweep the same way: :func:`wait_for_space` probes the trial's folder for the same
+``JOURNAL_FULL_DISK_WAIT`` seconds, then :class:`DiskFullError` stops the sweep in one line.
 """
 
 from __future__ import annotations
@@ -156,6 +160,56 @@ def _open_journal(path: Path, read_only: bool = False) -> JournalStorage:
 
 class JournalWriteError(StorageError):
     """A journal record that could not be written; the file was left at its last whole record."""
+
+
+class DiskFullError(JournalWriteError):
+    """A trial's own files found the disk full, and no space came back within the wait.
+
+    A :class:`JournalWriteError` so that the sweeper stops on it the same way: one line, exit 1.
+    """
+
+
+# Free bytes a trial's folder must take again before a sweep paused by a full disk goes on.
+SPACE_PROBE_BYTES = 1 << 20
+
+
+def has_space(folder: str | os.PathLike, size: int = SPACE_PROBE_BYTES) -> bool:
+    """Whether ``size`` bytes can be written in ``folder`` now: a probe file, written, synced and
+    removed at once. A quota counts as well as a full device; any other error is not a full disk
+    (not one to wait for), so it says True."""
+    probe = Path(folder) / f".aslexp-space-probe-{os.getpid()}"
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    except OSError as err:
+        return err.errno not in _NO_SPACE
+    try:
+        block, left = b"\0" * min(size, 1 << 16), size
+        while left > 0:
+            written = os.write(fd, block[:left])
+            if written <= 0:
+                return False
+            left -= written
+        os.fsync(fd)  # a network file system may report a full disk only here
+        return True
+    except OSError as err:
+        return err.errno not in _NO_SPACE
+    finally:
+        os.close(fd)
+        probe.unlink(missing_ok=True)
+
+
+def wait_for_space(folder: str | os.PathLike, deadline: float) -> bool:
+    """Wait until :func:`has_space` in ``folder`` or ``time.monotonic()`` passes ``deadline``,
+    with the journal appends' backoff (0.1 s doubling to 5 s); whether space came back."""
+    delay = 0.1
+    while True:
+        if has_space(folder):
+            return True
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return False
+        time.sleep(min(delay, left))
+        delay = min(delay * 2, 5.0)
 
 
 class AtomicJournalFileBackend(JournalFileBackend):

@@ -7,11 +7,17 @@ password, direction, budget, search space, fixed overrides), the default journal
 run into the same folder (``hydra.sweeper.study_name=other``) gets a home of its own,
 ``studies/<name>/``, with its own sweep.json and trial folders, so that no two trials ever
 share a folder: ``aslexp sweep status SWEEP_DIR/studies/other`` shows it.
+
+A study is one sweep: a command that would continue it with another job, search space or fixed
+overrides than its sweep.json records is refused (:func:`sweep_differences`), with what differs
+and the two ways on: a study of its own beside it (``hydra.sweeper.study_name=NEW``), or this
+study continued with the new settings (``hydra.sweeper.continue_study=true``).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
+import logging
 import os
 import re
 from collections.abc import Mapping
@@ -44,8 +50,12 @@ from aslexp.tuning.worker import (
     state_counts,
 )
 
+log = logging.getLogger(__name__)
+
 SWEEP_FILE = "sweep.json"
 STUDIES_DIR = "studies"  # homes of the further studies of a sweep folder
+# The sweeper key that continues a study with another search space or fixed overrides than it was run with.
+CONTINUE_KEY = "hydra.sweeper.continue_study"
 
 
 class StudyError(RuntimeError):
@@ -119,13 +129,60 @@ def safe_name(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.=-]+", "_", name).strip("._") or "study"
 
 
-def study_home(sweep_dir: str | os.PathLike, info: SweepInfo, write: bool = True) -> Path:
+def _canonical(text: str) -> str:
+    """An override's text without the spaces outside quotes (``interval(-1, 1)`` is
+    ``interval(-1,1)``)."""
+    quoted = r"('(?:[^'\\]|\\.)*'|\"(?:[^\"\\]|\\.)*\")"
+    return "".join(part if i % 2 else re.sub(r"\s+", "", part)
+                   for i, part in enumerate(re.split(quoted, text)))
+
+
+def _by_key(overrides: list[str]) -> dict[str, list[str]]:
+    keys: dict[str, list[str]] = {}
+    for override in overrides:
+        key = override.split("=", 1)[0].strip().lstrip("+~")
+        keys.setdefault(key, []).append(_canonical(override))
+    return {key: sorted(values) for key, values in keys.items()}
+
+
+def sweep_differences(recorded: SweepInfo, info: SweepInfo) -> list[str]:
+    """What makes ``info`` another sweep than the one ``recorded`` describes: its job, a swept
+    parameter (added, gone, another range) or a fixed override (added, gone, another value).
+    The budget, workers, sampler and pruner may change between the runs of one study."""
+    differences = []
+    if recorded.job and info.job != recorded.job:
+        differences.append(f"job {info.job} here, {recorded.job} there")
+    for name in sorted(set(recorded.params) | set(info.params)):
+        mine, theirs = info.params.get(name), recorded.params.get(name)
+        if theirs is None:
+            differences.append(f"{name}={mine} is swept here, not there")
+        elif mine is None:
+            differences.append(f"{name} is not swept here ({theirs} there)")
+        elif _canonical(str(mine)) != _canonical(str(theirs)):
+            differences.append(f"{name}={mine} here, {theirs} there")
+    mine, theirs = _by_key(info.fixed_overrides), _by_key(recorded.fixed_overrides)
+    for key in sorted(set(mine) | set(theirs)):
+        if key not in theirs:
+            differences.append(f"fixed {' '.join(mine[key])} is new here")
+        elif key not in mine:
+            differences.append(f"fixed {' '.join(theirs[key])} is not given here")
+        elif mine[key] != theirs[key]:
+            differences.append(f"fixed {' '.join(mine[key])} here, {' '.join(theirs[key])} there")
+    return differences
+
+
+def study_home(sweep_dir: str | os.PathLike, info: SweepInfo, write: bool = True,
+               continue_study: bool = False) -> Path:
     """The folder of this study's sweep.json and trials; registers the study there.
 
     The sweep folder itself for its first study, ``<sweep dir>/studies/<name>`` for any other.
     Decided under a lock, so two studies started together into a new folder do not both take
     it. ``write``: (re)write the study's sweep.json (worker 0 does; other workers only when
     it is missing).
+
+    A study whose sweep.json records another job, search space or fixed overrides than ``info``
+    is not continued (:class:`StudyError`, nothing written) unless ``continue_study``
+    (``hydra.sweeper.continue_study=true``).
     """
     sweep_dir = Path(sweep_dir)
     sweep_dir.mkdir(parents=True, exist_ok=True)
@@ -135,6 +192,18 @@ def study_home(sweep_dir: str | os.PathLike, info: SweepInfo, write: bool = True
             home = sweep_dir
         else:
             home = sweep_dir / STUDIES_DIR / safe_name(info.study_name)
+        recorded = first if home == sweep_dir else read_sweep_info(home)
+        differences = sweep_differences(recorded, info) if recorded is not None else []
+        if differences and not continue_study:
+            raise StudyError(
+                f"{home} holds study {info.study_name!r} of another sweep (its {SWEEP_FILE} "
+                f"differs: {'; '.join(differences)}); nothing was changed: run this one as a "
+                f"study of its own with hydra.sweeper.study_name=NEW (its home: "
+                f"{sweep_dir}/{STUDIES_DIR}/NEW) or another hydra.sweep.dir, or set "
+                f"{CONTINUE_KEY}=true to continue study {info.study_name!r} with this sweep's settings")
+        if differences:
+            log.warning("study %r in %s is continued with other settings (%s=true): %s",
+                        info.study_name, home, CONTINUE_KEY, "; ".join(differences))
         if write or not (home / SWEEP_FILE).exists():
             write_sweep_info(home, info, root=sweep_dir)
     return home
@@ -177,9 +246,15 @@ def create_or_resume_study(spec: str, study_name: str, direction: str,
     direction = str(direction).lower()
     if direction not in ("maximize", "minimize"):
         raise StudyError(f"hydra.sweeper.direction must be maximize or minimize, got {direction!r}")
-    study = optuna.create_study(storage=open_storage(spec), study_name=study_name,
-                                direction=direction, sampler=sampler, pruner=pruner,
-                                load_if_exists=True)
+    storage = open_storage(spec)
+    # Loaded, not "created if missing": a resume, or a sweep refused after this, writes nothing
+    # (in a journal, a create of an existing study is still an append).
+    if study_name in study_names(storage):
+        study = optuna.load_study(study_name=study_name, storage=storage, sampler=sampler,
+                                  pruner=pruner)
+    else:
+        study = optuna.create_study(storage=storage, study_name=study_name, direction=direction,
+                                    sampler=sampler, pruner=pruner, load_if_exists=True)
     if len(study.directions) != 1 or study.direction.name.lower() != direction:
         stored = [d.name.lower() for d in study.directions]
         raise StudyError(

@@ -18,6 +18,16 @@ study. Guarantees, for journal-file, SQLite and PostgreSQL storages:
   worker that spends the budget waits for it before it stops); otherwise the trial is marked
   FAIL with ``aslexp_state = "interrupted"``. Interrupted trials do not count, so the sweep
   runs a replacement.
+* **Re-runs.** That replacement runs the interrupted trial's parameters again (a new trial whose
+  ``aslexp_rerun_of`` names it; the oldest first, ``_TRIES`` tries per point at most, and only a
+  point that still fits the search space): what a Ctrl-C, a dead worker or a full disk stopped
+  is measured after all, not replaced by another point.
+* **A full disk.** A trial whose own files (run folder, run.json, metrics, checkpoints) find the
+  disk full is no result: it is recorded interrupted (not counted, re-run), and its worker pauses
+  until the trial's folder has room again, for ``JOURNAL_FULL_DISK_WAIT`` seconds counted from
+  the first such trial in a row; then the sweep stops with one line naming the file
+  (:class:`aslexp.tuning.storage.DiskFullError`). Its run.json says interrupted, with why, once
+  there is room to say it (by the resume at the latest).
 * **One story.** The trial's run folder is known before its job starts; whenever the study
   records a trial as interrupted, a run.json still saying "running" says so too.
 * **Signals.** Ctrl-C or SIGTERM records the running trial as interrupted; further signals
@@ -29,10 +39,12 @@ study. Guarantees, for journal-file, SQLite and PostgreSQL storages:
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import math
 import os
+import re
 import socket
 import threading
 import time
@@ -49,7 +61,7 @@ import yaml
 from optuna.distributions import BaseDistribution
 from optuna.trial import FrozenTrial, Trial, TrialState
 
-from aslexp.files import read_json
+from aslexp.files import read_json, write_json
 from aslexp.process import (
     boot_id,
     process_identity,
@@ -57,8 +69,8 @@ from aslexp.process import (
     sigterm_raises,
     signals_held,
 )
-from aslexp.runfile import RUN_FILE, mark_interrupted
-from aslexp.tuning.storage import budget_lock
+from aslexp.runfile import RUN_FILE, mark_interrupted, timestamp
+from aslexp.tuning.storage import JOURNAL_FULL_DISK_WAIT, DiskFullError, budget_lock, wait_for_space
 
 log = logging.getLogger(__name__)
 
@@ -69,12 +81,14 @@ ATTR_HEARTBEAT = "aslexp_heartbeat"  # unix time of the last sign of life of the
 ATTR_OVERRIDES = "aslexp_overrides"  # the trial's Hydra task overrides, as passed to the job
 ATTR_RUN_DIR = "aslexp_run_dir"      # the trial's run folder, relative to the sweep folder
 ATTR_ADOPTED = "aslexp_adopted"      # why the result came from the run folder, not the worker
+ATTR_RERUN_OF = "aslexp_rerun_of"    # the interrupted trial whose parameters this one runs again
 INTERRUPTED = "interrupted"
 TRIAL_ENV = "ASLEXP_TRIAL"           # = aslexp.tuning.context.ENV_VAR (the job's trial context)
 
 _ERROR_CHARS = 4000
 _SETTLE_AFTER_SIGNAL = 3.0  # seconds a stopped worker waits for its job to record how it ended
 _ORPHAN_POLL = 1.0          # seconds between looks at orphaned jobs when only they are left
+_TRIES = 3                  # runs of one interrupted point at most (one that kills its worker ends)
 
 
 class DirectionMismatchError(RuntimeError):
@@ -120,6 +134,46 @@ def counts_toward_budget(trial: FrozenTrial) -> bool:
 
 def budget_used(trials: Iterable[FrozenTrial]) -> int:
     return sum(1 for t in trials if counts_toward_budget(t))
+
+
+def budget_complete(study: optuna.Study, n_trials: int) -> bool:
+    """Whether the study holds ``n_trials`` counted trials and none still runs: the sweep's work
+    is done, whatever became of the processes that did it."""
+    trials = study.get_trials(deepcopy=False)
+    running = any(t.state == TrialState.RUNNING for t in trials)
+    return budget_used(trials) >= n_trials and not running
+
+
+def _fits(params: Mapping[str, Any], distributions: Mapping[str, BaseDistribution]) -> bool:
+    """Whether ``params`` is a point of the search space ``distributions`` (all names, in range)."""
+    if not params or set(params) != set(distributions):
+        return False
+    try:
+        return all(distributions[name]._contains(distributions[name].to_internal_repr(value))
+                   for name, value in params.items())
+    except (ValueError, TypeError):  # a choice no longer offered, a value of another type
+        return False
+
+
+def interrupted_to_rerun(trials: Iterable[FrozenTrial],
+                         distributions: Mapping[str, BaseDistribution]) -> FrozenTrial | None:
+    """The oldest interrupted trial whose parameters no trial runs again yet; None if none.
+
+    A point gets ``_TRIES`` runs at most (one that kills its worker every time ends there), and
+    one that no longer fits the search space (a study continued with another) is not re-run.
+    """
+    trials = sorted(trials, key=lambda t: t.number)
+    by_number = {t.number: t for t in trials}
+    taken = {t.user_attrs.get(ATTR_RERUN_OF) for t in trials}
+    for t in trials:
+        if not is_interrupted(t) or t.number in taken or not _fits(t.params, distributions):
+            continue
+        tries, earlier = 1, t.user_attrs.get(ATTR_RERUN_OF)
+        while earlier in by_number and tries < _TRIES:
+            tries, earlier = tries + 1, by_number[earlier].user_attrs.get(ATTR_RERUN_OF)
+        if tries < _TRIES:
+            return t
+    return None
 
 
 def state_counts(trials: Iterable[FrozenTrial]) -> Counter:
@@ -467,6 +521,120 @@ def _fail(study: optuna.Study, trial: Trial, error: str) -> str:
     return "failed"
 
 
+# --------------------------------------------------------------------------- a full disk
+
+# A full disk in a trial's error, however it got there: the job's one line ("disk full: cannot
+# write FILE ([Errno 28] ...)", aslexp.files.describe_os_error), an OSError's own text (an error
+# while recording the error, a launch that failed), or a journal append that gave up.
+_FULL_DISK = re.compile(rf"\[Errno ({errno.ENOSPC}|{errno.EDQUOT})\]|: the disk is full;")
+_FILE_NAMED = (re.compile(r"cannot write (\S+) \(\["),          # describe_os_error
+               re.compile(r"\[Errno \d+\] [^:']*: '([^']+)'"),   # str(OSError) with a file
+               re.compile(r"journal file (\S+): the disk is full"))  # JournalWriteError
+
+
+def disk_full(outcome: Outcome, run_dir: str | None = None) -> str | None:
+    """``disk full: cannot write FILE`` when a failed trial failed on a full disk (or quota),
+    else None: such a trial is no result, and must not count as one. An error that names no
+    file (Hydra writing the trial's .hydra/ says only "No space left on device") names the
+    trial's run folder: ``disk full: cannot write in RUN_DIR``."""
+    text = outcome.error or ""
+    if outcome.state != "failed" or not _FULL_DISK.search(text):
+        return None
+    kind = "disk quota exceeded" if f"[Errno {errno.EDQUOT}]" in text else "disk full"
+    for pattern in _FILE_NAMED:
+        found = pattern.search(text)
+        if found:
+            return f"{kind}: cannot write {found.group(1)}"
+    if run_dir:
+        return f"{kind}: cannot write in {run_dir}"
+    return f"{kind}: {' '.join(text.split())[:300]}"
+
+
+def _record_disk_full(study: optuna.Study, trial: Trial, run_dir: str | None, reason: str) -> str:
+    """The trial in the study: interrupted by the full disk (not counted, re-run). Its run.json
+    waits for room (:func:`_mark_run_disk_full`)."""
+    try:
+        if run_dir:
+            study._storage.set_trial_user_attr(trial._trial_id, ATTR_RUN_DIR,
+                                               stored_run_dir(run_dir, study.study_name))
+    except (RuntimeError, ValueError) as err:  # a journal that cannot be written either
+        log.debug("trial %d: run folder not recorded: %s", trial.number, err)
+    marked = _mark_failed(study, trial._trial_id, reason, interrupted=True)
+    return INTERRUPTED if marked else "unrecorded"
+
+
+def _mark_run_disk_full(run_dir: str | None, reason: str, quiet: bool = False) -> None:
+    """The trial's run.json says it was interrupted, and why: it still says running (its job
+    found no room to say more) or failed (with the disk-full error the study does not count)."""
+    path = Path(run_dir) / RUN_FILE if run_dir else None
+    if path is None or not path.is_file():
+        return
+    try:
+        info = read_json(path)
+        if isinstance(info, dict) and info.get("status") in ("running", "failed"):
+            info.update(status=INTERRUPTED, finished=info.get("finished") or timestamp(),
+                        error=reason)
+            write_json(path, info)
+    except (OSError, ValueError) as err:
+        (log.debug if quiet else log.warning)("could not record %s as interrupted (%s): %s", path,
+                                              reason, err)
+
+
+def _folder_to_probe(reason: str, run_dir: str | None, study_name: str) -> Path:
+    """The nearest existing folder of the file the full disk refused (else of the trial's)."""
+    named = reason.split("cannot write ", 1)[1].removeprefix("in ") if "cannot write " in reason \
+        else None
+    for start in (named, run_dir, _SWEEP_DIRS.get(study_name), "."):
+        if start:
+            folder = Path(start)
+            while not folder.is_dir() and folder != folder.parent:
+                folder = folder.parent
+            if folder.is_dir():
+                return folder
+    return Path(".")
+
+
+def _pause_for_space(settings: "WorkerSettings", number: int, run_dir: str | None, reason: str,
+                     since: float) -> None:
+    """Wait until the trial's folder has room again (the trial runs again after), at most
+    ``full_disk_wait`` seconds after ``since``; then stop the sweep in one line."""
+    wait = JOURNAL_FULL_DISK_WAIT if settings.full_disk_wait is None else settings.full_disk_wait
+    folder = _folder_to_probe(reason, run_dir, settings.study_name)
+    log.warning("%s: trial %d stopped on a full disk (%s): it does not count toward the budget and "
+                "its parameters run again; waiting up to %.0f s for room in %s",
+                settings.worker_label, number, reason, max(0.0, since + wait - time.monotonic()),
+                folder)
+    if wait_for_space(folder, since + wait):
+        log.warning("%s: %s has room again after %.0f s; the sweep goes on", settings.worker_label,
+                    folder, time.monotonic() - since)
+        _mark_run_disk_full(run_dir, reason)
+        return
+    _mark_run_disk_full(run_dir, reason, quiet=True)  # most likely no room: the resume does it
+    raise DiskFullError(
+        f"{reason}: no room came back in {folder} within {wait:.0f} s "
+        f"(ASLEXP_JOURNAL_FULL_DISK_WAIT); trial {number} is recorded interrupted and does not "
+        "count toward the budget: free space, then run the same command (it runs trial "
+        f"{number}'s parameters again)")
+
+
+def _settle_rerun_run_file(study: optuna.Study, number: int) -> None:
+    """The run.json of the interrupted trial now re-run says so too, if a full disk or a dead
+    worker left it saying running (a sweep that stopped could not write it)."""
+    try:
+        earlier = study._storage.get_trial(
+            study._storage.get_trial_id_from_study_id_trial_number(study._study_id, number))
+    except (KeyError, RuntimeError, ValueError):
+        return
+    run_dir = run_dir_of(earlier.user_attrs.get(ATTR_RUN_DIR), study.study_name)
+    if not run_dir or not read_run_record(run_dir, earlier, study.study_name):
+        return  # no run.json, or another trial's
+    reason = earlier.user_attrs.get(ATTR_ERROR) or INTERRUPTED
+    if reason.startswith(("disk full: ", "disk quota exceeded: ")):
+        _mark_run_disk_full(run_dir, reason)
+    else:
+        _mark_run_interrupted(run_dir, reason)
+
+
 # --------------------------------------------------------------------------- the loop
 
 
@@ -478,6 +646,9 @@ class WorkerSettings:
     grace_period: float = 120.0
     heartbeat_interval: float = 30.0
     worker_label: str = "worker 0"
+    # Seconds a full disk may refuse trials' files before the sweep stops (None: the journal's
+    # JOURNAL_FULL_DISK_WAIT, ASLEXP_JOURNAL_FULL_DISK_WAIT).
+    full_disk_wait: float | None = None
 
 
 def run_worker(
@@ -503,6 +674,7 @@ def _run_worker(study: optuna.Study, distributions: Mapping[str, BaseDistributio
     identity = worker_identity()
     trial: Trial | None = None
     waited_for: set[int] = set()
+    full_since: float | None = None  # when trials began to find the disk full (None: they do not)
     try:
         while True:
             trial = None
@@ -530,8 +702,12 @@ def _run_worker(study: optuna.Study, distributions: Mapping[str, BaseDistributio
                 waited_for |= set(settled.waiting)
                 time.sleep(_ORPHAN_POLL)
                 continue
-            log.info("%s: trial %d (%d/%d) %s", settings.worker_label, trial.number, used + 1,
-                     settings.n_trials, trial.params)
+            rerun_of = trial.user_attrs.get(ATTR_RERUN_OF)
+            again = "" if rerun_of is None else f" (trial {rerun_of}'s point again: it was interrupted)"
+            log.info("%s: trial %d (%d/%d) %s%s", settings.worker_label, trial.number, used + 1,
+                     settings.n_trials, trial.params, again)
+            if rerun_of is not None:
+                _settle_rerun_run_file(study, rerun_of)
             started = time.monotonic()
             try:
                 with Heartbeat(study, trial._trial_id, settings.heartbeat_interval):
@@ -541,13 +717,22 @@ def _run_worker(study: optuna.Study, distributions: Mapping[str, BaseDistributio
                           "".join(traceback.format_exception(err)))
                 text = " ".join(str(err).split())  # one line (cluster errors come in several)
                 outcome = Outcome("failed", error=f"launch failed: {type(err).__name__}: {text}")
-            recorded = record_outcome(study, trial, outcome)
+            run_dir = outcome.run_dir or trial_run_dir(study, trial)
+            full = disk_full(outcome, run_dir)
+            if full:  # no result: not counted, re-run, and no trial starts until there is room
+                recorded = _record_disk_full(study, trial, run_dir, full)
+                full_since = full_since or time.monotonic()
+            else:
+                recorded = record_outcome(study, trial, outcome)
+                full_since = None
             summary.trials.append(trial.number)
             summary.states[recorded] += 1
             log.info("%s: trial %d %s (value %s, %.1f s)%s", settings.worker_label, trial.number,
                      recorded, _shown(outcome.value), time.monotonic() - started,
-                     f": {outcome.error}" if recorded == "failed" else "")
-            trial = None
+                     f": {full or outcome.error}" if recorded in ("failed", INTERRUPTED) else "")
+            number, trial = trial.number, None
+            if full:
+                _pause_for_space(settings, number, run_dir, full, full_since)
             _check_direction(study, outcome)
     except KeyboardInterrupt as err:
         if trial is not None:  # asked but not yet told
@@ -609,14 +794,27 @@ def ask_claimed(study: optuna.Study, distributions: Mapping[str, BaseDistributio
     RUNNING trial with no owner, which no one may judge dead and which counted toward the budget
     for ever (a resumed sweep then stopped one trial short). Journal and RDB storages both create
     a trial from a template in one append or one transaction.
+
+    The trial is, in this order: one enqueued by hand (``Study.enqueue_trial``); the point of an
+    interrupted trial not yet run again (:func:`interrupted_to_rerun`), ``aslexp_rerun_of``
+    naming it; a new point from the sampler. Call it under :func:`budget_lock`, so that two
+    workers never take the same interrupted point.
     """
     study._thread_local.cached_all_trials = None  # what Study.ask does: sync once per trial
     trial_id = study._pop_waiting_trial_id()  # an enqueued trial exists already: tag it after
     if trial_id is None:
+        # An interrupted trial's point comes before a new one (its parameters in the same record:
+        # fixed, as Study.enqueue_trial fixes them).
+        rerun = interrupted_to_rerun(study.get_trials(deepcopy=False), distributions)
+        params = dict(rerun.params) if rerun is not None else {}
+        user_attrs: dict[str, Any] = {ATTR_WORKER: dict(identity)}
+        if rerun is not None:
+            user_attrs[ATTR_RERUN_OF] = rerun.number
         template = FrozenTrial(
             number=-1, state=TrialState.RUNNING, value=None, values=None,
-            datetime_start=datetime.now(timezone.utc), datetime_complete=None, params={},
-            distributions={}, user_attrs={ATTR_WORKER: dict(identity)}, system_attrs={},
+            datetime_start=datetime.now(timezone.utc), datetime_complete=None, params=params,
+            distributions={name: distributions[name] for name in params}, user_attrs=user_attrs,
+            system_attrs={"fixed_params": params} if params else {},
             intermediate_values={}, trial_id=-1)
         trial_id = study._storage.create_new_trial(study._study_id, template_trial=template)
     else:

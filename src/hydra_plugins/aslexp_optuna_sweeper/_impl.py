@@ -49,6 +49,7 @@ from aslexp.tuning.worker import (
     DirectionMismatchError,
     Outcome,
     WorkerSettings,
+    budget_complete,
     read_run_record,
     register_sweep_dir,
     run_worker,
@@ -91,6 +92,7 @@ class SweeperImpl(Sweeper):
         grace_period: float = 600.0,
         check_search_space: bool = True,
         worker_index: int = 0,
+        continue_study: bool = False,
     ) -> None:
         self.direction = str(direction).lower()
         self.n_trials = int(n_trials)
@@ -104,6 +106,7 @@ class SweeperImpl(Sweeper):
         self.grace_period = float(grace_period)
         self.check_search_space = bool(check_search_space)
         self.worker_index = int(worker_index)
+        self.continue_study = bool(continue_study)
         if self.direction not in ("maximize", "minimize"):
             raise ValueError(f"hydra.sweeper.direction must be maximize or minimize, got {direction!r}")
         if self.n_trials < 1:
@@ -160,7 +163,7 @@ class SweeperImpl(Sweeper):
             fixed_overrides=space.fixed, sampler=self.sampler_spec, pruner=self.pruner_spec,
             task_module=_task_module(self.task_function, strict=False),
             command=" ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
-        ), write=self.worker_index == 0)
+        ), write=self.worker_index == 0, continue_study=self.continue_study)
         self.sweep_dir = sweep_dir
         register_sweep_dir(study_name, self.home)  # trial folders are recorded relative to it
         if self.worker_index == 0:
@@ -199,7 +202,14 @@ class SweeperImpl(Sweeper):
                 best = study.best_trial
                 log.info("best trial %d: value %.6g, params %s", best.number, best.value, best.params)
         if failed_children:
-            raise RuntimeError(f"sweep worker process(es) failed: {failed_children}")
+            gone = ", ".join(f"pid {pid} (exit {code})" for pid, code in failed_children.items())
+            if not budget_complete(study, self.n_trials):
+                raise RuntimeError(f"sweep worker process(es) {gone} ended abnormally and the "
+                                   f"study's budget of {self.n_trials} trials is not complete: run "
+                                   "the same command to resume it")
+            # The others settled the lost worker's trial and ran its point again: the work is done.
+            log.warning("sweep worker process(es) %s ended abnormally; the study's budget of %d "
+                        "trials is complete all the same", gone, self.n_trials)
 
     # ------------------------------------------------------------------ one trial
 
