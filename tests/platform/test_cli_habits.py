@@ -104,3 +104,12 @@ def test_a_typo_gets_a_did_you_mean(aslexp, job, typo, hint):
     done = aslexp(job, typo, check=False)
     line = done.stderr.strip().splitlines()[-1]
     assert done.returncode == 2 and hint in line and "Config search path" not in line
+
+
+def test_a_group_set_to_null_in_a_multirun_names_the_way_that_works(aslexp, tmp_path):
+    # Hydra's multirun refuses GROUP=null ("Got NoneType"); the line says to write ~GROUP instead
+    done = aslexp("imitate", "-m", "experiment=letters_mpc", "planner=null", f"hydra.sweep.dir={tmp_path}/s",
+                  check=False)
+    line = done.stderr.strip().splitlines()[-1]
+    assert done.returncode == 2, done.stderr[-2000:]
+    assert "planner=null cannot be given to a multirun (-m): drop the group with ~planner instead" in line

@@ -94,6 +94,11 @@ def one_line(error: BaseException) -> str:
     if isinstance(error, ConfigError):
         return text  # names the key, the value given and what is expected
     name = type(error).__name__
+    if text.startswith(_HYDRA_NULL_GROUP):
+        # Hydra's multirun parser refuses GROUP=null (a single run takes it)
+        given = [a.split("=", 1)[0] for a in sys.argv[1:] if a.endswith("=null") and "." not in a.split("=", 1)[0]]
+        group = given[0] if given else "GROUP"
+        return f"{group}=null cannot be given to a multirun (-m): drop the group with ~{group} instead"
     if name in ("ConfigCompositionException", "MissingConfigException", "OverrideParseException",
                 "ConfigKeyError", "InterpolationResolutionError"):
         return text  # Hydra's own messages already say what is wrong (MissingConfigException is an OSError)
@@ -102,11 +107,15 @@ def one_line(error: BaseException) -> str:
     return f"{name}: {text}"
 
 
+_HYDRA_NULL_GROUP = "Config group override must be a string or a list. Got NoneType"
+
+
 def _bad_input(error: BaseException) -> bool:
     """Exit 2: a config value (ConfigError, Hydra's and OmegaConf's errors), an input file that
     does not follow its format (DataError: keypoints, motions, checkpoints) or is missing."""
     return (isinstance(error, (ConfigError, DataError, FileNotFoundError))
-            or type(error).__module__.split(".")[0] in ("hydra", "omegaconf"))
+            or type(error).__module__.split(".")[0] in ("hydra", "omegaconf")
+            or str(error).startswith(_HYDRA_NULL_GROUP))  # Hydra raises a plain ValueError for it
 
 
 def did_you_mean(message: str, job: str) -> str:

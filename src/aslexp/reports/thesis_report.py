@@ -208,24 +208,26 @@ def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -
         diverged = [m.get("last_eval_diverged") for m in trained]
         if any(diverged):
             row["episodes diverged (last evaluations)"] = sum(int(d or 0) for d in diverged)
-        if trained and baselines:
-            strongest = max(baselines, key=lambda b: b["reward"])
+        scored = [b for b in baselines if not b.get("diverged")]  # a blown-up simulation is not a score
+        if trained and scored:
+            strongest = max(scored, key=lambda b: b["reward"])
             row["strongest baseline"] = baseline_column(strongest)
             row["last - strongest"] = round(float(np.mean(last)) - strongest["reward"], 3)
             row["seeds above every baseline"] = f"{sum(1 for v in last if v > strongest['reward'])}/{len(trained)}"
         rows.append(row)
         lines[motion] = {**({"thesis": value} if value is not None else {}),
-                         **{baseline_column(b): b["reward"] for b in baselines},
+                         **{baseline_column(b): b["reward"] for b in scored},  # diverged rows: the table marks them
                          **({"ceiling (MPC)": ceiling(planned)["mean"]} if planned else {})}
     (out_dir / "thesis_baselines.json").write_text(json.dumps(all_baselines, indent=1))
     if any(learned(m) for items in runs.values() for m in items) or not any(
             m.get("planner") for items in runs.values() for m in items):
         plot_panels(runs, lines, out_dir / "thesis_curves.png",
                     "evaluation reward over training (mean ± std over seeds; step 0: the untrained policy) "
-                    "beside every no-learning baseline")
+                    "beside every no-learning baseline (one that diverged is not drawn)")
     else:  # planner runs only: nothing trains, so no curve: each motion's numbers side by side
         plot_levels(lines, out_dir / "ceiling_levels.png",
-                    "the planner's score (the ceiling) beside every no-learning baseline, per motion")
+                    "the planner's score (the ceiling) beside every no-learning baseline, per motion\n"
+                    "(a baseline whose simulation diverged is not a score: not drawn; the table marks it)")
     table = write_table(rows, out_dir, "thesis_table")
     return {"rows": rows, "table": table}
 
