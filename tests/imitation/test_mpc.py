@@ -128,3 +128,20 @@ def test_the_results_page_shows_a_planner_s_runs_as_a_ceiling(tmp_path):
     assert row["ceiling"] == ceiling and row["learned"]["mean"] is None
     alone = results_page.build_snapshot({**other, "options": {}}, tmp_path, {"thesis": results_page.imitation_summary})
     assert "ceiling" not in alone["rows"][0]
+
+
+def test_the_signs_ceiling_plans_on_the_pinned_upper_body(tmp_path):
+    """experiment=signs_mpc, tiny: the planner drives the upper body (pinned, MuJoCo) on its controller
+    and is scored beside that controller alone under the same protocol; no episode blows up."""
+    run = tmp_path / "run"
+    done = subprocess.run([sys.executable, "-m", "aslexp.cli", "imitate", "experiment=signs_mpc", "motion='69546'",
+                           "ppo.eval_steps=6", "ppo.eval_phases=[0.0]", "planner.samples=4", "planner.horizon=2",
+                           "report.baselines=[]", "plots=false", f"hydra.run.dir={run}"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    metrics = json.loads((run / "metrics.json").read_text())
+    planner = metrics["planner"]
+    assert planner["name"] == "mpc" and planner["seconds_per_step"] > 0 and metrics["last_eval_diverged"] == 0
+    assert 0 < metrics["last_eval"] <= 1 and 0 < planner["controller_alone"] <= 1
+    composed = (run / ".hydra" / "config.yaml").read_text()
+    assert "base: pinned" in composed and "name: upper_body_reference_velocity" in composed

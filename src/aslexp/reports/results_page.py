@@ -190,8 +190,8 @@ def unrun_values(command: str, overlay: str, ran: dict[str, Any], conf_dir: Path
     for key, values in swept_values(command, overlay, conf_dir).items():
         if key not in common and key not in varied:
             continue
-        have = set(common.get(key, [])) | varied.get(key, set())
-        missing += [f"{key}={v}" for v in values if v not in have]
+        unquoted = {str(v).strip("'\"") for v in set(common.get(key, [])) | varied.get(key, set())}  # '00433' is 00433
+        missing += [f"{key}={v}" for v in values if str(v).strip("'\"") not in unquoted]
     return missing
 
 
