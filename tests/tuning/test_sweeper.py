@@ -225,7 +225,7 @@ def test_two_workers_share_one_postgresql_study(tmp_path: Path, pg_url: str) -> 
     assert len(_assert_each_trial_ran_once(sweep, study, 6)) == 2
     info = json.loads((sweep / "sweep.json").read_text())
     assert ":aslexp@" not in info["storage"] and "aslexp@127.0.0.1" in info["storage"]  # no password
-    run_sweep(sweep, *overrides[:2], "hydra.sweeper.n_trials=7")  # resume on the database
+    run_sweep(sweep, *overrides[:2], "sleep=1.0", "hydra.sweeper.n_trials=7")  # resume: the same sweep, a larger budget
     assert len(load_study(sweep, storage=pg_url, name=name).trials) == 7
 
 
