@@ -23,18 +23,20 @@ def timestamp() -> str:
     return _dt.datetime.now().astimezone().isoformat(timespec="seconds")
 
 
-def mark_interrupted(run_dir: str | os.PathLike, reason: str) -> bool:
+def mark_interrupted(run_dir: str | os.PathLike, reason: str,
+                     replace: tuple[str, ...] = ("running",)) -> bool:
     """Record a run that never finished as interrupted (its process was killed or cancelled).
 
-    Only a run.json still saying "running" changes; returns whether it did.
+    Only a run.json whose status is one of ``replace`` (still "running"; a sweep's trial stopped
+    by a full disk may say "failed" too) changes; returns whether it did.
     """
     path = Path(run_dir) / RUN_FILE
     try:
         info = read_json(path)
     except (OSError, ValueError):
         return False
-    if not isinstance(info, dict) or info.get("status") != "running":
+    if not isinstance(info, dict) or info.get("status") not in replace:
         return False
-    info.update(status="interrupted", finished=timestamp(), error=reason)
+    info.update(status="interrupted", finished=info.get("finished") or timestamp(), error=reason)
     write_json(path, info)
     return True

@@ -20,6 +20,8 @@ import pytest
 from aslexp.errors import ConfigError
 from aslexp.sim import engine as engines
 
+from .registration import fresh_registration
+
 HERE = Path(__file__).resolve().parent
 SRC = HERE.parents[1] / "src" / "aslexp"
 REPLAY = {"name": "replay", "module": "replay_engine"}
@@ -28,12 +30,8 @@ REPLAY = {"name": "replay", "module": "replay_engine"}
 @pytest.fixture
 def replay(monkeypatch):
     """The replay engine found through its YAML's ``module`` key, as a user's would be."""
-    monkeypatch.syspath_prepend(str(HERE))
-    engines.unregister_engine("replay")
-    sys.modules.pop("replay_engine", None)
-    yield REPLAY
-    engines.unregister_engine("replay")
-    sys.modules.pop("replay_engine", None)
+    for _ in fresh_registration(monkeypatch, "replay_engine", lambda: engines.unregister_engine("replay")):
+        yield REPLAY
 
 
 def _rollout(env, steps: int = 30) -> list[dict]:

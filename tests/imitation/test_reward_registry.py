@@ -3,9 +3,6 @@ it scores the single and the batched environment with no edit to aslexp."""
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
@@ -13,7 +10,8 @@ from aslexp.envs import reward as rewards
 from aslexp.envs.batched import BatchedImitationEnv
 from aslexp.envs.imitation import ImitationEnv
 
-HERE = Path(__file__).resolve().parent
+from .registration import fresh_registration
+
 # conf/reward/worst_tip.yaml, as a user would write it
 WORST_TIP = {"module": "worst_tip_error", "combine": "sum",
              "terms": {"pose": {"weight": 0.5, "scale": 2.0}, "worst_tip": {"weight": 0.5, "scale": 40.0}}}
@@ -21,12 +19,8 @@ WORST_TIP = {"module": "worst_tip_error", "combine": "sum",
 
 @pytest.fixture
 def worst_tip(monkeypatch):
-    monkeypatch.syspath_prepend(str(HERE))
-    rewards.unregister_error("worst_tip")
-    sys.modules.pop("worst_tip_error", None)
-    yield WORST_TIP
-    rewards.unregister_error("worst_tip")
-    sys.modules.pop("worst_tip_error", None)
+    for _ in fresh_registration(monkeypatch, "worst_tip_error", lambda: rewards.unregister_error("worst_tip")):
+        yield WORST_TIP
 
 
 def test_a_registered_error_is_a_reward_term_in_both_environments(worst_tip, motion_a):

@@ -182,17 +182,15 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     render = cfg.get("render") or {}
     frames_every = int(render.get("frames_every", 2)) if render.get("gif", True) else 0
     policy = trainer.evaluation_agent()
-    if untrained:  # nothing learned: the figures show the controller on the reference one step ahead
-        final = evaluate(eval_env, lambda obs, env: env.reference_action(1), ppo.eval_steps, record=True,
-                         frames_every=frames_every)
-    else:
-        final = evaluate(eval_env, lambda obs, env: policy.act(obs), ppo.eval_steps, record=True,
-                         frames_every=frames_every)
-    look = evaluate(eval_env, lambda obs, env: env.reference_action(1), ppo.eval_steps, record=True)
+    look = evaluate(eval_env, lambda obs, env: env.reference_action(1), ppo.eval_steps, record=True,
+                    frames_every=frames_every if untrained else 0)
+    # nothing learned: the figures show the controller on the reference one step ahead (the same episode)
+    final = look if untrained else evaluate(eval_env, lambda obs, env: policy.act(obs), ppo.eval_steps,
+                                            record=True, frames_every=frames_every)
     joint_names = [j.name for j in eval_env.layout.joints]
     if not eval_env.layout.all_revolute:  # spherical joints: rotation angle and angular speed
-        final.trajectory = report.per_joint_trajectory(final.trajectory, eval_env.layout)
-        look.trajectory = report.per_joint_trajectory(look.trajectory, eval_env.layout)
+        for run in ([final] if final is look else [final, look]):  # one episode when nothing was trained
+            run.trajectory = report.per_joint_trajectory(run.trajectory, eval_env.layout)
     if cfg.get("plots", True):
         shown = "nothing trained, the controller on the reference one step ahead" if untrained else "last policy"
         report.plot_tracking(final.trajectory, joint_names, out_dir / "tracking.png",

@@ -61,7 +61,7 @@ import yaml
 from optuna.distributions import BaseDistribution
 from optuna.trial import FrozenTrial, Trial, TrialState
 
-from aslexp.files import read_json, write_json
+from aslexp.files import read_json
 from aslexp.process import (
     boot_id,
     process_identity,
@@ -69,7 +69,7 @@ from aslexp.process import (
     sigterm_raises,
     signals_held,
 )
-from aslexp.runfile import RUN_FILE, mark_interrupted, timestamp
+from aslexp.runfile import RUN_FILE, mark_interrupted
 from aslexp.tuning.storage import JOURNAL_FULL_DISK_WAIT, DiskFullError, budget_lock, wait_for_space
 
 log = logging.getLogger(__name__)
@@ -566,18 +566,13 @@ def _record_disk_full(study: optuna.Study, trial: Trial, run_dir: str | None, re
 def _mark_run_disk_full(run_dir: str | None, reason: str, quiet: bool = False) -> None:
     """The trial's run.json says it was interrupted, and why: it still says running (its job
     found no room to say more) or failed (with the disk-full error the study does not count)."""
-    path = Path(run_dir) / RUN_FILE if run_dir else None
-    if path is None or not path.is_file():
+    if not run_dir:
         return
     try:
-        info = read_json(path)
-        if isinstance(info, dict) and info.get("status") in ("running", "failed"):
-            info.update(status=INTERRUPTED, finished=info.get("finished") or timestamp(),
-                        error=reason)
-            write_json(path, info)
-    except (OSError, ValueError) as err:
-        (log.debug if quiet else log.warning)("could not record %s as interrupted (%s): %s", path,
-                                              reason, err)
+        mark_interrupted(run_dir, reason, replace=("running", "failed"))
+    except OSError as err:
+        (log.debug if quiet else log.warning)("could not record %s as interrupted (%s): %s",
+                                              Path(run_dir) / RUN_FILE, reason, err)
 
 
 def _folder_to_probe(reason: str, run_dir: str | None, study_name: str) -> Path:
