@@ -20,4 +20,3 @@ def data_root() -> Path:
 @pytest.fixture(scope="session")
 def motion_a(data_root) -> Path:
     return data_root / "motions" / "hand" / "A.txt"
-
