@@ -133,14 +133,14 @@ def ppo_split(num_envs: int, device: str, threads: int, steps_per_rollout: int |
     import functools
     import tempfile
 
-    from aslexp.envs.config import resolve_group
+    from aslexp.compose import resolve_group
     from aslexp.rl.ppo import PPOConfig, PPOTrainer
 
     values = resolve_group("ppo", "hand_thesis")
     values.pop("defaults", None)
     if steps_per_rollout:  # a smaller update (the test's); the figures are for Table D.1's 10,240
         values["steps_per_rollout"] = steps_per_rollout
-    config = PPOConfig.from_dict({**values, "num_envs": num_envs, "vector_env": "batched", "device": device,
+    config = PPOConfig.parse({**values, "num_envs": num_envs, "vector_env": "batched", "device": device,
                                   "rollout_device": rollout_device,
                                   "total_steps": updates * int(values["steps_per_rollout"]), "eval_interval": 10**9,
                                   "progress_interval": 1e9, "torch_threads": threads})

@@ -40,7 +40,8 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from aslexp.data.root import resolve_data_root  # noqa: E402
-from aslexp.envs.config import CONF_DIR, load_group_file  # noqa: E402
+from aslexp.compose import group as load_group_file  # noqa: E402
+from aslexp.paths import CONF_DIR  # noqa: E402
 from aslexp.envs.imitation import ImitationEnv  # noqa: E402
 from aslexp.envs.upper_body import UpperBodyImitationEnv  # noqa: E402
 from aslexp.rl.ppo import PPOConfig, PPOTrainer  # noqa: E402
@@ -66,7 +67,7 @@ def make_factory(body: str, rate: float, data_root: Path):
 
 def ppo_config(name: str, **overrides) -> PPOConfig:
     base = load_group_file("ppo", "base")
-    return PPOConfig.from_dict({**base, **load_group_file("ppo", name), **overrides})
+    return PPOConfig.parse({**base, **load_group_file("ppo", name), **overrides})
 
 
 def time_iteration(trainer: PPOTrainer) -> tuple[float, float]:

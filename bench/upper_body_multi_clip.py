@@ -29,7 +29,7 @@ SIGNS = ("00433", "52861", "69318", "69546")
 def main() -> None:
     import torch
 
-    from aslexp.envs.config import deep_merge, resolve_group
+    from aslexp.compose import deep_merge, resolve_group
     from aslexp.envs.multi_clip import MultiClipImitationEnv
     from aslexp.envs.upper_body import UpperBodyImitationEnv
     from aslexp.rl.evaluate import evaluate, evaluate_clips, reference_policy
@@ -62,7 +62,7 @@ def main() -> None:
     rows: dict[str, dict[str, float]] = {}
 
     for sign, motion in zip(args.signs, motions):
-        config = PPOConfig.from_dict({**ppo, "total_steps": args.steps_per_sign})
+        config = PPOConfig.parse({**ppo, "total_steps": args.steps_per_sign})
         env = UpperBodyImitationEnv(motion, env=env_cfg, controller=controller)
         eval_env = UpperBodyImitationEnv(motion, env=eval_cfg, controller=controller)
         start = time.perf_counter()
@@ -75,7 +75,7 @@ def main() -> None:
         env.close()
         eval_env.close()
 
-    config = PPOConfig.from_dict({**ppo, "total_steps": args.steps_per_sign * len(motions)})
+    config = PPOConfig.parse({**ppo, "total_steps": args.steps_per_sign * len(motions)})
     env = MultiClipImitationEnv(motions, env=env_cfg, controller=controller)
     eval_env = MultiClipImitationEnv(motions, env=eval_cfg, cycle=True, controller=controller)
     start = time.perf_counter()

@@ -1,7 +1,7 @@
 """Typed, ranged configuration keys: one declaration per key, checked at the edge.
 
 Every numeric (and a few other) key that a job reads is declared here once, with its type and
-range or choices: :data:`PPO` (``conf/ppo/*.yaml``, read by :meth:`aslexp.rl.ppo.PPOConfig.from_dict`),
+range or choices: :data:`PPO` (``conf/ppo/*.yaml``, read by :meth:`aslexp.rl.ppo.PPOConfig.parse`),
 :data:`TRAINER` (``conf/trainer/*.yaml``, read by
 :meth:`aslexp.recognition.train.TrainerConfig.from_dict`) and :data:`JOBS` (each job's keys,
 sections included). The jobs check their composed config against :data:`JOBS` before anything
@@ -20,13 +20,19 @@ A leaf module: it imports nothing of aslexp but :mod:`aslexp.errors`.
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import math
+import types
+import typing
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 from aslexp.errors import ConfigError
+
+
+T = TypeVar("T")
 
 
 class _Refused(Exception):
@@ -192,8 +198,8 @@ def Text(*, nullable: bool = False) -> Key:  # noqa: N802
     return Key("str", nullable=nullable)
 
 
-def Choice(*values: str, aliases: Mapping[str, str] | None = None) -> Key:  # noqa: N802
-    return Key("choice", choices=tuple(values), aliases=tuple((aliases or {}).items()))
+def Choice(*values: str, aliases: Mapping[str, str] | None = None, nullable: bool = False) -> Key:  # noqa: N802
+    return Key("choice", choices=tuple(values), aliases=tuple((aliases or {}).items()), nullable=nullable)
 
 
 def List(item: Key, *, nonempty: bool = False, nullable: bool = False) -> Key:  # noqa: N802
@@ -237,6 +243,131 @@ def check_section(section: str, values: Mapping[str, Any], schema: Mapping[str, 
             continue
         out[name] = check_value(f"{section}.{name}", value, key)
     return out
+
+
+# ---------------------------------------------------------------------------- the one reader
+
+class Section:
+    """A dataclass read from a config section by :func:`read`: ``Spec.parse(values)`` (``SECTION``
+    names the section in errors: ``controller.mode=foo: expected one of position, stable_pd``)."""
+
+    SECTION: typing.ClassVar[str] = "config"
+
+    @classmethod
+    def parse(cls: type[T], values: Mapping[str, Any] | None, section: str | None = None) -> T:
+        return read(cls, values, section or cls.SECTION)  # type: ignore[attr-defined]
+
+
+def key(declared: Key) -> dict[str, Key]:
+    """A dataclass field's declaration: ``field(default=..., metadata=key(Int(1)))`` (a mapping of
+    sections whose entry names are fixed says so with ``metadata={"names": (...)}``)."""
+    return {"key": declared}
+
+
+def read(cls: type[T], values: Mapping[str, Any] | None, section: str,
+         schema: Mapping[str, Key] | None = None) -> T:
+    """The one reader of a config section into its dataclass ``cls``.
+
+    Unknown keys are refused with the nearest known one; missing required keys are named; each value
+    is checked against its declaration (``schema[name]``, else the field's ``metadata=key(...)``) or,
+    undeclared, coerced by the field's type (numbers, lists as tuples, nested sections read by this
+    same function, ``dict[str, Section]`` entries each read, an entry set to null dropped: an override
+    switching it off). A nested section with a default instance is read as that default updated by the
+    keys given, so a partial dict changes only what it names. What depends on several keys is checked
+    by the class's ``__post_init__``; its ConfigError is given this section's name. Every error is a
+    :class:`~aslexp.errors.ConfigError` naming ``section.key``, the value and what is expected.
+    """
+    if values is None:
+        values = {}
+    if not isinstance(values, Mapping):
+        raise ConfigError(f"{section}={shown(values)}: expected a mapping of keys")
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
+    unknown = [name for name in values if name not in fields]
+    if unknown:
+        name = unknown[0]
+        near = difflib.get_close_matches(str(name), list(fields), n=1)
+        hint = f"; did you mean {section}.{near[0]}?" if near else f"; expected one of {', '.join(fields)}"
+        raise ConfigError(f"{section}.{name}={shown(values[name])}: unknown key{hint}")
+    missing = [name for name, f in fields.items() if name not in values and f.default is dataclasses.MISSING
+               and f.default_factory is dataclasses.MISSING]
+    if missing:
+        raise ConfigError(f"{section}: missing {', '.join(f'{section}.{name}' for name in missing)}")
+    hints = typing.get_type_hints(cls)
+    out: dict[str, Any] = {}
+    for name, value in values.items():
+        where = f"{section}.{name}"
+        declared = (schema or {}).get(name) or fields[name].metadata.get("key")
+        names = fields[name].metadata.get("names")  # a mapping whose entries have fixed names (fingers)
+        if names and isinstance(value, Mapping) and any(k not in names for k in value):
+            wrong = next(k for k in value if k not in names)
+            raise ConfigError(f"{where}.{wrong}: unknown entry; expected one of {', '.join(names)}")
+        if declared is not None:
+            value = check_value(where, value, declared)
+        out[name] = _typed(hints[name], value, where, _default(fields[name]))
+    try:
+        return cls(**out)
+    except ConfigError as error:
+        text = str(error)
+        raise ConfigError(text if text.startswith(section) else f"{section}.{text}") from None
+
+
+def _default(f: dataclasses.Field) -> Any:
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return None
+
+
+def _typed(hint: Any, value: Any, where: str, default: Any = None) -> Any:
+    """``value`` read as the type ``hint`` says (see :func:`read`)."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        options = [a for a in args if a is not type(None)]
+        return _typed(options[0], value, where, default) if len(options) == 1 else value
+    if dataclasses.is_dataclass(hint):
+        if isinstance(value, hint):
+            return value
+        if dataclasses.is_dataclass(default) and isinstance(value, Mapping):
+            value = {**{f.name: getattr(default, f.name) for f in dataclasses.fields(default) if f.init}, **value}
+        return read(hint, value, where)
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}={shown(value)}: expected a list")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(_typed(args[0], v, f"{where}[{i}]") for i, v in enumerate(value))
+        if args and len(args) != len(value):
+            raise ConfigError(f"{where}={shown(value)}: expected a list of {len(args)} values")
+        return tuple(_typed(a, v, f"{where}[{i}]") for i, (a, v) in enumerate(zip(args, value))) if args else tuple(value)
+    if origin is list:
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"{where}={shown(value)}: expected a list")
+        return [_typed(args[0], v, f"{where}[{i}]") for i, v in enumerate(value)] if args else list(value)
+    if origin is dict and len(args) == 2 and dataclasses.is_dataclass(args[1]):
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{where}={shown(value)}: expected a mapping of name -> {{...}}")
+        out = dict(default) if isinstance(default, Mapping) else {}  # entries given update the default's
+        for k, v in value.items():
+            if v is None:
+                out.pop(str(k), None)
+            else:
+                out[str(k)] = _typed(args[1], v, f"{where}.{k}", out.get(str(k)))
+        return out
+    if origin is dict:
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{where}={shown(value)}: expected a mapping")
+        return {k: _typed(args[1], v, f"{where}.{k}") for k, v in value.items()} if args else dict(value)
+    if hint is float:
+        return check_value(where, value, Float())
+    if hint is int:
+        return check_value(where, value, Int())
+    if hint is bool:
+        return check_value(where, value, Bool())
+    if hint is str:
+        return check_value(where, value, Text())
+    return value
 
 
 # ---------------------------------------------------------------------------- the declarations

@@ -43,12 +43,12 @@ def test_the_pd_tuning_job_takes_the_body_s_groups_too():
 
 def test_the_python_setup_reads_the_same_body_file():
     from aslexp.envs.assembly import ImitationSetup
-    from aslexp.envs.config import body_groups
+    from aslexp.compose import body_groups
     from aslexp.envs.upper_body import UPPER_BODY_DEFAULTS
 
     assert body_groups("upper_body_thesis") == {"controller": "upper_body", "reward": "upper_body_thesis",
                                                 "env": "upper_body"}
-    assert UPPER_BODY_DEFAULTS == {"body": "upper_body", **body_groups("upper_body")}
+    assert UPPER_BODY_DEFAULTS == {"body": "upper_body"}  # the body file brings the rest
     setup = ImitationSetup.from_groups("motions/upper_body/00433.txt", body="upper_body", data_root=DATA)
     named = ImitationSetup.from_groups("motions/upper_body/00433.txt", body="upper_body", controller="upper_body",
                                        reward="upper_body_thesis", env="upper_body", data_root=DATA)
@@ -82,3 +82,17 @@ def test_an_upper_body_run_from_body_alone_scores_its_own_body_s_baselines(tmp_p
     hand = ImitationSetup.from_groups(motion, body="upper_body", controller="thesis", reward="deepmimic",
                                       env="default", data_root=DATA)
     assert hand.env.camera != setup.env.camera  # the hand's groups would differ (its camera, at least)
+
+
+def test_a_job_s_upper_body_baselines_use_the_upper_body_s_default_controller():
+    """Before the one composer, a job's setup (complete groups, no body name) measured its
+    thesis-PD baselines with the hand's controller whatever the body; now with the body's own."""
+    from aslexp import compose
+    from aslexp.envs.assembly import ImitationSetup
+
+    cfg = compose.compose("imitate", ["experiment=signs_mpc", "motion='00433'"])
+    setup = ImitationSetup.from_config(cfg, DATA)
+    assert setup.controller.name == "upper_body_reference_velocity"
+    assert setup.thesis_controller().name == "upper_body"
+    hand = ImitationSetup.from_config(compose.compose("imitate", ["controller=reference_velocity"]), DATA)
+    assert hand.thesis_controller().name == "thesis"

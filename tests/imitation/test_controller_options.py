@@ -17,12 +17,12 @@ RESIDUAL = {"action_mode": "residual", "residual_range": 0.2, "early_termination
 
 
 def test_controller_options_are_validated():
-    spec = ControllerSpec.from_dict({"groups": {"default": {"kp": 0.22, "kd": 0.87}}})
+    spec = ControllerSpec.parse({"groups": {"default": {"kp": 0.22, "kd": 0.87}}})
     assert spec.is_thesis_pd and spec.target_velocity == "zero" and spec.target_rate == "control"
-    with pytest.raises(ValueError, match="target_velocity must be one of"):
-        ControllerSpec.from_dict({"groups": {"default": {"kp": 1, "kd": 1}}, "target_velocity": "ref"})
-    with pytest.raises(ValueError, match="target_rate must be one of"):
-        ControllerSpec.from_dict({"groups": {"default": {"kp": 1, "kd": 1}}, "target_rate": "fast"})
+    with pytest.raises(ValueError, match="controller.target_velocity=ref: expected one of zero, reference"):
+        ControllerSpec.parse({"groups": {"default": {"kp": 1, "kd": 1}}, "target_velocity": "ref"})
+    with pytest.raises(ValueError, match="controller.target_rate=fast: expected one of control, physics"):
+        ControllerSpec.parse({"groups": {"default": {"kp": 1, "kd": 1}}, "target_rate": "fast"})
 
 
 def test_physics_rate_needs_residual_actions(motion_a):

@@ -59,12 +59,12 @@ def test_the_seam_refuses_what_an_engine_does_not_declare(replay, data_root):
     from aslexp.envs.batched import BatchedImitationEnv
     from aslexp.envs.imitation import ImitationEnv
 
-    with pytest.raises(ConfigError, match=r"unknown keys \['integrator'\] for engine replay"):
+    with pytest.raises(ConfigError, match=r"engine.integrator=Euler: unknown key; expected one of lag"):
         ImitationEnv(data_root / "motions/hand/A.txt", engine={**replay, "integrator": "Euler"}, data_root=data_root)
     with pytest.raises(ConfigError, match="name must be one of .*'mujoco'.*got 'warp'"):
-        engines.EngineSpec.from_dict({"name": "warp"})
+        engines.EngineSpec.parse({"name": "warp"})
     with pytest.raises(ConfigError, match="module no_such_module could not be imported"):
-        engines.EngineSpec.from_dict({"name": "warp", "module": "no_such_module"})
+        engines.EngineSpec.parse({"name": "warp", "module": "no_such_module"})
     # a batch needs an engine that batches: the error names those that do
     with pytest.raises(ValueError, match=r"the engine is 'replay' \(one that batches: \['mujoco'\]"):
         BatchedImitationEnv(2, data_root / "motions/hand/A.txt", engine=replay, data_root=data_root)

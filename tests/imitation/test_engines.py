@@ -14,7 +14,7 @@ import pytest
 from hydra import compose, initialize_config_dir
 
 from aslexp.envs.batched import BatchedImitationEnv
-from aslexp.envs.config import CONF_DIR
+from aslexp.paths import CONF_DIR
 from aslexp.envs.imitation import ImitationEnv
 from aslexp.envs.upper_body import UpperBodyImitationEnv
 from aslexp.sim.engine import EngineSpec
@@ -104,7 +104,7 @@ def test_a_batch_is_n_single_environments_step_for_step(data_root, env_name, kwa
     n, motion = 3, data_root / "motions/hand/C.txt"
     env_cfg = kwargs.get("env", env_name)
     if isinstance(env_cfg, dict):
-        from aslexp.envs.config import deep_merge, resolve_group
+        from aslexp.compose import deep_merge, resolve_group
 
         env_cfg = deep_merge(resolve_group("env", env_name), env_cfg)
     controller = kwargs.get("controller")
@@ -150,10 +150,10 @@ def test_the_batch_refuses_what_only_the_single_environment_does(data_root):
                             env={"action_mode": "residual", "residual_base_smoothing": 0.5})
     with pytest.raises(ValueError, match="the engine is 'pybullet'"):
         BatchedImitationEnv(2, data_root / "motions/hand/A.txt", engine="pybullet")
-    with pytest.raises(ValueError, match="engine config: integrator must be one of"):
-        EngineSpec.from_dict({"name": "mujoco", "integrator": "verlet"})
-    with pytest.raises(ValueError, match="engine config: unknown keys"):
-        EngineSpec.from_dict({"name": "mujoco", "substeps": 4})
+    with pytest.raises(ValueError, match="engine.integrator=verlet: expected one of Euler, implicitfast"):
+        EngineSpec.parse({"name": "mujoco", "integrator": "verlet"})
+    with pytest.raises(ValueError, match="engine.substeps=4: unknown key"):
+        EngineSpec.parse({"name": "mujoco", "substeps": 4})
 
 
 def test_ppo_trains_and_resumes_on_the_batched_engine(data_root, tmp_path):
@@ -161,7 +161,7 @@ def test_ppo_trains_and_resumes_on_the_batched_engine(data_root, tmp_path):
 
     motion = data_root / "motions/hand/B.txt"
     make = functools.partial(BatchedImitationEnv, motion=motion, engine="mujoco", reward="hand_thesis", env="residual")
-    config = PPOConfig.from_dict(dict(hidden_sizes=[32, 32], steps_per_rollout=512, minibatch_size=128, epochs=1,
+    config = PPOConfig.parse(dict(hidden_sizes=[32, 32], steps_per_rollout=512, minibatch_size=128, epochs=1,
                                       total_steps=1024, eval_interval=512, eval_steps=30, eval_episodes=1,
                                       num_envs=8, vector_env="batched", device="cpu", log_std_init=-2.0))
     eval_env = ImitationEnv(motion, engine="mujoco", reward="hand_thesis", env="residual")
@@ -173,7 +173,7 @@ def test_ppo_trains_and_resumes_on_the_batched_engine(data_root, tmp_path):
     assert rollouts and all(0 < h["train_reward"] <= 1 for h in rollouts)
     checkpoint = trainer.save()
     trainer.close()
-    longer = PPOConfig.from_dict({**config.__dict__, "total_steps": 2048, "hidden_sizes": [32, 32]})
+    longer = PPOConfig.parse({**config.__dict__, "total_steps": 2048, "hidden_sizes": [32, 32]})
     resumed = PPOTrainer(make, eval_env, longer, tmp_path / "run", seed=0)
     resumed.restore(checkpoint)
     assert resumed.steps == 1024
@@ -188,7 +188,7 @@ def test_rollout_workers_step_mujoco_environments(data_root, tmp_path):
 
     motion = data_root / "motions/hand/B.txt"
     make = functools.partial(ImitationEnv, motion, engine="mujoco", reward="hand_thesis", env="residual")
-    config = PPOConfig.from_dict(dict(hidden_sizes=[16], steps_per_rollout=128, minibatch_size=64, epochs=1,
+    config = PPOConfig.parse(dict(hidden_sizes=[16], steps_per_rollout=128, minibatch_size=64, epochs=1,
                                       total_steps=256, eval_interval=256, eval_steps=10, eval_episodes=1,
                                       num_envs=2, vector_env="workers", device="cpu"))
     trainer = PPOTrainer(make, make(), config, tmp_path / "run", seed=0)
@@ -217,7 +217,7 @@ def test_the_engine_switch_composes_in_every_imitation_overlay():
             "archive/signs_free_residual_anneal_quiet"} <= set(composed)
     for overlay, cfg in composed.items():
         assert cfg.engine.name == "mujoco" and "motion" in cfg, overlay
-        EngineSpec.from_dict(dict(cfg.engine))
+        EngineSpec.parse(dict(cfg.engine))
 
 
 # The MuJoCo engine's path imports no PyBullet: it runs where PyBullet has no wheel (Python 3.12 GPU images).
@@ -243,7 +243,7 @@ def test_batched_workers_collect_the_batch_in_processes(data_root, tmp_path):
 
     motion = data_root / "motions/hand/B.txt"
     make = functools.partial(BatchedImitationEnv, motion=motion, engine="mujoco", reward="hand_thesis", env="residual")
-    config = PPOConfig.from_dict(dict(hidden_sizes=[16], steps_per_rollout=256, minibatch_size=64, epochs=1,
+    config = PPOConfig.parse(dict(hidden_sizes=[16], steps_per_rollout=256, minibatch_size=64, epochs=1,
                                       total_steps=512, eval_interval=512, eval_steps=10, eval_episodes=1,
                                       num_envs=8, vector_env="batched", batched_workers=2, device="cpu"))
     trainer = PPOTrainer(make, ImitationEnv(motion, engine="mujoco", reward="hand_thesis", env="residual"),
@@ -256,7 +256,7 @@ def test_batched_workers_collect_the_batch_in_processes(data_root, tmp_path):
     finally:
         trainer.close()
     with pytest.raises(ValueError, match="batched_workers must be 0 or a divisor of num_envs"):
-        PPOConfig.from_dict(dict(num_envs=8, vector_env="batched", batched_workers=3))
+        PPOConfig.parse(dict(num_envs=8, vector_env="batched", batched_workers=3))
 
 
 def test_a_diverging_mujoco_simulation_is_counted_and_ended_not_silently_reset(data_root, tmp_path):
@@ -282,7 +282,7 @@ def test_the_learner_and_the_batch_policy_on_a_gpu(data_root, tmp_path):
 
     motion = data_root / "motions/hand/B.txt"
     make = functools.partial(BatchedImitationEnv, motion=motion, engine="mujoco", reward="hand_thesis", env="residual")
-    config = PPOConfig.from_dict(dict(hidden_sizes=[64, 64], steps_per_rollout=1024, minibatch_size=256, epochs=2,
+    config = PPOConfig.parse(dict(hidden_sizes=[64, 64], steps_per_rollout=1024, minibatch_size=256, epochs=2,
                                       total_steps=2048, eval_interval=2048, eval_steps=30, eval_episodes=1,
                                       num_envs=64, vector_env="batched", device="cuda", rollout_device="learner"))
     trainer = PPOTrainer(make, ImitationEnv(motion, engine="mujoco", reward="hand_thesis", env="residual"),

@@ -180,7 +180,7 @@ def _composed(experiment: str, *overrides: str) -> dict:
     from hydra import compose, initialize_config_dir
     from omegaconf import OmegaConf
 
-    from aslexp.envs.config import CONF_DIR
+    from aslexp.paths import CONF_DIR
 
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         composed = compose(config_name="imitate", overrides=[f"experiment={experiment}", *overrides],
@@ -195,7 +195,7 @@ def _job_envs(data_root, experiment: str, *overrides: str):
     from aslexp.jobs.imitate import build_envs
     from hydra import compose, initialize_config_dir
 
-    from aslexp.envs.config import CONF_DIR
+    from aslexp.paths import CONF_DIR
 
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):
         cfg = to_dict(compose(config_name="imitate", overrides=[f"experiment={experiment}", *overrides]))
@@ -375,8 +375,8 @@ def test_drift_shaping_charges_the_turn_and_offset_in_training_envs_only(data_ro
 def test_drift_shaping_scales_must_be_numbers_of_zero_or_more(name, value):
     from aslexp.envs.imitation import EnvSpec
 
-    with pytest.raises(ValueError, match=f"{name} must be a number >= 0"):
-        EnvSpec.from_dict({name: value})
+    with pytest.raises(ValueError, match=f"env.{name}=.*: expected a number >= 0"):
+        EnvSpec.parse({name: value})
 
 
 def test_the_drift_variant_adds_only_the_offset_charge_to_the_heading_variant():
@@ -439,15 +439,15 @@ def test_a_smoothed_base_with_no_correction_is_the_smoothed_reference_baseline(d
 
 
 @pytest.mark.parametrize("values,message", [
-    ({"action_mode": "residual", "residual_base_smoothing": 1.0}, r"residual_base_smoothing must be a number in \[0, 1\)"),
-    ({"action_mode": "residual", "residual_base_smoothing": "0.5"}, r"must be a number in \[0, 1\)"),
+    ({"action_mode": "residual", "residual_base_smoothing": 1.0}, r"env.residual_base_smoothing=1.0: expected a number in \[0, 1\)"),
+    ({"action_mode": "residual", "residual_base_smoothing": "half"}, r"expected a number in \[0, 1\)"),
     ({"action_mode": "absolute", "residual_base_smoothing": 0.5}, "needs action_mode residual"),
 ])
 def test_residual_base_smoothing_fails_clearly(values, message):
     from aslexp.envs.imitation import EnvSpec
 
     with pytest.raises(ValueError, match=message):
-        EnvSpec.from_dict(values)
+        EnvSpec.parse(values)
 
 
 def test_residual_base_smoothing_groups_must_name_joints(motion_a):

@@ -56,12 +56,12 @@ def test_what_the_planner_plans_scores_the_same_in_the_environment(setup):
 def test_the_planner_refuses_what_it_cannot_plan(setup):
     with pytest.raises(ValueError, match="needs env.action_mode residual"):
         SamplingPlanner(PlannerSpec(), setup.merged(env={"action_mode": "absolute"}))
-    with pytest.raises(ValueError, match=r"unknown keys \['beam'\]"):
-        PlannerSpec.from_dict({"beam": 3})
-    with pytest.raises(ValueError, match="method must be one of"):
-        PlannerSpec.from_dict({"method": "ilqr"})
+    with pytest.raises(ValueError, match=r"planner.beam=3: unknown key"):
+        PlannerSpec.parse({"beam": 3})
+    with pytest.raises(ValueError, match="planner.method=ilqr: expected one of"):
+        PlannerSpec.parse({"method": "ilqr"})
     with pytest.raises(ValueError, match="elites"):
-        PlannerSpec.from_dict({"method": "cem", "samples": 4, "elites": 4})
+        PlannerSpec.parse({"method": "cem", "samples": 4, "elites": 4})
 
 
 def test_cem_runs_its_iterations(setup):

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aslexp.envs.config import resolve_group
+from aslexp.compose import resolve_group
 from aslexp.envs.tracking import reference_rollout
 from aslexp.envs.upper_body import UpperBodyImitationEnv
 from aslexp.sim.pd import ControllerSpec
@@ -30,16 +30,16 @@ def make(sign, data_root, base, controller="upper_body_thesis", env="upper_body_
 
 
 def test_group_modes_parse_and_are_checked():
-    spec = ControllerSpec.from_dict(resolve_group("controller", "upper_body_thesis"))
+    spec = ControllerSpec.parse(resolve_group("controller", "upper_body_thesis"))
     assert spec.mode == "stable_pd"
     assert spec.mode_of(spec.groups["fingers"]) == "position"
     assert all(spec.mode_of(spec.groups[g]) == "stable_pd" for g in BODY_GROUPS)  # None: the controller's
-    with pytest.raises(ValueError, match="groups.fingers: mode must be one of"):
-        ControllerSpec.from_dict({"mode": "position", "groups": {"fingers": {"kp": 1, "kd": 1, "mode": "torque"}}})
-    with pytest.raises(ValueError, match=r"groups.default: unknown keys \['kv'\]"):
-        ControllerSpec.from_dict({"groups": {"default": {"kp": 1, "kv": 1}}})
+    with pytest.raises(ValueError, match="controller.groups.fingers.mode=torque: expected null or one of position, stable_pd"):
+        ControllerSpec.parse({"mode": "position", "groups": {"fingers": {"kp": 1, "kd": 1, "mode": "torque"}}})
+    with pytest.raises(ValueError, match=r"controller.groups.default.kv=1: unknown key; expected one of kp, kd"):
+        ControllerSpec.parse({"groups": {"default": {"kp": 1, "kv": 1}}})
     with pytest.raises(ValueError, match="mujoco_groups are physical gains: no mode"):
-        ControllerSpec.from_dict({"groups": {"default": {"kp": 1, "kd": 1}},
+        ControllerSpec.parse({"groups": {"default": {"kp": 1, "kd": 1}},
                                   "mujoco_groups": {"default": {"kp": 1, "kd": 1, "mode": "position"}}})
 
 

@@ -12,7 +12,7 @@ import pytest
 import torch
 import yaml
 
-from aslexp.envs.config import CONF_DIR
+from aslexp.paths import CONF_DIR
 from aslexp.envs.imitation import ImitationEnv
 from aslexp.rl.checkpoint import load_checkpoint, save_checkpoint
 from aslexp.rl.evaluate import baselines, evaluate, evaluate_phases, reference_policy
@@ -188,7 +188,7 @@ def test_device_switch(tmp_path, motion_a):
         resolve_device("gpu0")
     if not torch.cuda.is_available():  # refused with the config, before any environment starts
         with pytest.raises(ValueError, match="no CUDA device"):
-            PPOConfig.from_dict({**TINY, "device": "cuda"})
+            PPOConfig.parse({**TINY, "device": "cuda"})
     trainer = PPOTrainer(factory(motion_a), None, PPOConfig(**TINY, device="cpu"), tmp_path)
     assert trainer.rollout_agent is trainer.agent and trainer.agent.device.type == "cpu"
     trainer.close()
@@ -263,12 +263,12 @@ def test_every_ppo_file_is_a_valid_config_and_base_holds_the_defaults():
     for key, value in base.items():
         expected = getattr(defaults, key)
         assert (tuple(value) if isinstance(value, list) else value) == expected or key == "name", key
-    from aslexp.envs.config import load_group_file
+    from aslexp.compose import group as load_group_file
 
     for path in sorted((CONF_DIR / "ppo").glob("*.yaml")):
-        config = PPOConfig.from_dict({**base, **load_group_file("ppo", path.stem)})
+        config = PPOConfig.parse({**base, **load_group_file("ppo", path.stem)})
         assert config.batch_size >= config.minibatch_size, path.name
-    quick = PPOConfig.from_dict({**base, **load_group_file("ppo", "quick")})
+    quick = PPOConfig.parse({**base, **load_group_file("ppo", "quick")})
     assert quick.total_steps <= 200_000 and quick.max_minutes <= 15 and quick.num_envs == 1
 
 
@@ -296,7 +296,7 @@ def test_imitate_composes_quick_by_default_and_builds_a_factory_workers_can_unpi
         default = compose(config_name="imitate")
         cfg = to_dict(compose(config_name="imitate", overrides=["ppo=authors_script", "ppo.num_envs=2", "ppo.device=cpu"]))
     assert default.ppo.name == "quick" and default.ppo.num_envs == 1
-    config = PPOConfig.from_dict(cfg["ppo"])  # base.yaml's keys under the chosen file
+    config = PPOConfig.parse(cfg["ppo"])  # base.yaml's keys under the chosen file
     assert config.num_envs == 2 and config.learning_rate == 3e-6 and config.eval_episodes == 4
     make_train_env, eval_env = build_envs(cfg, data_root)
     env = pickle.loads(pickle.dumps(make_train_env))()  # as a worker process receives it

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from aslexp.envs.config import resolve_group
+from aslexp.compose import resolve_group
 from aslexp.envs.imitation import ImitationEnv
 from aslexp.envs.reward import ImitationReward, PoseSnapshot, RewardSpec
 from aslexp.sim.body import BodySpec, load_layout
@@ -17,7 +17,7 @@ from .thesis_values import TABLE_5_2
 
 @pytest.fixture(scope="module")
 def layout(data_root):
-    return load_layout(BodySpec.from_dict(resolve_group("body", "hand15")), data_root)[1]
+    return load_layout(BodySpec.parse(resolve_group("body", "hand15")), data_root)[1]
 
 
 def snapshot(q=None, qd=None, ee=None, root_pos=(0, 0.9, 0), root_rot=(1, 0, 0, 0)):
@@ -32,7 +32,7 @@ def snapshot(q=None, qd=None, ee=None, root_pos=(0, 0.9, 0), root_rot=(1, 0, 0, 
 
 @pytest.mark.parametrize("name", ["deepmimic", "hand_thesis"])
 def test_table_5_2_is_the_config(name):
-    spec = RewardSpec.from_dict(resolve_group("reward", name))
+    spec = RewardSpec.parse(resolve_group("reward", name))
     assert {k: (t.weight, t.scale) for k, t in spec.terms.items()} == TABLE_5_2
     assert spec.combine == "sum" and not spec.normalize_joint_weights  # Eq. 5.12, sums (Eq. 5.10)
 
@@ -52,19 +52,19 @@ def test_hand_thesis_equals_the_hand_computation_and_the_code_is_an_option(layou
     for name, table in (("hand_thesis", TABLE_5_2),
                         ("hand_code", {"pose": (0.5 / 0.9, 2), "velocity": (0.05 / 0.9, 0.1),
                                        "end_effector": (0.15 / 0.9, 40), "root": (0.2 / 0.9, 5)})):
-        total, _, got = ImitationReward(RewardSpec.from_dict(resolve_group("reward", name)), layout)(sim, snapshot())
+        total, _, got = ImitationReward(RewardSpec.parse(resolve_group("reward", name)), layout)(sim, snapshot())
         assert {k: got[k] for k in errors} == pytest.approx(errors, rel=1e-9), name
         assert total == pytest.approx(sum(w * math.exp(-k * errors[t]) for t, (w, k) in table.items()), rel=1e-9)
 
 
 def test_identical_states_score_one(layout):
-    reward = ImitationReward(RewardSpec.from_dict(resolve_group("reward", None)), layout)
+    reward = ImitationReward(RewardSpec.parse(resolve_group("reward", None)), layout)
     total, terms, errors = reward(snapshot(), snapshot())
     assert total == pytest.approx(1.0) and all(e == 0 for e in errors.values())
 
 
 def test_terms_equal_hand_computed_values(layout):
-    reward = ImitationReward(RewardSpec.from_dict(resolve_group("reward", None)), layout)
+    reward = ImitationReward(RewardSpec.parse(resolve_group("reward", None)), layout)
     q = np.zeros(15)
     q[4] = 0.1  # one joint 0.1 rad off
     qd = np.zeros(15)
@@ -84,7 +84,7 @@ def test_terms_equal_hand_computed_values(layout):
 
 
 def test_root_rotation_uses_the_quaternion_angle(layout):
-    reward = ImitationReward(RewardSpec.from_dict(resolve_group("reward", None)), layout)
+    reward = ImitationReward(RewardSpec.parse(resolve_group("reward", None)), layout)
     angle = 0.3
     rotated = (math.cos(angle / 2), 0.0, math.sin(angle / 2), 0.0)
     _, _, errors = reward(snapshot(root_rot=rotated), snapshot())
@@ -92,7 +92,7 @@ def test_root_rotation_uses_the_quaternion_angle(layout):
 
 
 def test_joint_group_weights_and_product_combination(layout):
-    spec = RewardSpec.from_dict(resolve_group("reward", {"combine": "product", "joint_weights": {"thumb": 2.0}}))
+    spec = RewardSpec.parse(resolve_group("reward", {"combine": "product", "joint_weights": {"thumb": 2.0}}))
     reward = ImitationReward(spec, layout)
     q = np.zeros(15)
     q[0] = 0.1  # thumb joint, weight 2

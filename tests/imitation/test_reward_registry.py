@@ -43,9 +43,9 @@ def test_a_registered_error_is_a_reward_term_in_both_environments(worst_tip, mot
 
 
 def test_an_unregistered_error_is_refused_with_the_way_to_register_it(worst_tip):
-    with pytest.raises(ValueError, match=r"unknown term 'worst_tip'.*reward.module names its module"):
-        rewards.RewardSpec.from_dict({"terms": worst_tip["terms"]})
-    with pytest.raises(ValueError, match="module no_such_errors could not be imported"):
-        rewards.RewardSpec.from_dict({**worst_tip, "module": "no_such_errors"})
+    with pytest.raises(ValueError, match=r"reward.terms.worst_tip: unknown term.*reward.module names its module"):
+        rewards.RewardSpec.parse({"terms": worst_tip["terms"]})
+    with pytest.raises(ValueError, match="reward.module=no_such_errors: could not be imported"):
+        rewards.RewardSpec.parse({**worst_tip, "module": "no_such_errors"})
     with pytest.raises(ValueError, match="'pose' is built in"):
         rewards.register_error("pose")(lambda reward, sim, ref: 0)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aslexp.envs.config import CONF_DIR
+from aslexp.paths import CONF_DIR
 from aslexp.envs.imitation import EnvSpec, ImitationEnv
 
 FIXED = {"reference_state_init": False, "early_termination": {"min_reward": None}}
@@ -119,19 +119,19 @@ def test_observation_size_follows_observe_links(motion_a, observation, links, fu
 
 
 @pytest.mark.parametrize("values, message", [
-    ({"early_termination": {"min_reward": 0.5, "patience": 0}}, "early_termination.patience must be an integer >= 1"),
-    ({"early_termination": {"min_reward": 0.5, "patience": 2.5}}, "early_termination.patience must be an integer >= 1"),
-    ({"early_termination": {"min_reward": 0.5, "wait": 3}}, "early_termination has unknown keys ['wait']"),
-    ({"action_range": "box"}, "action_range must be joint or motion, got 'box'"),
-    ({"action_range": "motion", "action_mode": "residual"}, "action_range motion needs action_mode absolute"),
+    ({"early_termination": {"min_reward": 0.5, "patience": 0}}, "env.early_termination.patience=0: expected an integer >= 1"),
+    ({"early_termination": {"min_reward": 0.5, "patience": 2.5}}, "env.early_termination.patience=2.5: expected an integer >= 1"),
+    ({"early_termination": {"min_reward": 0.5, "wait": 3}}, "env.early_termination: unknown keys ['wait']"),
+    ({"action_range": "box"}, "env.action_range=box: expected one of joint, motion"),
+    ({"action_range": "motion", "action_mode": "residual"}, "env.action_range=motion: needs action_mode absolute"),
     ({"action_range": "motion", "action_range_margin": -0.1}, "action_range_margin >= 0"),
-    ({"normalise_actions": True}, "unknown keys ['normalise_actions']"),
+    ({"normalise_actions": True}, "env.normalise_actions=true: unknown key; did you mean env.normalize_actions?"),
 ])
 def test_bad_env_options_fail_with_one_clear_line(values, message):
     with pytest.raises(ValueError) as info:
-        EnvSpec.from_dict(values)
+        EnvSpec.parse(values)
     text = str(info.value)
-    assert message in text and text.startswith("env config:") and "\n" not in text
+    assert message in text and text.startswith("env.") and "\n" not in text
 
 
 def test_observe_links_matching_nothing_is_a_clear_error(motion_a):
@@ -194,8 +194,8 @@ def test_a_linear_actor_beside_an_mlp_critic(motion_a):
 
     from aslexp.rl.ppo import PPOConfig, make_agent
 
-    config = PPOConfig.from_dict({"hidden_sizes": [32, 32], "actor_hidden_sizes": [], "log_std_init": -2.0})
-    assert config.actor_hidden_sizes == () and PPOConfig.from_dict({}).actor_hidden_sizes is None
+    config = PPOConfig.parse({"hidden_sizes": [32, 32], "actor_hidden_sizes": [], "log_std_init": -2.0})
+    assert config.actor_hidden_sizes == () and PPOConfig.parse({}).actor_hidden_sizes is None
     env = hand(motion_a, normalize_actions=True, observe_links=[], observe_future=[1])
     agent = make_agent(env, config)
     actor = [m for m in agent.head.net if isinstance(m, torch.nn.Linear)]

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from aslexp.envs.config import resolve_group
+from aslexp.compose import resolve_group
 from aslexp.envs.tracking import reference_rollout
 from aslexp.envs.upper_body import UpperBodyImitationEnv
 

@@ -9,7 +9,8 @@ import yaml
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
-from aslexp.envs.config import CONF_DIR, resolve_group
+from aslexp.compose import resolve_group
+from aslexp.paths import CONF_DIR
 from hydra_plugins.aslexp_optuna_sweeper._space import parse_search_space
 
 from . import thesis_values as T

@@ -10,7 +10,7 @@ import pybullet
 import pytest
 
 import aslexp  # noqa: F401  (registers the environments)
-from aslexp.envs.config import resolve_group
+from aslexp.compose import resolve_group
 from aslexp.envs.upper_body import UpperBodyImitationEnv
 from aslexp.pose.retarget import UPPER_BODY_COLUMNS
 from aslexp.sim.body import BodySpec, load_layout
@@ -71,20 +71,20 @@ def test_built_model_has_the_thesis_link_frames_in_pybullet(tmp_path, thesis_urd
 
 
 def test_builder_options_and_errors(tmp_path):
-    smaller = UpperBodyProportions.from_dict({"hand": {"palm_mass": 0.3}, "wrist_limits": [-1.0, 1.0]})
+    smaller = UpperBodyProportions.parse({"hand": {"palm_mass": 0.3}, "wrist_limits": [-1.0, 1.0]})
     text = build_upper_body_urdf(smaller)
     assert 'mass value="0.3"' in text and 'lower="-1" upper="1"' in text
-    with pytest.raises(ValueError, match="unknown keys"):
-        UpperBodyProportions.from_dict({"tail": 1})
+    with pytest.raises(ValueError, match="body.proportions.tail=1: unknown key"):
+        UpperBodyProportions.parse({"tail": 1})
     with pytest.raises(FileNotFoundError, match="nope.urdf"):
         build_upper_body_urdf(UpperBodyProportions(humanoid=str(tmp_path / "nope.urdf")))
 
 
 def test_body_config_layout_is_the_76_column_format(data_root):
-    spec = BodySpec.from_dict(resolve_group("body", "upper_body"))
+    spec = BodySpec.parse(resolve_group("body", "upper_body"))
     assert [tuple(entry) for entry in spec.motion_layout] == list(UPPER_BODY_COLUMNS)
     for name in ("upper_body", "upper_body_thesis"):
-        _, layout = load_layout(BodySpec.from_dict(resolve_group("body", name)), data_root)
+        _, layout = load_layout(BodySpec.parse(resolve_group("body", name)), data_root)
         assert layout.motion_columns == 75  # 76 columns with dt
         assert layout.num_joints == 38 and layout.action_size == 50  # 4 x 4 (quaternions) + 34
         assert not any(j.name.endswith(("hip", "knee", "ankle")) for j in layout.joints)

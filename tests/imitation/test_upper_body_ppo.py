@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from aslexp.envs.config import deep_merge, load_group_file
+from aslexp.compose import deep_merge, group as load_group_file
 from aslexp.envs.upper_body import UpperBodyImitationEnv
 from aslexp.rl.ppo import PPOConfig, PPOTrainer
 

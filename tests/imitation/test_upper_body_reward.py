@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from aslexp.envs.config import resolve_group
+from aslexp.compose import resolve_group
 from aslexp.envs.reward import ImitationReward, PoseSnapshot, RewardSpec
 from aslexp.sim.body import BodySpec, load_layout
 
@@ -22,7 +22,7 @@ COLUMNS = {**{f"upper_body_table6_4_{c}": k for c, k in T.TABLE_6_4.items()},
 
 @pytest.fixture(scope="module")
 def layout(data_root):
-    return load_layout(BodySpec.from_dict(resolve_group("body", "upper_body")), data_root)[1]
+    return load_layout(BodySpec.parse(resolve_group("body", "upper_body")), data_root)[1]
 
 
 def rest(layout, **changes):
@@ -73,7 +73,7 @@ def known_state(layout):
 @pytest.mark.parametrize("name", sorted(COLUMNS))
 def test_each_thesis_column_equals_the_hand_computation(layout, name):
     kpb, kph, kvb, kvh = COLUMNS[name]
-    reward = ImitationReward(RewardSpec.from_dict(resolve_group("reward", name)), layout)
+    reward = ImitationReward(RewardSpec.parse(resolve_group("reward", name)), layout)
     sim, ref, errors = known_state(layout)
     total, terms, got = reward(sim, ref)
     scales = {"pose_body": kpb, "pose_hands": kph, "velocity_body": kvb, "velocity_hands": kvh,
@@ -90,8 +90,8 @@ def test_each_thesis_column_equals_the_hand_computation(layout, name):
 
 def test_the_codes_root_scale_is_an_option(layout):
     sim, ref, errors = known_state(layout)
-    text = ImitationReward(RewardSpec.from_dict(resolve_group("reward", "upper_body_table6_4_run3")), layout)
-    code = ImitationReward(RewardSpec.from_dict(resolve_group("reward", "upper_body_code")), layout)
+    text = ImitationReward(RewardSpec.parse(resolve_group("reward", "upper_body_table6_4_run3")), layout)
+    code = ImitationReward(RewardSpec.parse(resolve_group("reward", "upper_body_code")), layout)
     (r_text, _, _), (r_code, terms, _) = text(sim, ref), code(sim, ref)
     assert terms["root"] == pytest.approx(math.exp(-T.K_ROOT_CODE * errors["root"]))
     assert r_code / r_text == pytest.approx(math.exp((T.K_ROOT - T.K_ROOT_CODE) * errors["root"]))
@@ -99,7 +99,7 @@ def test_the_codes_root_scale_is_an_option(layout):
 
 def test_the_averaged_reward_is_a_named_alternative(layout):
     # aslexp's earlier default: means over joints, wrists in the body, no root in the body terms.
-    spec = RewardSpec.from_dict(resolve_group("reward", "upper_body_averaged"))
+    spec = RewardSpec.parse(resolve_group("reward", "upper_body_averaged"))
     sim, ref, _ = known_state(layout)
     _, _, errors = ImitationReward(spec, layout)(sim, ref)
     body, hands = 8, 30  # chest, neck, 2 shoulders, 2 elbows, 2 wrists | 2 x 15 finger joints
@@ -110,10 +110,10 @@ def test_the_averaged_reward_is_a_named_alternative(layout):
 
 def test_identical_states_score_one_and_the_additive_reward_stays_selectable(layout):
     for name in ("upper_body_thesis", "upper_body_averaged", "deepmimic_upper_body", "deepmimic"):
-        reward = ImitationReward(RewardSpec.from_dict(resolve_group("reward", name)), layout)
+        reward = ImitationReward(RewardSpec.parse(resolve_group("reward", name)), layout)
         total, _, _ = reward(rest(layout), rest(layout))
         assert total == pytest.approx(1.0), name
-    additive = ImitationReward(RewardSpec.from_dict(resolve_group("reward", "deepmimic_upper_body")), layout)
+    additive = ImitationReward(RewardSpec.parse(resolve_group("reward", "deepmimic_upper_body")), layout)
     q_at, _ = offsets(layout)
     sim = rest(layout)
     sim.q[q_at["l_index_inter"]] = 0.1
@@ -123,11 +123,11 @@ def test_identical_states_score_one_and_the_additive_reward_stays_selectable(lay
 
 
 def test_bad_reward_configs_are_clear_errors(layout):
-    with pytest.raises(ValueError, match="unknown term 'posture'"):
-        RewardSpec.from_dict({"terms": {"posture": {"weight": 1, "scale": 1}}})
+    with pytest.raises(ValueError, match=r"reward.terms.posture: unknown term \(error 'posture'\)"):
+        RewardSpec.parse({"terms": {"posture": {"weight": 1, "scale": 1}}})
     with pytest.raises(ValueError, match="`groups` and `root` apply to pose and velocity only"):
-        RewardSpec.from_dict({"terms": {"root": {"weight": 1, "scale": 1, "groups": ["chest"]}}})
-    spec = RewardSpec.from_dict({"terms": {"pose_x": {"weight": 1, "scale": 1, "error": "pose",
+        RewardSpec.parse({"terms": {"root": {"weight": 1, "scale": 1, "groups": ["chest"]}}})
+    spec = RewardSpec.parse({"terms": {"pose_x": {"weight": 1, "scale": 1, "error": "pose",
                                                       "groups": ["tail"]}}})
     with pytest.raises(ValueError, match=r"'pose_x'.*\['tail'\]"):
         ImitationReward(spec, layout)

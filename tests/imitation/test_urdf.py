@@ -45,12 +45,12 @@ def test_built_hand_loads_in_pybullet_like_the_thesis_model(tmp_path, data_root)
 
 
 def test_proportions_change_the_model():
-    longer = HandProportions.from_dict({"fingers": {"index": {"segment_lengths": [0.08, 0.07]}},
+    longer = HandProportions.parse({"fingers": {"index": {"segment_lengths": [0.08, 0.07]}},
                                         "phalanx_mass": 0.04})
     text = build_hand_urdf(longer)
     assert 'xyz="0 0 0.08"' in text and 'mass value="0.04"' in text
-    with pytest.raises(ValueError, match="unknown finger"):
-        HandProportions.from_dict({"fingers": {"sixth": {}}})
+    with pytest.raises(ValueError, match="body.proportions.fingers.sixth: unknown entry; expected one of thumb"):
+        HandProportions.parse({"fingers": {"sixth": {}}})
 
 
 def test_missing_urdf_is_a_clear_error(tmp_path):

@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from aslexp.envs.baselines import Baseline, no_learning_baselines
-from aslexp.envs.config import resolve_group
+from aslexp.compose import resolve_group
 from aslexp.envs.imitation import ImitationEnv
 from aslexp.rl.evaluate import evaluate_phases, reference_policy
 from aslexp.rl.ppo import PPOConfig, agent_for_spaces
@@ -75,10 +75,10 @@ def test_a_real_divergence_ends_the_episode_and_is_counted(motion_a, limit):
 
 
 def test_the_engine_config_refuses_a_bad_speed_limit():
-    assert EngineSpec.from_dict({"name": "mujoco"}).options.joint_speed_limit == 100.0
-    assert EngineSpec.from_dict({"name": "mujoco", "joint_speed_limit": None}).options.joint_speed_limit is None
-    with pytest.raises(ValueError, match="joint_speed_limit must be a number > 0"):
-        EngineSpec.from_dict({"name": "mujoco", "joint_speed_limit": 0})
+    assert EngineSpec.parse({"name": "mujoco"}).options.joint_speed_limit == 100.0
+    assert EngineSpec.parse({"name": "mujoco", "joint_speed_limit": None}).options.joint_speed_limit is None
+    with pytest.raises(ValueError, match="engine.joint_speed_limit=0: expected null or a positive number"):
+        EngineSpec.parse({"name": "mujoco", "joint_speed_limit": 0})
 
 
 def test_the_loop_seam_of_a_wrapping_reference_gives_no_velocity_spike(data_root):
@@ -107,8 +107,8 @@ def test_thesis_ppo_settings_map_actions_as_sb3_and_aslexp_settings_keep_the_box
                           ("upper_body_run2", "sb3"), ("fast", "box"), ("scratch", "box"), ("quick", "box")):
         values = {**resolve_group("ppo", "base"), **resolve_group("ppo", name)}
         values.pop("defaults", None)
-        assert PPOConfig.from_dict(values).action_mapping == mapping, name
-    config = PPOConfig.from_dict({**{k: v for k, v in resolve_group("ppo", "hand_thesis").items() if k != "defaults"},
+        assert PPOConfig.parse(values).action_mapping == mapping, name
+    config = PPOConfig.parse({**{k: v for k, v in resolve_group("ppo", "hand_thesis").items() if k != "defaults"},
                                   "device": "cpu"})
     torch.manual_seed(0)
     agent = agent_for_spaces(config.model, env.observation_space, env.action_space)

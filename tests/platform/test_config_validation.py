@@ -97,7 +97,7 @@ def test_every_shipped_config_passes():
         return any(word in text for word in ("ppo", "body", "motion", "controller", "reward"))
 
     # Every experiment with its job, every trainer; each ppo file alone is read through the same
-    # schema by tests/imitation/test_ppo_vector.py (PPOConfig.from_dict of every conf/ppo file).
+    # schema by tests/imitation/test_ppo_vector.py (PPOConfig.parse of every conf/ppo file).
     experiments = stems("experiment") + [f"archive/{e}" for e in stems("experiment/archive")]
     choices = {
         "imitate": [[]] + [[f"experiment={e}"] for e in experiments if imitation(e)],
@@ -158,7 +158,7 @@ def test_integers_are_never_rounded_and_the_readers_refuse_the_same():
         ("eval_phases", [], "ppo.eval_phases=[]: expected null or a non-empty list of numbers in [0, 1)"),
     ]:
         with pytest.raises(ConfigError) as err:
-            PPOConfig.from_dict({key: value})
+            PPOConfig.parse({key: value})
         assert str(err.value) == message
     with pytest.raises(ConfigError, match=r"^trainer\.max_epochs=abc: expected a positive integer$"):
         TrainerConfig.from_dict({"max_epochs": "abc"})

@@ -24,6 +24,7 @@ LEVELS: dict[str, int] = {
     # foundation: leaf modules any room may use
     "errors": 0, "files": 0, "paths": 0, "process": 0, "quaternion": 0, "seeding": 0,
     "config_schema": 1,  # errors
+    "compose": 1,        # errors, paths: group names composed by Hydra's loader as the jobs compose them
     "plugins": 1,        # errors: entry points and registering modules, for every registry
     "runfile": 1,        # files: run.json's name, time stamps, marking a run interrupted
     "viz": 1,            # files: plots and videos
@@ -217,3 +218,25 @@ def test_reports_only_read_run_folders():
              if module.startswith("aslexp.reports") for target, line in targets.items()
              if target.split(".")[1] in simulating]
     assert not found, "\n".join(found)
+
+
+def _third_party_imports(name: str) -> list[str]:
+    """``module:line`` of every import of the top-level package ``name`` under src/aslexp."""
+    found = []
+    for module, path in _modules().items():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+            targets = ([alias.name for alias in node.names] if isinstance(node, ast.Import)
+                       else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
+            if any(target.split(".")[0] == name for target in targets):
+                found.append(f"{module}:{node.lineno}")
+    return found
+
+
+def test_hydra_composes_at_the_edge_and_in_one_composer():
+    """Issue 36 item 3: Hydra composes the jobs' configs (aslexp.jobs) and every group named below
+    the edge (aslexp.compose, the one composer: no second reader of the YAML tree); the rest of the
+    house takes plain dicts and reads them with aslexp.config_schema.read."""
+    allowed = ("aslexp.jobs", "aslexp.compose")
+    found = [where for where in _third_party_imports("hydra") if not where.startswith(allowed)]
+    assert not found, "Hydra imported outside the jobs and aslexp.compose:\n" + "\n".join(found)
+    assert not (PACKAGE / "envs" / "config.py").exists()

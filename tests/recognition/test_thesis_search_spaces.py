@@ -23,7 +23,7 @@ from omegaconf import OmegaConf
 from optuna.distributions import CategoricalDistribution, FloatDistribution, IntDistribution
 from recognition_data import DATA_ROOT
 
-from aslexp.envs.config import CONF_DIR
+from aslexp.paths import CONF_DIR
 from hydra_plugins.aslexp_optuna_sweeper._space import parse_search_space
 
 SWEEPS = CONF_DIR.parent / "sweeps"

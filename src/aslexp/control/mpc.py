@@ -26,12 +26,14 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from aslexp.config_schema import Choice, Int, Positive, Section, key
 from aslexp.envs.assembly import ImitationSetup
+from aslexp.errors import ConfigError
 from aslexp.envs.batched import BatchedImitationEnv
 
 log = logging.getLogger("aslexp.mpc")
@@ -40,42 +42,31 @@ METHODS = ("predictive_sampling", "mppi", "cem")
 
 
 @dataclass(frozen=True)
-class PlannerSpec:
+class PlannerSpec(Section):
     """``conf/planner/*.yaml`` as plain values."""
 
+    SECTION = "planner"
+
     name: str = "mpc"
-    method: str = "predictive_sampling"
-    horizon: int = 8  # control steps
-    samples: int = 32  # candidate sequences per iteration (the plan and the zero sequence among them)
-    noise: float = 0.025  # std of a perturbation, a fraction of each correction's half-range
-    knots: int = 2  # the perturbation is held constant over this many equal pieces of the horizon
-    iterations: int = 1  # updates per control step
-    temperature: float = 0.01  # mppi: on the mean reward per step over the horizon
-    elites: int = 4  # cem
+    method: str = field(default="predictive_sampling", metadata=key(Choice(*METHODS)))
+    horizon: int = field(default=8, metadata=key(Int(1)))  # control steps
+    # candidate sequences per iteration (the plan and the zero sequence among them)
+    samples: int = field(default=64, metadata=key(Int(3)))
+    # std of a perturbation, a fraction of each correction's half-range
+    noise: float = field(default=0.025, metadata=key(Positive()))
+    # the perturbation is held constant over this many equal pieces of the horizon
+    knots: int = field(default=2, metadata=key(Int(1)))
+    iterations: int = field(default=1, metadata=key(Int(1)))  # updates per control step
+    # mppi: on the mean reward per step over the horizon
+    temperature: float = field(default=0.01, metadata=key(Positive()))
+    elites: int = field(default=4, metadata=key(Int(1)))  # cem
     seed: int = 0
 
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> "PlannerSpec":
-        known = {f.name for f in fields(cls)}
-        unknown = set(values) - known
-        if unknown:
-            raise ValueError(f"planner config: unknown keys {sorted(unknown)}; expected {sorted(known)}")
-        spec = cls(**values)
-        if spec.method not in METHODS:
-            raise ValueError(f"planner config: method must be one of {METHODS}, got {spec.method!r}")
-        for key, low in (("horizon", 1), ("samples", 3), ("knots", 1), ("iterations", 1), ("elites", 1)):
-            value = getattr(spec, key)
-            if isinstance(value, bool) or not isinstance(value, int) or value < low:
-                raise ValueError(f"planner config: {key} must be an integer >= {low}, got {value!r}")
-        for key in ("noise", "temperature"):
-            value = getattr(spec, key)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
-                raise ValueError(f"planner config: {key} must be a number > 0, got {value!r}")
-        if spec.knots > spec.horizon:
-            raise ValueError(f"planner config: knots ({spec.knots}) must be at most the horizon ({spec.horizon})")
-        if spec.method == "cem" and spec.elites >= spec.samples:
-            raise ValueError(f"planner config: elites ({spec.elites}) must be fewer than samples ({spec.samples})")
-        return spec
+    def __post_init__(self) -> None:
+        if self.knots > self.horizon:
+            raise ConfigError(f"knots={self.knots}: must be at most the horizon ({self.horizon})")
+        if self.method == "cem" and self.elites >= self.samples:
+            raise ConfigError(f"elites={self.elites}: must be fewer than samples ({self.samples})")
 
 
 class SamplingPlanner:

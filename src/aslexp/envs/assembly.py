@@ -9,9 +9,10 @@ run's groups), the engine agreement report, and any controller that needs the si
 (:meth:`ImitationSetup.simulation`, :meth:`ImitationSetup.pd_controller`,
 :meth:`ImitationSetup.reward_function`).
 
-Groups are names (``conf/<group>/<name>.yaml``), partial dicts merged over the group's default, or
-complete dicts (``complete=True``: the jobs pass Hydra's composed groups, which merged over another
-body's default file would gain its keys and reward terms).
+Groups are names (``conf/<group>/<name>.yaml``), partial dicts merged over the group the imitate job
+would choose, or complete dicts (``complete=True``: the jobs pass Hydra's composed groups, which merged
+over another body's default file would gain its keys and reward terms). Names are composed by
+:mod:`aslexp.compose` exactly as the job composes them (a body brings its controller, reward and env).
 """
 
 from __future__ import annotations
@@ -26,7 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.envs.config import CONF_DIR, DEFAULTS, body_groups, deep_merge, load_group_file, resolve_group
+from aslexp.compose import IMITATE, compose, deep_merge, group, resolve_group
+from aslexp.paths import CONF_DIR
 from aslexp.envs.reward import ImitationReward, RewardSpec
 from aslexp.envs.spec import EnvSpec
 from aslexp.sim.body import BodyLayout, BodySpec, load_layout
@@ -38,8 +40,6 @@ from aslexp.sim.reference import ReferenceMotion
 log = logging.getLogger(__name__)
 
 GROUPS = ("body", "controller", "reward", "env", "engine")
-# The hand's defaults (the imitate job's, conf/imitate.yaml); the upper body's env class has its own.
-HAND_DEFAULTS = {group: DEFAULTS[group] for group in GROUPS}
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,9 @@ class ImitationSetup:
     urdf: Path
     layout: BodyLayout
     data_root: Path
-    defaults: dict[str, str] = field(default_factory=lambda: dict(HAND_DEFAULTS))
+    # The group files chosen by name (a body class's default body included): what the body's default
+    # controller is composed from (thesis_controller)
+    defaults: dict[str, str] = field(default_factory=dict)
     score_rewards: dict[str, RewardSpec] = field(default_factory=dict)
 
     # -- assembling -------------------------------------------------------------------------------------
@@ -66,26 +68,29 @@ class ImitationSetup:
                     engine=None, data_root: str | os.PathLike | None = None, complete: bool = False,
                     defaults: Mapping[str, str] | None = None,
                     score_rewards: Mapping[str, str | dict] | None = None) -> "ImitationSetup":
-        """Each group a name, a (partial) dict or None (``defaults``: group -> file name; a body
-        named brings its own controller, reward and env, as ``body=NAME`` does in the jobs)."""
-        defaults = {**HAND_DEFAULTS, **(defaults or {})}
-        body_name = body if isinstance(body, str) else defaults["body"] if body is None else None
-        if body_name:
-            defaults.update(body_groups(body_name))
+        """Each group a name, a (partial) dict or None. Names (and ``defaults``, group -> file name,
+        for the groups given as None or a partial dict) are composed as ``aslexp imitate GROUP=NAME``
+        composes them: a body named brings its own controller, reward and env."""
         given = {"body": body, "controller": controller, "reward": reward, "env": env, "engine": engine}
+        chosen = {**(defaults or {}), **{name: value for name, value in given.items() if isinstance(value, str)}}
+        for name, value in chosen.items():
+            group(name, value)  # a name that is no file: one line naming the group and what there is
+        composed = compose(IMITATE, [f"{name}={value}" for name, value in chosen.items()])
         groups = {}
         for name, value in given.items():
             if isinstance(value, dict) and (complete or name == "engine"):
                 groups[name] = dict(value)
+            elif isinstance(value, dict):
+                groups[name] = deep_merge(composed[name], value)
             else:
-                groups[name] = resolve_group(name, value, defaults[name])
+                groups[name] = composed[name]
         if data_root is None:
             from aslexp.data.root import resolve_data_root
 
             data_root = resolve_data_root(None, must_exist=False)
-        scores = {str(name): RewardSpec.from_dict(value if isinstance(value, dict) else resolve_group("reward", value))
+        scores = {str(name): RewardSpec.parse(value if isinstance(value, dict) else resolve_group("reward", value))
                   for name, value in (score_rewards or {}).items()}
-        return cls._parse(motion, groups, Path(data_root), defaults, scores)
+        return cls._parse(motion, groups, Path(data_root), chosen, scores)
 
     @classmethod
     def from_config(cls, cfg: Mapping[str, Any], data_root: str | os.PathLike | None = None,
@@ -97,12 +102,12 @@ class ImitationSetup:
     @classmethod
     def _parse(cls, motion, groups: dict[str, dict], data_root: Path, defaults: dict[str, str],
                score_rewards: dict[str, RewardSpec]) -> "ImitationSetup":
-        body = BodySpec.from_dict(groups["body"])
+        body = BodySpec.parse(groups["body"])
         urdf, layout = load_layout(body, data_root)
         return cls(motion=_load_motion(motion, layout, data_root), groups=groups, body=body,
-                   controller=ControllerSpec.from_dict(groups["controller"]),
-                   reward=RewardSpec.from_dict(groups["reward"]), env=EnvSpec.from_dict(groups["env"]),
-                   engine=EngineSpec.from_dict(groups["engine"]), urdf=urdf, layout=layout, data_root=data_root,
+                   controller=ControllerSpec.parse(groups["controller"]),
+                   reward=RewardSpec.parse(groups["reward"]), env=EnvSpec.parse(groups["env"]),
+                   engine=EngineSpec.parse(groups["engine"]), urdf=urdf, layout=layout, data_root=data_root,
                    defaults=dict(defaults), score_rewards=dict(score_rewards))
 
     def merged(self, **overrides: Mapping[str, Any] | str) -> "ImitationSetup":
@@ -115,9 +120,9 @@ class ImitationSetup:
             groups[name] = resolve_group(name, value) if isinstance(value, str) else deep_merge(groups[name], dict(value))
         body_changed = groups["body"] != self.groups["body"]
         if not body_changed:  # the same body: the parsed motion and layout stay
-            return replace(self, groups=groups, controller=ControllerSpec.from_dict(groups["controller"]),
-                           reward=RewardSpec.from_dict(groups["reward"]), env=type(self.env).from_dict(groups["env"]),
-                           engine=EngineSpec.from_dict(groups["engine"]))
+            return replace(self, groups=groups, controller=ControllerSpec.parse(groups["controller"]),
+                           reward=RewardSpec.parse(groups["reward"]), env=type(self.env).parse(groups["env"]),
+                           engine=EngineSpec.parse(groups["engine"]))
         return self._parse(self.motion, groups, self.data_root, self.defaults, self.score_rewards)
 
     # -- what the consumers build ---------------------------------------------------------------------------
@@ -140,8 +145,11 @@ class ImitationSetup:
         return PDController(spec or self.controller, self.layout)
 
     def thesis_controller(self) -> ControllerSpec:
-        """The body's default controller (the thesis' gains): the baselines' bar."""
-        return ControllerSpec.from_dict(resolve_group("controller", None, self.defaults["controller"]))
+        """The body's default controller (the thesis' gains): the baselines' bar. The body is the
+        one chosen by name, else the body file named like this setup's body (a job's composed body)."""
+        body = self.defaults.get("body") or self.body.name
+        overrides = [f"body={body}"] if body and (CONF_DIR / "body" / f"{body}.yaml").is_file() else []
+        return ControllerSpec.parse(group("controller", None, overrides=overrides))
 
     def reward_function(self, spec: RewardSpec | None = None) -> ImitationReward:
         return ImitationReward(spec or self.reward, self.layout)
@@ -154,7 +162,7 @@ def resolve_motion_path(motion: str | os.PathLike, data_root: str | os.PathLike 
     if path.is_absolute() or path.is_file():
         return path
     if not path.suffix and len(path.parts) == 1 and (CONF_DIR / "motion" / f"{path}.yaml").is_file():
-        path = Path(load_group_file("motion", str(path))["file"])
+        path = Path(group("motion", str(path))["file"])
     if data_root is None:
         from aslexp.data.root import resolve_data_root
 
@@ -182,7 +190,7 @@ def _bodies_for(found: int | None, data_root: str | os.PathLike | None) -> str:
     fits = []
     for path in sorted((CONF_DIR / "body").glob("*.yaml")):
         try:
-            _, layout = load_layout(BodySpec.from_dict(resolve_group("body", path.stem)), data_root)
+            _, layout = load_layout(BodySpec.parse(resolve_group("body", path.stem)), data_root)
         except Exception:  # noqa: BLE001 - a hint only: a body that cannot load fits nothing
             continue
         if layout.motion_columns == found:

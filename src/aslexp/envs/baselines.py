@@ -17,8 +17,9 @@ from typing import Any
 
 import numpy as np
 
+from aslexp.config_schema import Section
 from aslexp.envs.assembly import ImitationSetup
-from aslexp.envs.config import deep_merge, resolve_group
+from aslexp.compose import deep_merge, resolve_group
 from aslexp.envs.imitation import ImitationEnv
 from aslexp.envs.tracking import reference_rollout
 from aslexp.sim.pd import ControllerSpec
@@ -27,8 +28,10 @@ _log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
-class Baseline:
+class Baseline(Section):
     """One no-learning row: ``label`` as shown, a controller config name, overrides, lookaheads."""
+
+    SECTION = "report.baselines"
 
     label: str
     controller: str
@@ -36,15 +39,6 @@ class Baseline:
     env: dict[str, Any] = field(default_factory=dict)
     lookahead: tuple[int, ...] = (0, 1)
     aslexp: bool = False  # an aslexp addition, not the thesis' (shown as a labelled aslexp row)
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> "Baseline":
-        unknown = set(values) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"report.baselines: unknown keys {sorted(unknown)} in {values}")
-        values = dict(values)
-        values["lookahead"] = tuple(int(k) for k in values.get("lookahead", (0, 1)))
-        return cls(**values)
 
 
 def no_learning_baselines(setup: ImitationSetup, rows: list[Baseline], seconds: float = 10.0,
@@ -63,7 +57,7 @@ def no_learning_baselines(setup: ImitationSetup, rows: list[Baseline], seconds: 
     started = time.perf_counter()
     simulated = 0
     for row in rows:
-        options = not ControllerSpec.from_dict(resolve_group("controller", row.controller)).is_thesis_pd
+        options = not ControllerSpec.parse(resolve_group("controller", row.controller)).is_thesis_pd
         env_overrides = deep_merge(row.env, {"reference_state_init": False, "residual_velocity_range": 0.0,
                                              "early_termination": {"min_reward": None},
                                              **({"action_mode": "residual"} if options else {})})

@@ -55,9 +55,9 @@ class ImitationEnv(gym.Env):
     """Imitation of one reference motion by one body (see the module docstring)."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
-    # Group file used for a group given as None or as a partial dict (subclasses change them).
-    GROUP_DEFAULTS: dict[str, str] = {"body": "hand15", "controller": "thesis", "reward": "deepmimic",
-                                      "env": "default"}
+    # Group files chosen for the groups given as None or as partial dicts (empty: the imitate job's own
+    # defaults, conf/imitate.yaml; a subclass names another body, which brings its own groups).
+    GROUP_DEFAULTS: dict[str, str] = {}
 
     def __init__(
         self,
@@ -293,7 +293,7 @@ class ImitationEnv(gym.Env):
     @contextmanager
     def thesis_pd(self):
         """Within the block a controller with target options (reference velocity, physics rate)
-        is replaced by the body's default controller (``GROUP_DEFAULTS``: the thesis gains, held
+        is replaced by the body's default controller (its ``conf/body`` file's: the thesis gains, held
         positions, zero velocity targets): the reference-driven baselines are defined with it,
         so a tuned controller cannot lower the bar it is compared with. A plain controller stays.
         A residual's filtered base (``residual_base_smoothing``) is the reference itself within the

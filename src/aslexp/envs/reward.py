@@ -39,10 +39,11 @@ import importlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
+from aslexp.config_schema import Choice, Section, key
+from aslexp.errors import ConfigError
 from aslexp.sim.body import BodyLayout
 from aslexp.quaternion import angle as quat_angle
 
@@ -78,7 +79,9 @@ def error_names() -> tuple[str, ...]:
 
 
 @dataclass(frozen=True)
-class TermSpec:
+class TermSpec(Section):
+    SECTION = "reward.terms"
+
     weight: float
     scale: float
     error: str | None = None  # which error (TERMS); None: the term's own name
@@ -89,57 +92,41 @@ class TermSpec:
         return self.error or name
 
 
-@dataclass(frozen=True)
-class RewardSpec:
-    """``conf/reward/*.yaml`` as plain values."""
+DEFAULT_ROOT_ERROR = {"position": 1.0, "rotation": 0.1, "velocity": 0.01, "angular_velocity": 0.001}
 
-    terms: dict[str, TermSpec]
-    combine: str = "sum"
+
+@dataclass(frozen=True)
+class RewardSpec(Section):
+    """``conf/reward/*.yaml`` as plain values (a term set to null by an override is off)."""
+
+    SECTION = "reward"
+
+    terms: dict[str, TermSpec] = field(default_factory=dict)
+    combine: str = field(default="sum", metadata=key(Choice(*COMBINE)))
     joint_weights: dict[str, float] = field(default_factory=dict)
-    root_error: dict[str, float] = field(default_factory=lambda: {
-        "position": 1.0, "rotation": 0.1, "velocity": 0.01, "angular_velocity": 0.001})
+    # the keys given replace these (the rest stay)
+    root_error: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_ROOT_ERROR))
     # True: joint weights are normalised to sum to 1 over each pose/velocity term's joints (a
     # weighted mean, as DeepMimic's normalised joint weights); False: a weighted sum (the hand).
     normalize_joint_weights: bool = False
+    # module(s) imported first: they register reward errors (register_error) the terms may name
+    module: str | list[str] | None = None
 
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> "RewardSpec":
-        unknown = set(values) - {"terms", "combine", "joint_weights", "root_error", "normalize_joint_weights",
-                                 "module"}
-        if unknown:
-            raise ValueError(f"reward config: unknown keys {sorted(unknown)}")
-        modules = values.get("module") or []
-        for module in [modules] if isinstance(modules, str) else modules:  # they register errors
+    def __post_init__(self) -> None:
+        modules = self.module or []
+        for module in [modules] if isinstance(modules, str) else modules:
             try:
                 importlib.import_module(str(module))
             except ImportError as error:
-                raise ValueError(f"reward config: module {module} could not be imported ({error})") from None
-        terms = {}
-        for name, term in (values.get("terms") or {}).items():
-            if term is None:  # a term switched off by an override (`reward.terms.pose: null`)
-                continue
-            unknown_keys = set(term) - {"weight", "scale", "error", "groups", "root"}
-            if unknown_keys:
-                raise ValueError(f"reward config: term {name!r} has unknown keys {sorted(unknown_keys)}")
-            kind = term.get("error") or name
+                raise ConfigError(f"module={module}: could not be imported ({error})") from None
+        for name, term in self.terms.items():
+            kind = term.kind(name)
             if kind not in TERMS and kind not in _ERRORS:
-                raise ValueError(f"reward config: unknown term {name!r} (error {kind!r}); known errors: "
-                                 f"{error_names()} (a registered one: reward.module names its module)")
-            groups = term.get("groups")
-            if (groups is not None or term.get("root")) and kind not in ("pose", "velocity"):
-                raise ValueError(f"reward config: term {name!r}: `groups` and `root` apply to pose and "
-                                 f"velocity only")
-            terms[name] = TermSpec(float(term["weight"]), float(term["scale"]), term.get("error"),
-                                   None if groups is None else tuple(str(g) for g in groups),
-                                   bool(term.get("root", False)))
-        combine = values.get("combine", "sum")
-        if combine not in COMBINE:
-            raise ValueError(f"reward config: combine must be one of {COMBINE}, got {combine!r}")
-        spec = cls(terms=terms, combine=combine, joint_weights=dict(values.get("joint_weights") or {}),
-                   normalize_joint_weights=bool(values.get("normalize_joint_weights", False)))
-        if values.get("root_error"):
-            spec = dataclasses.replace(spec, root_error={**spec.root_error, **values["root_error"]})
-        return spec
+                raise ConfigError(f"terms.{name}: unknown term (error {kind!r}); known errors: "
+                                  f"{', '.join(error_names())} (a registered one: reward.module names its module)")
+            if (term.groups is not None or term.root) and kind not in ("pose", "velocity"):
+                raise ConfigError(f"terms.{name}: `groups` and `root` apply to pose and velocity only")
+        object.__setattr__(self, "root_error", {**DEFAULT_ROOT_ERROR, **self.root_error})
 
 
 @dataclass

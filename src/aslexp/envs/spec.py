@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from aslexp.config_schema import Choice, Float, Section, key
+from aslexp.errors import ConfigError
 from aslexp.sim.engine import DEFAULT_CAMERA
 
 OBSERVATIONS = ("aslexp", "deepmimic")
@@ -20,10 +22,11 @@ RESIDUAL_BASE_KEYS = ("residual_base_smoothing", "residual_base_smoothing_groups
 UP_AXIS = 1  # the motions and worlds are y-up (gravity -9.8 y)
 
 
-
 @dataclass(frozen=True)
-class EnvSpec:
+class EnvSpec(Section):
     """``conf/env/*.yaml`` as plain values."""
+
+    SECTION = "env"
 
     physics_hz: float = 240.0
     control_hz: float = 30.0
@@ -37,7 +40,7 @@ class EnvSpec:
     # above the 100 rad/s both engines clamp every joint speed to (engine.joint_speed_limit): a
     # transient the clamp absorbs is physics, not divergence.
     max_joint_velocity: float = 1000.0
-    action_mode: str = "absolute"
+    action_mode: str = field(default="absolute", metadata=key(Choice("absolute", "residual")))
     residual_range: float = 0.5
     reference_lookahead: int = 1
     observe_future: tuple[int, ...] = ()
@@ -53,76 +56,52 @@ class EnvSpec:
     # root against the reference's about the up axis, d its horizontal offset (m). Slipping feet turn
     # and shift the body over seconds, past a 30 Hz policy's horizon; this charges the drift at every
     # step. Every score (evaluations, baselines, reports) stays the reward config's alone. 0: off.
-    heading_shaping: float = 0.0
-    offset_shaping: float = 0.0
+    heading_shaping: float = field(default=0.0, metadata=key(Float(0)))
+    offset_shaping: float = field(default=0.0, metadata=key(Float(0)))
     residual_velocity_range: float = 0.0  # rad/s; > 0 appends velocity-target corrections to the action
     # Residual only: the base the correction is added to, low-pass filtered,
     # base_t = alpha * base_(t-1) + (1 - alpha) * reference_(t + lookahead), on the joints of
     # residual_base_smoothing_groups (None: all); restarted every episode. 0: the reference itself.
     # With alpha > 0 a zero correction is the smoothed-reference baseline (aslexp.rl.evaluate), the
     # strongest no-learning one on the standing upper body: gentler targets, less slip.
-    residual_base_smoothing: float = 0.0
+    residual_base_smoothing: float = field(default=0.0, metadata=key(Float(0, 1, high_open=True)))
     residual_base_smoothing_groups: tuple[str, ...] | None = None
     # The policy's action is [-1, 1] per value, mapped affinely onto the box above (absolute: each
     # joint's range, e.g. [-1, 1] -> [0, 2] rad; residual: +-residual_range, +-residual_velocity_range).
     normalize_actions: bool = False
     # The box of absolute targets: each joint's range (joint), or the range the reference motion
     # visits widened by action_range_margin rad on each side, within the joint range (motion).
-    action_range: str = "joint"
+    action_range: str = field(default="joint", metadata=key(Choice("joint", "motion")))
     action_range_margin: float = 0.25
     # Links in the observation (fnmatch patterns on link names, URDF order); None: every link;
     # []: none (the observation is then the phase and the observe_* options alone).
     observe_links: tuple[str, ...] | None = None
     camera: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_CAMERA))
-    observation: str = "aslexp"  # aslexp (root frame, per link 13 values) | deepmimic (the authors')
+    # aslexp (root frame, per link 13 values) | deepmimic (the authors')
+    observation: str = field(default="aslexp", metadata=key(Choice(*OBSERVATIONS)))
 
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> "EnvSpec":
-        unknown = set(values) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"env config: unknown keys {sorted(unknown)}")
-        values = dict(values)
-        values["gravity"] = tuple(values.get("gravity", (0.0, -9.8, 0.0)))
-        values["observe_future"] = tuple(int(k) for k in values.get("observe_future") or ())
-        if values.get("observe_links") is not None:
-            values["observe_links"] = tuple(str(p) for p in values["observe_links"])
-        if values.get("residual_base_smoothing_groups") is not None:
-            values["residual_base_smoothing_groups"] = tuple(str(g) for g in values["residual_base_smoothing_groups"])
-        spec = cls(**values)
-        if spec.observation not in OBSERVATIONS:
-            raise ValueError(f"env config: observation must be one of {OBSERVATIONS}, got {spec.observation!r}")
-        unknown_end = set(spec.early_termination or {}) - {"min_reward", "fall", "patience"}
+    def __post_init__(self) -> None:
+        unknown_end = set(self.early_termination or {}) - {"min_reward", "fall", "patience"}
         if unknown_end:
-            raise ValueError(f"env config: early_termination has unknown keys {sorted(unknown_end)}; "
-                             f"expected min_reward, patience, fall")
-        patience = (spec.early_termination or {}).get("patience", 1)
-        if patience is None or int(patience) != patience or patience < 1:
-            raise ValueError(f"env config: early_termination.patience must be an integer >= 1 "
-                             f"(control steps below min_reward before the end), got {patience!r}")
+            raise ConfigError(f"early_termination: unknown keys {sorted(unknown_end)}; expected min_reward, "
+                              f"patience, fall")
+        patience = (self.early_termination or {}).get("patience", 1)
+        if patience is None or isinstance(patience, bool) or int(patience) != patience or patience < 1:
+            raise ConfigError(f"early_termination.patience={patience}: expected an integer >= 1 (control steps "
+                              f"below min_reward before the end)")
         for name in TRAINING_ONLY_KEYS:
-            value = getattr(spec, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or value < 0:
-                raise ValueError(f"env config: {name} must be a number >= 0 (a scale of the training reward's "
-                                 f"factor exp(-heading_shaping yaw^2 - offset_shaping |d|^2); 0 off), got {value!r}")
-        alpha = spec.residual_base_smoothing
-        if isinstance(alpha, bool) or not isinstance(alpha, (int, float)) or not 0.0 <= alpha < 1.0:
-            raise ValueError(f"env config: residual_base_smoothing must be a number in [0, 1) (the low-pass "
-                             f"filter's alpha on the residual's base; 0 off), got {alpha!r}")
-        if alpha > 0 and spec.action_mode != "residual":
-            raise ValueError(f"env config: residual_base_smoothing {alpha} needs action_mode residual "
-                             f"(it filters the base a correction is added to), got {spec.action_mode!r}")
-        if spec.action_range not in ("joint", "motion"):
-            raise ValueError(f"env config: action_range must be joint or motion, got {spec.action_range!r}")
-        if spec.action_range == "motion" and (spec.action_mode != "absolute" or spec.action_range_margin < 0):
-            raise ValueError(f"env config: action_range motion needs action_mode absolute and "
-                             f"action_range_margin >= 0, got {spec.action_mode!r}, {spec.action_range_margin}")
-        if spec.action_mode not in ("absolute", "residual"):
-            raise ValueError(f"env config: action_mode must be absolute or residual, got {spec.action_mode!r}")
-        ratio = spec.physics_hz / spec.control_hz
+            if not np.isfinite(getattr(self, name)):
+                raise ConfigError(f"{name}={getattr(self, name)}: expected a finite number >= 0")
+        alpha = self.residual_base_smoothing
+        if alpha > 0 and self.action_mode != "residual":
+            raise ConfigError(f"residual_base_smoothing={alpha}: needs action_mode residual (it filters the base "
+                              f"a correction is added to), got {self.action_mode!r}")
+        if self.action_range == "motion" and (self.action_mode != "absolute" or self.action_range_margin < 0):
+            raise ConfigError(f"action_range=motion: needs action_mode absolute and action_range_margin >= 0, "
+                              f"got {self.action_mode!r}, {self.action_range_margin}")
+        ratio = self.physics_hz / self.control_hz
         if abs(ratio - round(ratio)) > 1e-6 or ratio < 1:
-            raise ValueError(f"env config: physics_hz ({spec.physics_hz}) must be a multiple of "
-                             f"control_hz ({spec.control_hz})")
-        return spec
+            raise ConfigError(f"physics_hz={self.physics_hz}: must be a multiple of control_hz ({self.control_hz})")
 
     @property
     def substeps(self) -> int:

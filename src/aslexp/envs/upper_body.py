@@ -13,10 +13,9 @@ position control 0.22 / 0.87; the authors' code's all-stable-PD gains: ``upper_b
 
 from __future__ import annotations
 
-from aslexp.envs.config import body_groups
 from aslexp.envs.imitation import ImitationEnv
 
-UPPER_BODY_DEFAULTS = {"body": "upper_body", **body_groups("upper_body")}  # the body file's choices
+UPPER_BODY_DEFAULTS = {"body": "upper_body"}  # the body file brings its controller, reward and env
 
 
 class UpperBodyImitationEnv(ImitationEnv):

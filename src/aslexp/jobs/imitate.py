@@ -44,7 +44,7 @@ log = logging.getLogger("aslexp.imitate")
 def score_rewards(cfg: dict[str, Any]) -> dict[str, dict[str, Any]]:
     """``report.score_rewards`` (reward config names) -> their configs: the other reward scales every
     evaluation and baseline of the run is also scored under (e.g. the authors' code weights)."""
-    from aslexp.envs.config import resolve_group
+    from aslexp.compose import resolve_group
 
     names = (cfg.get("report") or {}).get("score_rewards") or []
     return {str(name): resolve_group("reward", str(name)) for name in names}
@@ -75,11 +75,11 @@ def build_envs(cfg: dict[str, Any], data_root: Path, vector_env: str = "auto"):
 
 
 def _engine(cfg: dict[str, Any]):
-    from aslexp.envs.config import DEFAULTS
+    from aslexp.compose import choices
     from aslexp.sim.engine import get_engine
 
     engine = cfg.get("engine") or {}
-    return get_engine(engine.get("name", DEFAULTS["engine"]), engine.get("module"))
+    return get_engine(engine.get("name") or choices()["engine"], engine.get("module"))
 
 
 def engine_vector_env(cfg: dict[str, Any], vector_env: str) -> str:
@@ -120,7 +120,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     from aslexp.reports import report
 
     data_root = resolve_data_root(cfg.get("data_root"))
-    ppo = PPOConfig.from_dict(cfg["ppo"])
+    ppo = PPOConfig.parse(cfg["ppo"])
     if cfg.get("planner"):  # a planner acts, nothing learns
         return plan(cfg, out_dir, data_root, ppo)
     ppo = dataclasses.replace(ppo, vector_env=engine_vector_env(cfg, ppo.vector_env))
@@ -245,7 +245,7 @@ def plan(cfg: dict[str, Any], out_dir: Path, data_root: Path, ppo) -> dict[str, 
     from aslexp.envs.imitation import ImitationEnv
     from aslexp.rl.evaluate import baselines, evaluate_phases, reference_policy
 
-    spec = PlannerSpec.from_dict(dict(cfg["planner"]))
+    spec = PlannerSpec.parse(dict(cfg["planner"]))
     setup = ImitationSetup.from_config(cfg, data_root, score_rewards=score_rewards(cfg))
     eval_env = ImitationEnv.from_setup(setup.merged(env={"early_termination": {"min_reward": None}}))
     try:
@@ -285,7 +285,7 @@ def measure_report_baselines(cfg: dict[str, Any], eval_env, ppo) -> list[dict[st
     from aslexp.envs.baselines import Baseline, no_learning_baselines
 
     seconds = ppo.eval_steps / eval_env.spec_env.control_hz
-    measured = no_learning_baselines(eval_env.setup, [Baseline.from_dict(dict(b)) for b in rows], seconds,
+    measured = no_learning_baselines(eval_env.setup, [Baseline.parse(dict(b)) for b in rows], seconds,
                                      phases=ppo.phases)
     return [{**row, "seconds": seconds} for row in measured]
 

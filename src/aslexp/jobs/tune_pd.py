@@ -39,7 +39,7 @@ log = logging.getLogger("aslexp.tune_pd")
 
 def tune_pd(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     """The job without Hydra: build the controller from the gains, measure tracking."""
-    from aslexp.envs.config import deep_merge
+    from aslexp.compose import deep_merge
     from aslexp.envs.imitation import ImitationEnv
     from aslexp.envs.tracking import pd_tracking_error
     from aslexp.sim.body import BodySpec, load_layout
@@ -56,10 +56,10 @@ def tune_pd(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
         controller["groups"] = {g: v | overrides for g, v in controller["groups"].items()}
     if tuning.get("velocity_scale") is not None:
         controller["velocity_scale"] = float(tuning["velocity_scale"])
-    spec = ControllerSpec.from_dict(controller)
+    spec = ControllerSpec.parse(controller)
     plain = spec.is_thesis_pd
     if tuning["motion"] == "random":
-        _, layout = load_layout(BodySpec.from_dict(cfg["body"]), data_root)
+        _, layout = load_layout(BodySpec.parse(cfg["body"]), data_root)
         rnd = tuning.get("random") or {}
         motion = random_motion([j.lower for j in layout.joints], [j.upper for j in layout.joints],
                                seconds=float(rnd.get("seconds", 4.0)),

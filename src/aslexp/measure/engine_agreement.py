@@ -24,7 +24,7 @@ from typing import Any
 from aslexp.data.root import resolve_data_root
 from aslexp.envs.assembly import ImitationSetup
 from aslexp.envs.baselines import Baseline, no_learning_baselines
-from aslexp.envs.config import resolve_group
+from aslexp.compose import resolve_group
 from aslexp.reports.report import ended_early
 
 # (body, reward, env, rows): the settings whose baselines the thesis and aslexp report.
@@ -56,7 +56,7 @@ def measure(kind: str, name: str, seconds: float, data_root: Path) -> list[dict[
     out = []
     for label, controller, body_overrides, env_name in rows:
         env = resolve_group("env", env_name)
-        row = Baseline.from_dict({"label": label, "controller": controller, "body": body_overrides})
+        row = Baseline.parse({"label": label, "controller": controller, "body": body_overrides})
         measured = {}
         for engine, config in ENGINES.items():
             setup = ImitationSetup.from_groups(motion, body, None, reward, env, config, data_root=data_root,

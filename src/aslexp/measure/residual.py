@@ -65,7 +65,7 @@ def residual_baselines(cfg: dict[str, Any], cache: Path | None = None) -> dict[s
     from aslexp.rl.ppo import PPOConfig
 
     settings = (cfg.get("report") or {}).get("residual") or {}
-    ppo = PPOConfig.from_dict(cfg["ppo"])
+    ppo = PPOConfig.parse(cfg["ppo"])
     # Shaping scores nothing, and every row is measured on the reference's own base (the controller
     # is the reference one step ahead): a variant that filters its base is compared with the same bar.
     scored_env = {k: v for k, v in cfg["env"].items() if k not in TRAINING_ONLY_KEYS + RESIDUAL_BASE_KEYS}

@@ -21,6 +21,7 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from aslexp.compose import compose
 from aslexp.paths import CONF_DIR
 
 # What a key meant before it existed (the behaviour of the code that ran without it).
@@ -28,15 +29,9 @@ _BEFORE = {"joint_speed_limit": None, "action_mapping": "box", "kl_stop": "torch
 
 
 def compose_overlay(job: str, overrides: list[str], conf_dir: Path = CONF_DIR) -> dict[str, Any]:
-    """``job``'s config composed from ``conf_dir`` with ``overrides`` (as a plain dict, resolved)."""
-    from hydra import compose, initialize_config_dir
-    from hydra.core.global_hydra import GlobalHydra
-    from omegaconf import OmegaConf
-
-    GlobalHydra.instance().clear()
-    with initialize_config_dir(str(Path(conf_dir).resolve()), version_base="1.3"):
-        cfg = compose(job, overrides=overrides)
-    return OmegaConf.to_container(cfg, resolve=False)
+    """``job``'s config composed from ``conf_dir`` with ``overrides`` (a plain dict, interpolations
+    kept), by the one composer (:mod:`aslexp.compose`)."""
+    return compose(job, overrides, conf_dir=conf_dir, resolve=False)
 
 
 def facts(cfg: dict[str, Any]) -> dict[str, str]:

@@ -251,16 +251,15 @@ def split_facts(cfg: Any) -> dict[str, Any]:
 def row_config(entry: dict[str, Any], snapshot: dict[str, Any], key: str) -> Any:
     """The recognize config of one row (``split/property``): the entry's overlay, the overrides all
     its runs shared (the snapshot's), the row's split and property."""
-    from hydra import compose, initialize_config_dir
+    from omegaconf import OmegaConf
 
-    from aslexp.paths import CONF_DIR
+    from aslexp.compose import compose
 
     split, prop = key.split("/", 1)
     common = [o for o in (snapshot.get("overrides") or {}).get("common", [])
               if not o.startswith(("hydra.", "hydra/", "split=", "property=", "experiment=", "classifier="))]
     overrides = [f"experiment={entry['overlay']}", *common, f"property={prop}", f"split={split}"]
-    with initialize_config_dir(str(CONF_DIR), version_base="1.3"):
-        return compose("recognize", overrides=overrides)
+    return OmegaConf.create(compose("recognize", overrides))
 
 
 def add_test_clips(entry: dict[str, Any], snapshot: dict[str, Any],

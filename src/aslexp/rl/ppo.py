@@ -50,7 +50,7 @@ from tensordict import TensorDict
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from aslexp.config_schema import PPO, check_section
+from aslexp.config_schema import PPO, read
 from aslexp.rl.checkpoint import load_checkpoint, save_checkpoint
 from aslexp.rl.evaluate import EvaluationSummary, even_phases, evaluate_phases
 from aslexp.rl.noise import ActionNoise
@@ -152,16 +152,9 @@ class PPOConfig:
         resolve_device(self.device)  # an unknown or absent device fails here, before any work
 
     @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> "PPOConfig":
-        unknown = set(values) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"ppo config: unknown keys {sorted(unknown)}")
-        # Types and ranges: aslexp.config_schema.PPO (the jobs check the same before anything runs).
-        values = check_section("ppo", values, PPO)
-        for key in ("hidden_sizes", "actor_hidden_sizes", "eval_phases"):
-            if values.get(key) is not None:
-                values[key] = tuple(values[key])
-        return cls(**values)
+    def parse(cls, values: dict[str, Any] | None, section: str = "ppo") -> "PPOConfig":
+        """Types and ranges: aslexp.config_schema.PPO (the jobs check the same before anything runs)."""
+        return read(cls, values, section, PPO)
 
     @property
     def model(self) -> ModelSpec:

@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from aslexp.config_schema import Choice, Section, key
 from aslexp.files import atomic_write_text
 from aslexp.sim.motion import ROOT_COLUMNS
 from aslexp.sim.urdf import HandProportions, JointInfo, read_joints
@@ -28,14 +29,16 @@ BASES = ("fixed", "pinned", "free")
 
 
 @dataclass(frozen=True)
-class BodySpec:
+class BodySpec(Section):
     """Plain description of a body (see ``conf/body/hand15.yaml`` for the fields)."""
+
+    SECTION = "body"
 
     name: str
     urdf: str | None = None
     builder: str | None = None
     proportions: dict[str, Any] = field(default_factory=dict)
-    base: str = "fixed"  # fixed | pinned | free (BASES)
+    base: str = field(default="fixed", metadata=key(Choice(*BASES)))
     # With base free: links allowed to touch the ground (the feet); any other contact is a fall.
     ground_contacts: tuple[str, ...] = ()
     self_collision: bool = True
@@ -54,20 +57,6 @@ class BodySpec:
     # True: a motion-layout joint absent from the URDF is an error naming the model (a custom URDF
     # that lost a joint must not silently drop its columns); joints present but fixed are skipped.
     strict_layout: bool = False
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> "BodySpec":
-        unknown = set(values) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"body config: unknown keys {sorted(unknown)}")
-        values = dict(values)
-        if "end_effector_offset" in values:
-            values["end_effector_offset"] = tuple(values["end_effector_offset"])
-        values["ground_contacts"] = tuple(values.get("ground_contacts") or ())
-        base = values.get("base", "fixed")
-        if base not in BASES:
-            raise ValueError(f"body config: base must be one of {BASES}, got {base!r}")
-        return cls(**values)
 
 
 @dataclass(frozen=True)
@@ -199,11 +188,11 @@ def build_urdf_text(spec: BodySpec) -> str:
     if spec.builder == "hand15":
         from aslexp.sim.urdf import build_hand_urdf
 
-        return build_hand_urdf(HandProportions.from_dict(spec.proportions))
+        return build_hand_urdf(HandProportions.parse(spec.proportions))
     if spec.builder == "upper_body":
         from aslexp.sim.upper_body import UpperBodyProportions, build_upper_body_urdf
 
-        return build_upper_body_urdf(UpperBodyProportions.from_dict(spec.proportions))
+        return build_upper_body_urdf(UpperBodyProportions.parse(spec.proportions))
     raise ValueError(f"body {spec.name}: unknown builder {spec.builder!r}; expected one of {BUILDERS}")
 
 

@@ -33,6 +33,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from aslexp.config_schema import read, shown
 from aslexp.errors import ConfigError
 from aslexp.plugins import import_registering_module, load_entry_points
 
@@ -74,24 +75,20 @@ class EngineSpec:
         return dataclasses.replace(self, options=dataclasses.replace(self.options, **changes))
 
     @classmethod
-    def from_dict(cls, values: Mapping[str, Any] | None) -> "EngineSpec":
+    def parse(cls, values: Mapping[str, Any] | None, section: str = "engine") -> "EngineSpec":
+        """The engine's ``name`` and ``module``; its own keys are read into its options class by the
+        one reader (:func:`aslexp.config_schema.read`)."""
         values = dict(values or {})
         name = values.pop("name", "pybullet")
         module = values.pop("module", None)
         entry = get_engine(name, module)
         if entry.options is None:
             if values:
-                raise ConfigError(f"engine config: unknown keys {sorted(values)}; engine {name} takes none "
-                                  f"besides name and module")
+                first = next(iter(values))
+                raise ConfigError(f"{section}.{first}={shown(values[first])}: unknown key; engine {name} takes "
+                                  f"none besides name and module")
             return cls(name=name, module=module, options=None)
-        known = {f.name for f in dataclasses.fields(entry.options)}
-        unknown = set(values) - known
-        if unknown:
-            raise ConfigError(f"engine config: unknown keys {sorted(unknown)} for engine {name}; expected "
-                              f"{sorted(known | {'name', 'module'})}")
-        parse = getattr(entry.options, "from_dict", None)
-        options = parse(values) if parse is not None else entry.options(**values)
-        return cls(name=name, module=module, options=options)
+        return cls(name=name, module=module, options=read(entry.options, values, section))
 
 
 @dataclass(frozen=True)

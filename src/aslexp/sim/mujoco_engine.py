@@ -35,12 +35,12 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from aslexp.errors import ConfigError
+from aslexp.config_schema import Choice, Int, Positive, Section, key
 from aslexp.quaternion import relative_rotvec, rotate, z_to
 from aslexp.sim.body import BodyLayout, BodySpec
 from aslexp.sim.engine import EngineSpec, Simulation, SimulationRequest, register_engine
@@ -102,45 +102,27 @@ SOLVERS = ("Newton", "CG", "PGS")
 
 
 @dataclass(frozen=True)
-class MujocoOptions:
+class MujocoOptions(Section):
     """MuJoCo's own keys of ``conf/engine/mujoco.yaml``."""
+
+    SECTION = "engine"
 
     # the integrator (implicitfast treats the PD actuators' damping implicitly: stable at any gain,
     # as stable PD), the constraint solver and its iterations
-    integrator: str = "implicitfast"
-    solver: str = "Newton"
-    iterations: int = 50
+    integrator: str = field(default="implicitfast", metadata=key(Choice(*INTEGRATORS)))
+    solver: str = field(default="Newton", metadata=key(Choice(*SOLVERS)))
+    iterations: int = field(default=50, metadata=key(Int(1)))
     # controller mode position: the stiffness of the actuators that stand for PyBullet's velocity
     # motor, times this (the module docstring says why 2)
-    motor_gain_scale: float = 2.0
+    motor_gain_scale: float = field(default=2.0, metadata=key(Positive()))
     # threads stepping a batch of environments (0: every core this process may use)
-    threads: int = 0
+    threads: int = field(default=0, metadata=key(Int(0)))
     # every generalised velocity (the joints' and a free base's six) clamped to +-this after each
     # physics step, and the step's positions integrated with the clamped velocity: PyBullet's
     # btMultiBody does exactly this whenever it applies a velocity change (maxJointVelocity, 100 rad/s
     # by default, which aslexp never changes), so both engines share one joint-speed semantics.
     # null: MuJoCo's own, no clamp (a transient PyBullet cannot produce, e.g. at a looping motion's seam).
-    joint_speed_limit: float | None = 100.0
-
-    @classmethod
-    def from_dict(cls, values: dict) -> "MujocoOptions":
-        spec = cls(**values)
-        if spec.integrator not in INTEGRATORS:
-            raise ConfigError(f"engine config: integrator must be one of {INTEGRATORS}, got {spec.integrator!r}")
-        if spec.solver not in SOLVERS:
-            raise ConfigError(f"engine config: solver must be one of {SOLVERS}, got {spec.solver!r}")
-        scale = spec.motor_gain_scale
-        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0:
-            raise ConfigError(f"engine config: motor_gain_scale must be a number > 0, got {scale!r}")
-        limit = spec.joint_speed_limit
-        if limit is not None and (isinstance(limit, bool) or not isinstance(limit, (int, float)) or not limit > 0):
-            raise ConfigError(f"engine config: joint_speed_limit must be a number > 0 (rad/s) or null, got {limit!r}")
-        for key in ("iterations", "threads"):
-            value = getattr(spec, key)
-            if isinstance(value, bool) or not isinstance(value, int) or value < (1 if key == "iterations" else 0):
-                raise ConfigError(f"engine config: {key} must be an integer >= {1 if key == 'iterations' else 0}, "
-                                  f"got {value!r}")
-        return spec
+    joint_speed_limit: float | None = field(default=100.0, metadata=key(Positive(nullable=True)))  # rad/s
 
 
 DEFAULT_SPEC = EngineSpec(name="mujoco", options=MujocoOptions())

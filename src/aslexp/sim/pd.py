@@ -30,11 +30,12 @@ or the reference motion.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from aslexp.config_schema import Choice, Section, key
+from aslexp.errors import ConfigError
 from aslexp.sim.body import BodyLayout
 
 MODES = ("position", "stable_pd")
@@ -42,48 +43,42 @@ TARGET_VELOCITIES = ("zero", "reference")
 TARGET_RATES = ("control", "physics")
 
 
-GAIN_KEYS = ("kp", "kd", "max_force", "mode")
-
-
 @dataclass(frozen=True)
-class Gains:
+class Gains(Section):
+    SECTION = "gains"
+
     kp: float
     kd: float
     max_force: float = 100.0
-    mode: str | None = None  # position | stable_pd; None: the controller's mode
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any], where: str, allow_mode: bool = True) -> "Gains":
-        if not isinstance(values, dict):
-            raise ValueError(f"controller config: {where} must be a mapping of {GAIN_KEYS}, got {values!r}")
-        keys = GAIN_KEYS if allow_mode else GAIN_KEYS[:3]
-        unknown = set(values) - set(keys)
-        if unknown:
-            extra = " (mujoco_groups are physical gains: no mode)" if "mode" in unknown and not allow_mode else ""
-            raise ValueError(f"controller config: {where}: unknown keys {sorted(unknown)}{extra}")
-        missing = {"kp", "kd"} - set(values)
-        if missing:
-            raise ValueError(f"controller config: {where}: missing {sorted(missing)}")
-        mode = values.get("mode")
-        if mode is not None and mode not in MODES:
-            raise ValueError(f"controller config: {where}: mode must be one of {MODES} or null, got {mode!r}")
-        return cls(kp=float(values["kp"]), kd=float(values["kd"]),
-                   max_force=float(values.get("max_force", 100.0)), mode=mode)
+    mode: str | None = field(default=None, metadata=key(Choice(*MODES, nullable=True)))  # None: the controller's
 
 
 @dataclass(frozen=True)
-class ControllerSpec:
+class ControllerSpec(Section):
     """``conf/controller/*.yaml``: a mode and gains per joint group (``default`` fills the rest)."""
 
-    name: str
-    mode: str
-    groups: dict[str, Gains]
-    target_velocity: str = "zero"  # zero (thesis) | reference: reference joint velocity as target
+    SECTION = "controller"
+
+    name: str = "custom"
+    mode: str = field(default="position", metadata=key(Choice(*MODES)))
+    groups: dict[str, Gains] = field(default_factory=dict)
+    # zero (thesis) | reference: reference joint velocity as target
+    target_velocity: str = field(default="zero", metadata=key(Choice(*TARGET_VELOCITIES)))
     velocity_scale: float = 1.0  # multiplies the reference velocity target
-    target_rate: str = "control"  # control (thesis) | physics: reference re-sampled every substep
+    # control (thesis) | physics: reference re-sampled every substep
+    target_rate: str = field(default="control", metadata=key(Choice(*TARGET_RATES)))
     # engine=mujoco: physical gains (N m/rad, N m s/rad) replacing `groups` there (None: `groups`,
     # physical for stable_pd, translated from PyBullet's motor for position: sim/mujoco_engine.py)
     mujoco_groups: dict[str, Gains] | None = None
+
+    def __post_init__(self) -> None:
+        if not self.groups:
+            raise ConfigError("groups: must give gains for at least `default`")
+        moded = [name for name, gains in (self.mujoco_groups or {}).items() if gains.mode is not None]
+        if moded:
+            raise ConfigError(f"mujoco_groups.{moded[0]}.mode: mujoco_groups are physical gains: no mode")
+        if self.mujoco_groups == {}:
+            object.__setattr__(self, "mujoco_groups", None)
 
     def mode_of(self, gains: Gains) -> str:
         """The mode a group's gains are applied with: its own ``mode``, else the controller's."""
@@ -93,34 +88,6 @@ class ControllerSpec:
     def is_thesis_pd(self) -> bool:
         """True when the targets are the thesis' (held positions, zero velocity)."""
         return self.target_velocity == "zero" and self.target_rate == "control"
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> "ControllerSpec":
-        unknown = set(values) - {"name", "mode", "groups", "target_velocity", "velocity_scale", "target_rate",
-                                 "mujoco_groups"}
-        if unknown:
-            raise ValueError(f"controller config: unknown keys {sorted(unknown)}")
-        mode = values.get("mode", "position")
-        if mode not in MODES:
-            raise ValueError(f"controller config: mode must be one of {MODES}, got {mode!r}")
-        groups = {name: Gains.from_dict(gains, f"groups.{name}")
-                  for name, gains in (values.get("groups") or {}).items()}
-        if not groups:
-            raise ValueError("controller config: `groups` must give gains for at least `default`")
-        target_velocity = values.get("target_velocity", "zero")
-        if target_velocity not in TARGET_VELOCITIES:
-            raise ValueError(f"controller config: target_velocity must be one of {TARGET_VELOCITIES}, "
-                             f"got {target_velocity!r}")
-        target_rate = values.get("target_rate", "control")
-        if target_rate not in TARGET_RATES:
-            raise ValueError(f"controller config: target_rate must be one of {TARGET_RATES}, got {target_rate!r}")
-        mujoco_groups = values.get("mujoco_groups")
-        if mujoco_groups is not None:
-            mujoco_groups = {name: Gains.from_dict(gains, f"mujoco_groups.{name}", allow_mode=False)
-                             for name, gains in mujoco_groups.items()}
-        return cls(name=values.get("name", "custom"), mode=mode, groups=groups, target_velocity=target_velocity,
-                   velocity_scale=float(values.get("velocity_scale", 1.0)), target_rate=target_rate,
-                   mujoco_groups=mujoco_groups or None)
 
 
 class PDController:

@@ -15,8 +15,8 @@ import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
+from aslexp.config_schema import Section
 from aslexp.files import atomic_write_text
 from aslexp.sim.urdf import HandProportions, _link, _vec, finger_chains_urdf
 
@@ -31,8 +31,10 @@ def pybullet_data_path(relative: str) -> Path:
 
 
 @dataclass(frozen=True)
-class UpperBodyProportions:
+class UpperBodyProportions(Section):
     """Everything the upper-body builder needs; the defaults give the thesis' model."""
+
+    SECTION = "body.proportions"
 
     name: str = "upper_body"
     # The humanoid to start from: a path, or ``pybullet_data:<relative path>``.
@@ -47,17 +49,6 @@ class UpperBodyProportions:
     wrist_velocity: float = 0.5
     hand: HandProportions = field(default_factory=HandProportions)
     sides: tuple[tuple[str, str], ...] = (("right", "r_"), ("left", "l_"))  # side, finger prefix
-
-    @classmethod
-    def from_dict(cls, values: dict[str, Any] | None) -> "UpperBodyProportions":
-        values = dict(values or {})
-        hand = HandProportions.from_dict(values.pop("hand", None))
-        unknown = set(values) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"upper-body proportions: unknown keys {sorted(unknown)}")
-        tupled = {k: tuple(tuple(x) if isinstance(x, list) else x for x in v) if isinstance(v, list) else v
-                  for k, v in values.items()}
-        return cls(hand=hand, **tupled)
 
     def humanoid_path(self) -> Path:
         if self.humanoid.startswith(PYBULLET_DATA_PREFIX):

@@ -13,6 +13,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from aslexp.config_schema import Section
 from aslexp.files import atomic_write_text
 
 FINGERS = ("thumb", "index", "middle", "ring", "pinkie")
@@ -60,11 +61,14 @@ def _thesis_fingers() -> dict[str, FingerProportions]:
 
 
 @dataclass(frozen=True)
-class HandProportions:
-    """Everything the hand builder needs; the defaults are the thesis' 15-DoF hand."""
+class HandProportions(Section):
+    """Everything the hand builder needs; the defaults are the thesis' 15-DoF hand (a partial dict
+    changes only what it names, a finger's entries too)."""
+
+    SECTION = "body.proportions"
 
     name: str = "hand15"
-    fingers: dict[str, FingerProportions] = field(default_factory=_thesis_fingers)
+    fingers: dict[str, FingerProportions] = field(default_factory=_thesis_fingers, metadata={"names": FINGERS})
     palm_size: tuple[float, float, float] = (0.15, 0.04, 0.15)
     palm_mass: float = 0.5
     wrist_rpy: tuple[float, float, float] = (3.14, -1.57, 1.57)
@@ -75,23 +79,6 @@ class HandProportions:
     joint_limits: tuple[float, float] = (0.0, 2.0)
     effort: float = 1000.0
     velocity: float = 0.5
-
-    @classmethod
-    def from_dict(cls, values: dict | None) -> "HandProportions":
-        """Proportions from plain config values (``fingers`` entries may override a subset)."""
-        values = dict(values or {})
-        fingers = _thesis_fingers()
-        for finger, overrides in (values.pop("fingers", None) or {}).items():
-            if finger not in fingers:
-                raise ValueError(f"hand proportions: unknown finger {finger!r}; expected one of {FINGERS}")
-            base = fingers[finger].__dict__ | {k: tuple(v) for k, v in overrides.items()}
-            fingers[finger] = FingerProportions(**base)
-        unknown = set(values) - set(cls.__dataclass_fields__)
-        if unknown:
-            raise ValueError(f"hand proportions: unknown keys {sorted(unknown)}")
-        tupled = {k: tuple(v) if isinstance(v, list) else v for k, v in values.items()}
-        return cls(fingers=fingers, **tupled)
-
 
 def _vec(values) -> str:
     return " ".join(f"{float(v):g}" for v in values)
