@@ -38,6 +38,9 @@ PROPERTIES: tuple[str, ...] = (
 )
 
 MISSING_VALUES = frozenset({"", "NA"})
+# The signs' subjective frequency, z-scored over raters (both versions; 2.0: every one of its 2,723
+# signs has one). Read into LexiconEntry.frequency_z when the file has the column (None otherwise).
+FREQUENCY_COLUMN = "SignFrequency(Z)"
 
 _MINOR_LOCATIONS_1 = (
     "CheekNose", "Chin", "Clavicle", "ElbowBack", "ElbowFront", "Eye", "FingerBack",
@@ -129,6 +132,7 @@ class LexiconEntry:
     lemma_id: str
     row: int  # 0-based data row in file order (the header is not counted)
     properties: dict[str, str | None]
+    frequency_z: float | None = None  # SignFrequency(Z); None where blank/NA or the file has no such column
 
 
 @dataclass(frozen=True)
@@ -222,4 +226,17 @@ def _parse_row(
                 f"or blank/NA for missing"
             )
     return LexiconEntry(entry_id=entry_id, lemma_id=(row["LemmaID"] or "").strip(),
-                        row=index, properties=properties)  # fmt: skip
+                        row=index, properties=properties,
+                        frequency_z=_frequency(csv_path, entry_id, index, row.get(FREQUENCY_COLUMN)))  # fmt: skip
+
+
+def _frequency(csv_path: Path, entry_id: str, index: int, value: str | None) -> float | None:
+    """``SignFrequency(Z)`` as a float; None when blank/NA (or absent); another text is an error."""
+    text = (value or "").strip()
+    if text in MISSING_VALUES:
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        raise DataError(f"{csv_path}: EntryID {entry_id!r} (data row {index + 1}), column "
+                        f"{FREQUENCY_COLUMN!r}: {text!r} is not a number") from None

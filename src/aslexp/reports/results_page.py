@@ -16,7 +16,9 @@ For each entry of the catalogue, the first of its ``runs`` alternatives whose fo
   corrections as simple baselines);
 * ``recognition`` and ``recognition_per_class``: given by the caller (``aslexp.tools.report``, which
   reads recognition runs); :mod:`aslexp.reports.results_recognition` adds each row's test clips, its
-  interval, the "no better than chance" mark and the line "Differences from the thesis".
+  interval, the "no better than chance" mark and the line "Differences from the thesis";
+* ``retrieval``: an ``aslexp retrieve`` run's table (:mod:`aslexp.reports.results_retrieval`: one row
+  per method, recall@k, MRR and median rank over gloss splits, and where the issue's targets land).
 
 The snapshot holds numbers (fractions; the page prints percentages where the entry says so), the
 run folders it came from (relative to ``--outputs``), when the runs started and finished, where
@@ -42,7 +44,7 @@ import numpy as np
 
 from aslexp.files import atomic_write_text
 from aslexp.paths import CONF_DIR
-from aslexp.reports import results_recognition
+from aslexp.reports import results_recognition, results_retrieval
 from aslexp.reports.commands import command_overrides  # noqa: F401 - part of this module's interface
 from aslexp.runfile import RUN_FILE
 
@@ -54,6 +56,9 @@ SNAPSHOTS = Path("docs") / "results"
 SNAPSHOT_SCHEMA = 1
 IMITATION_REPORTS = ("thesis", "scratch", "residual")
 RECOGNITION_REPORTS = ("recognition", "recognition_per_class")
+# An `aslexp retrieve` run's table (aslexp.reports.results_retrieval); such an entry may name no
+# overlay (overlay: null): the job's defaults are its setting.
+RETRIEVAL_REPORTS = (results_retrieval.REPORT,)
 _REQUIRED = ("id", "title", "beside", "thesis", "overlay", "job", "command", "engine", "reward", "report",
              "runs", "earlier")
 # Overrides that name where a run goes or how it is watched, not what it runs.
@@ -83,7 +88,7 @@ def load_catalogue(path: str | Path = CATALOGUE) -> list[dict[str, Any]]:
         if not re.fullmatch(r"[a-z0-9_]+", str(entry["id"])) or entry["id"] in seen:
             raise ValueError(f"{where}: the id must be unique, lower case, digits and _")
         seen.add(entry["id"])
-        if entry["report"] not in IMITATION_REPORTS + RECOGNITION_REPORTS:
+        if entry["report"] not in IMITATION_REPORTS + RECOGNITION_REPORTS + RETRIEVAL_REPORTS:
             raise ValueError(f"{where}: unknown report {entry['report']!r}")
         runs = entry["runs"]
         if not isinstance(runs, list) or not all(isinstance(r, dict) and isinstance(r.get("folders"), list)
@@ -490,7 +495,7 @@ def build_snapshot(entry: dict[str, Any], outputs: Path, summarizers: dict[str, 
     snapshot.update({"skipped": dict(sorted(summary.get("skipped", {}).items())), "quantity": summary.get("quantity"),
                      "row_name": (entry.get("options") or {}).get("row_name", summary.get("row_name")),
                      "rows": summary["rows"]})
-    for key in ("differences", "differences_from", "differences_source"):
+    for key in ("differences", "differences_from", "differences_source", "facts"):
         if key in summary:
             snapshot[key] = summary[key]
     return snapshot
@@ -695,8 +700,9 @@ def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list
     lines = [f'<a id="{entry["id"]}"></a>', "", f"## {beside}: {entry['title']}", ""]
     thesis = (entry.get("thesis") or {}).get("source", "-")
     job, _ = command_overrides(entry["command"])
+    overlay = f"`experiment={entry['overlay']}`" if entry["overlay"] else "no overlay (the job's defaults)"
     lines += [f"- **Beside**: {entry['beside']}; the thesis' number: {thesis}",
-              f"- **Overlay, engine, reward**: `experiment={entry['overlay']}` (`aslexp {job}`), {_engine_reward(entry)}",
+              f"- **Overlay, engine, reward**: {overlay} (`aslexp {job}`), {_engine_reward(entry)}",
               f"- **Command** (re-runs it into the folder this page reads first): `{entry['command']}`"]
     if snapshot is None:
         lines += [f"- **Not run on this machine yet**: no run folders under outputs/ "
@@ -842,10 +848,13 @@ def render(catalogue: list[dict[str, Any]], snapshots: Path) -> str:
     for entry in catalogue:
         snapshot = found[entry["id"]]
         lines.append(f"| [{_cell(entry['title'])}](#{entry['id']}) | {_cell(entry['beside'])} | "
-                     f"`{entry['overlay']}` | {entry['engine'] or '-'} | {entry['reward'] or '-'} | "
+                     f"{f'`{o}`' if (o := entry['overlay']) else '-'} | {entry['engine'] or '-'} | {entry['reward'] or '-'} | "
                      f"{_cell(_status(entry, snapshot))} |")
     lines.append("")
     for entry in catalogue:
+        if entry["report"] in RETRIEVAL_REPORTS:
+            lines += results_retrieval.render(entry, found[entry["id"]], render_entry)
+            continue
         lines += results_recognition.render(entry, found[entry["id"]], render_entry)  # others: render_entry
     return "\n".join(lines).rstrip("\n") + "\n"
 
@@ -854,7 +863,8 @@ def write_results(catalogue_path: Path, outputs: Path, snapshots: Path, page: Pa
                   summarizers: dict[str, Summarizer] | None = None, render_only: bool = False) -> dict[str, Any]:
     """Update the snapshots from ``outputs`` (unless ``render_only``) and write the page."""
     catalogue = load_catalogue(catalogue_path)
-    summarizers = {**{kind: imitation_summary for kind in IMITATION_REPORTS}, **(summarizers or {})}
+    summarizers = {**{kind: imitation_summary for kind in IMITATION_REPORTS},
+                   results_retrieval.REPORT: results_retrieval.results_summary, **(summarizers or {})}
     done = {} if render_only else update(catalogue, outputs, snapshots, summarizers)
     text = render(catalogue, snapshots)
     atomic_write_text(page, text)

@@ -1,0 +1,364 @@
+"""Lexicon retrieval over K gloss splits: per-property classifiers trained on the training glosses
+rank every lexicon entry for each clip of the unseen test glosses (:mod:`aslexp.recognition.retrieval`
+defines the scores, ranks and metrics; the job ``aslexp retrieve`` calls :func:`run_retrieval`).
+
+Per split (``split.seed + k``, k < ``split.repeats``):
+
+1. **One gloss split for every property.** The glosses of all clips are split once, 70/15/15 by
+   default, with :func:`aslexp.data.splits.resplit` on a single label (a gloss split stratified by
+   one property would be arbitrary for the others); every property's classifier then trains on the
+   same training glosses, and the validation and test glosses are never seen in training.
+2. **Validation.** Each property's classifier (any registered one with ``predict_proba``) is fitted
+   on the training clips whose value is known, as :func:`aslexp.recognition.train.fit` fits it (a
+   torch model early-stops on the validation clips whose value is among its classes), and predicts
+   the validation clips. On those clips the smoothing ``eps`` (phonology alone) and ``eps`` with the
+   prior weight ``w`` (combined) are chosen from the config's grids by ``select_by``; test clips
+   never choose.
+3. **Test.** Each classifier is fitted again on train+val (a torch model for the validated epoch
+   budget), predicts the test clips, and every method of :data:`~aslexp.recognition.retrieval.METHODS`
+   ranks all lexicon entries for every test clip.
+
+Per split the metrics are means over its test clips; the table is the mean over splits with the
+95% t interval (:func:`aslexp.recognition.metrics.mean_interval`).
+"""
+
+from __future__ import annotations
+
+import csv
+import logging
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from aslexp.data.splits import SplitOptions, resplit
+from aslexp.keypoints.layout import KeypointLayout
+from aslexp.recognition import retrieval as R
+from aslexp.recognition.metrics import mean_interval, paired_comparison
+
+log = logging.getLogger(__name__)
+
+RANKS_FILE = "ranks.csv"
+TABLE_FILE = "retrieval.md"
+PLOT_FILE = "recall_at_k.png"
+TABLE_METRICS = ("recall@1", "recall@10", "recall@50", "mrr", "median_rank")
+# The paired comparisons over the same splits that the issue's targets ask about: (method, reference, metric).
+PAIRED = (("phonology", "chance", "recall@50"), ("phonology+prior", "prior", "recall@50"),
+          ("phonology+prior", "prior", "median_rank"))
+
+
+@dataclass
+class RetrievalClips:
+    """The clips retrieval works on: keypoints as :class:`~aslexp.data.dataset.RecognitionDataset`
+    holds them, each clip's gloss and the row of its lexicon entry in the table."""
+
+    X: np.ndarray  # (N, C, T, V, 1)
+    mask: np.ndarray  # (N, T, V)
+    video_ids: list[str]
+    glosses: list[str]
+    entry_rows: np.ndarray  # (N,) rows of the LexiconTable
+    layout: KeypointLayout | None = None
+
+    def __post_init__(self) -> None:
+        n = len(self.X)
+        if not (len(self.mask) == len(self.video_ids) == len(self.glosses) == len(self.entry_rows) == n):
+            raise ValueError("retrieval clips: X, mask, video_ids, glosses and entry_rows differ in length")
+
+
+def _format_seconds(seconds: float) -> str:
+    seconds = max(0.0, float(seconds))
+    return f"{seconds / 60:.1f} min" if seconds >= 90 else f"{seconds:.0f} s"
+
+
+def _fit_predict(classifier: Mapping[str, Any], params: Mapping[str, Any], config, clips: RetrievalClips,
+                 codes: np.ndarray, vocab_size: int, train_idx: np.ndarray, val_idx: np.ndarray | None,
+                 predict_idx: np.ndarray, seed: int, epochs: int | None) -> tuple[np.ndarray, int, int]:
+    """Fit on the clips of ``train_idx`` whose value is known and predict ``predict_idx``: (probabilities
+    over the whole vocabulary (n, vocab_size), the validated epoch budget, the classes seen). With
+    ``epochs`` None this is the validation fit (:func:`fit`, early stopping on ``val_idx``), else the
+    final one (:func:`fit_final` for ``epochs``)."""
+    from aslexp.recognition.models import build_classifier
+    from aslexp.recognition.train import ArraySplit, fit, fit_final, smoothed_best_epoch
+
+    labelled = train_idx[codes[train_idx] >= 0]
+    classes = np.unique(codes[labelled])
+    proba = np.zeros((len(predict_idx), vocab_size), dtype=np.float64)
+    if len(classes) == 0:
+        proba[:] = 1.0 / vocab_size
+        return proba, 1, 0
+    if len(classes) == 1:  # nothing to learn: the one value seen
+        proba[:, classes[0]] = 1.0
+        return proba, 1, 1
+    _, channels, frames, nodes, _ = clips.X.shape
+    model = build_classifier(str(classifier["name"]), dict(params), channels, frames, nodes, len(classes),
+                             clips.layout, module=classifier.get("module"))
+    train = ArraySplit(clips.X[labelled], clips.mask[labelled], np.searchsorted(classes, codes[labelled]))
+    target = ArraySplit(clips.X[predict_idx], clips.mask[predict_idx], np.zeros(len(predict_idx), dtype=np.int64))
+    if epochs is None:
+        known = val_idx[np.isin(codes[val_idx], classes)] if val_idx is not None else np.array([], dtype=np.int64)
+        # early stopping needs validation clips of known classes; none: the training clips stand in
+        val = ArraySplit(clips.X[known], clips.mask[known], np.searchsorted(classes, codes[known])) if len(known) else train
+        result = fit(model, train, val, config, seed=seed)
+        budget = result.best_epoch
+        if config.retrain_epochs == "smoothed" and config.early_stopping:
+            key = "val_mcc" if config.selection_metric == "mcc" else f"val_{config.selection_metric}"
+            budget = smoothed_best_epoch(result.history, key, config.smoothing_window)
+        proba[:, classes] = model.predict_proba(target.X, target.mask)
+        return proba, max(1, int(budget)), len(classes)
+    final = fit_final(model, train, target, config, epochs=max(1, int(epochs)), seed=seed)
+    proba[:, classes] = final.proba
+    return proba, int(epochs), len(classes)
+
+
+def run_retrieval(
+    clips: RetrievalClips,
+    table: R.LexiconTable,
+    classifier: Mapping[str, Any],
+    trainer: Mapping[str, Any] | None,
+    split: Mapping[str, Any] | SplitOptions,
+    *,
+    seed: int = 0,
+    smoothing: Sequence[float] = (0.001, 0.01, 0.05, 0.2),
+    prior_weights: Sequence[float] = (0.0, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0),
+    select_by: str = "mean_log_rank",
+    recall_at: Sequence[int] = R.RECALL_AT,
+    likelihood: str = "ratio",
+) -> dict[str, Any]:
+    """Retrieval over ``split.repeats`` gloss splits (see the module docstring); returns a JSON-ready
+    dict: ``table`` (per method and metric: mean, std, 95% t interval over splits), ``per_split``,
+    ``clips`` (one row per test clip and split), ``curves`` (recall@k per method, mean over splits),
+    ``oracle_lexicon`` (the oracle over every lexicon entry), the settings and the timing."""
+    from aslexp.recognition.models import resolve_params
+    from aslexp.recognition.train import TrainerConfig
+
+    if "name" not in classifier:
+        raise ValueError(f"classifier config needs a 'name' (got keys {sorted(classifier)})")
+    options = split if isinstance(split, SplitOptions) else SplitOptions.from_dict(split)
+    if options.name != "gloss":
+        raise ValueError(f"retrieval needs a gloss split (unseen glosses), got split={options.name}")
+    if likelihood not in R.LIKELIHOODS:
+        raise ValueError(f"retrieval.likelihood={likelihood!r}; expected one of {list(R.LIKELIHOODS)}")
+    if select_by not in R.SELECT_BY:
+        raise ValueError(f"retrieval.select_by={select_by!r}; expected one of {sorted(R.SELECT_BY)}")
+    if not smoothing or not all(0.0 < float(e) <= 1.0 for e in smoothing):
+        raise ValueError(f"retrieval.smoothing must be a non-empty list of numbers in (0, 1], got {list(smoothing)}")
+    if not prior_weights or not all(float(w) >= 0.0 for w in prior_weights):
+        raise ValueError(f"retrieval.prior_weights must be a non-empty list of numbers >= 0, got {list(prior_weights)}")
+    params = resolve_params(str(classifier["name"]), classifier.get("params"), classifier.get("module"))
+    config = TrainerConfig.from_dict(trainer)
+    recall_at = tuple(int(k) for k in recall_at)
+    codes_all = table.codes[clips.entry_rows]  # (n_clips, P)
+    ks = R.curve_ks(len(table))
+    repeats = int(options.repeats)
+    start = time.perf_counter()
+    per_split, clip_rows = [], []
+    curves: dict[str, list[list[float]]] = {m: [] for m in R.METHODS}
+    log.info("retrieval: %d clips of %d glosses, %d lexicon entries, properties %s, classifier %s, %d gloss split(s)",
+             len(clips.X), len(set(clips.glosses)), len(table), list(table.properties), classifier["name"], repeats)
+    for k in range(repeats):
+        split_seed = int(options.seed) + k
+        split_start = time.perf_counter()
+        result = resplit(["all"] * len(clips.glosses), clips.glosses, options, split_seed)
+        keep = result.keep
+        train, val, test = (keep[np.asarray(result.splits[name], dtype=np.int64)] for name in ("train", "val", "test"))
+        train_val = np.sort(np.concatenate([train, val]))
+        val_proba, test_proba, budgets, seen = [], [], {}, {}
+        for j, prop in enumerate(table.properties):
+            codes = codes_all[:, j]
+            size = len(table.vocab[j])
+            p_val, budget, _ = _fit_predict(classifier, params, config, clips, codes, size, train, val, val, seed, None)
+            p_test, _, n_classes = _fit_predict(classifier, params, config, clips, codes, size, train_val, None, test,
+                                                seed, budget)
+            val_proba.append(p_val)
+            test_proba.append(p_test)
+            budgets[prop] = budget
+            seen[prop] = n_classes
+        # pi of the ratio: the values' shares among the clips each classifier trained on
+        val_priors = test_priors = None
+        if likelihood == "ratio":
+            val_priors = [R.value_prior(codes_all[train, j], len(v)) for j, v in enumerate(table.vocab)]
+            test_priors = [R.value_prior(codes_all[train_val, j], len(v)) for j, v in enumerate(table.vocab)]
+        chosen = R.choose(table, val_proba, clips.entry_rows[val], smoothing, prior_weights, select_by, val_priors)
+        eps_alone = chosen["phonology"]["smoothing"]
+        eps_both, weight = chosen["phonology+prior"]["smoothing"], chosen["phonology+prior"]["weight"]
+        ranks = R.method_ranks(table, test_proba, clips.entry_rows[test], eps_alone, eps_both, weight, test_priors)
+        metrics = {m: R.rank_metrics(ranks[m], recall_at) for m in R.METHODS}
+        for method in R.METHODS:
+            curves[method].append(R.recall_curve(ranks[method], ks))
+        property_accuracy = {}
+        for j, prop in enumerate(table.properties):
+            truth = codes_all[test, j]
+            known = truth >= 0
+            predicted = test_proba[j].argmax(axis=1)
+            property_accuracy[prop] = float(np.mean(predicted[known] == truth[known])) if known.any() else math.nan
+        unseen = {prop: float(np.mean([c >= 0 and c not in set(codes_all[train_val, j].tolist())
+                                       for c in codes_all[test, j]]))
+                  for j, prop in enumerate(table.properties)}
+        for row, clip in enumerate(test):
+            entry = int(clips.entry_rows[clip])
+            record = {"split": k, "split_seed": split_seed, "video_id": clips.video_ids[clip],
+                      "gloss": clips.glosses[clip], "entry_id": table.entry_ids[entry]}
+            record.update({f"rank_{m}": round(ranks[m][row].expected, 3) for m in R.METHODS})
+            for j, prop in enumerate(table.properties):
+                code = table.codes[entry, j]
+                record[f"true_{prop}"] = table.vocab[j][code] if code >= 0 else ""
+                record[f"predicted_{prop}"] = table.vocab[j][int(test_proba[j][row].argmax())]
+                record[f"p_true_{prop}"] = round(float(test_proba[j][row][code]), 4) if code >= 0 else ""
+            clip_rows.append(record)
+        elapsed = time.perf_counter() - split_start
+        per_split.append({
+            "index": k, "seed": split_seed,
+            "glosses": {"train": len({clips.glosses[i] for i in train}), "val": len({clips.glosses[i] for i in val}),
+                        "test": sorted({clips.glosses[i] for i in test})},
+            "clips": {"train": len(train), "val": len(val), "test": len(test)},
+            "chosen": {"phonology": {"smoothing": eps_alone},
+                       "phonology+prior": {"smoothing": eps_both, "weight": weight}},
+            "validation": {"phonology": chosen["phonology"], "phonology+prior": chosen["phonology+prior"]},
+            "epochs": budgets, "classes_seen": seen, "property_accuracy": property_accuracy,
+            "test_value_unseen_in_training": unseen, "metrics": metrics, "time_s": elapsed,
+        })
+        done = time.perf_counter() - start
+        rate = done / (k + 1)
+        log.info("split %d/%d (seed %d): %d test clips of %d unseen glosses; recall@50 phonology %.3f, prior %.3f, "
+                 "phonology+prior %.3f (eps %g, w %g), oracle %.3f; %.1f s/split, ETA %s",
+                 k + 1, repeats, split_seed, len(test), len(per_split[-1]["glosses"]["test"]),
+                 metrics["phonology"].get("recall@50", math.nan), metrics["prior"].get("recall@50", math.nan),
+                 metrics["phonology+prior"].get("recall@50", math.nan), eps_both, weight,
+                 metrics["oracle"].get("recall@50", math.nan), rate, _format_seconds(rate * (repeats - k - 1)))
+    keys = [f"recall@{k}" for k in recall_at] + ["mrr", "median_rank", "mean_rank", "mean_log_rank"]
+    summary = {m: {key: mean_interval([s["metrics"][m][key] for s in per_split]) for key in keys} for m in R.METHODS}
+    paired = [{"method": a, "reference": b, "metric": key,
+               **paired_comparison([s["metrics"][a][key] for s in per_split], [s["metrics"][b][key] for s in per_split])}
+              for a, b, key in PAIRED]
+    return {
+        "properties": list(table.properties),
+        "classifier": str(classifier["name"]),
+        "params": params,
+        "trainer": config.to_dict(),
+        "split_options": dict(options.__dict__),
+        "seed": int(seed),
+        "lexicon_entries": len(table),
+        "num_clips": int(len(clips.X)),
+        "num_glosses": len(set(clips.glosses)),
+        "recall_at": list(recall_at),
+        "likelihood": likelihood,
+        "selection": {"select_by": select_by, "smoothing": [float(e) for e in smoothing],
+                      "prior_weights": [float(w) for w in prior_weights], "on": "validation glosses"},
+        "methods": {m: R.METHOD_LABELS[m] for m in R.METHODS},
+        "table": summary,
+        "paired": paired,
+        "per_split": per_split,
+        "curves": {"k": ks, **{m: list(np.mean(np.array(v), axis=0)) if v else [] for m, v in curves.items()}},
+        "oracle_lexicon": R.oracle_lexicon(table, recall_at),
+        "clips": clip_rows,
+        "time_s": time.perf_counter() - start,
+    }
+
+
+# --------------------------------------------------------------------------- outputs
+
+
+def _cell(interval: Mapping[str, float], percent: bool) -> str:
+    scale, digits = (100.0, 1) if percent else (1.0, 3)
+    mean = interval.get("mean", math.nan)
+    if mean is None or not math.isfinite(mean):
+        return "-"
+    text = f"{scale * mean:.{digits}f}"
+    low, high = interval.get("low"), interval.get("high")
+    if low is not None and high is not None and math.isfinite(low) and math.isfinite(high):
+        text += f" [{scale * low:.{digits}f}, {scale * high:.{digits}f}]"
+    return text
+
+
+def _metric_cell(metric: str, interval: Mapping[str, float]) -> str:
+    if metric.startswith("recall@"):
+        return _cell(interval, percent=True)
+    if metric in ("median_rank", "mean_rank"):
+        mean = interval.get("mean", math.nan)
+        low, high = interval.get("low", math.nan), interval.get("high", math.nan)
+        if not math.isfinite(mean):
+            return "-"
+        return f"{mean:.0f}" + (f" [{low:.0f}, {high:.0f}]" if math.isfinite(low) and math.isfinite(high) else "")
+    return _cell(interval, percent=False)
+
+
+METRIC_HEADERS = {"mrr": "MRR", "median_rank": "median rank", "mean_rank": "mean rank"}
+
+
+def table_lines(result: Mapping[str, Any]) -> list[str]:
+    """The retrieval table as Markdown lines: one row per method, recall@k in %, MRR and the median
+    rank, each the mean over splits with its 95% t interval."""
+    metrics = [f"recall@{k}" for k in result["recall_at"]] + ["mrr", "median_rank"]
+    header = ["method", *[METRIC_HEADERS.get(m, m + " (%)") for m in metrics]]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for method in R.METHODS:
+        row = result["table"][method]
+        lines.append("| " + " | ".join([result["methods"][method], *[_metric_cell(m, row[m]) for m in metrics]]) + " |")
+    return lines
+
+
+def describe(result: Mapping[str, Any]) -> str:
+    """One paragraph: what the table is over."""
+    splits = result["per_split"]
+    tests = [s["clips"]["test"] for s in splits]
+    test_glosses = [len(s["glosses"]["test"]) for s in splits]
+    chosen = [s["chosen"]["phonology+prior"]["weight"] for s in splits]
+    oracle = result["oracle_lexicon"]
+    return (f"Unseen glosses ranked among all {result['lexicon_entries']:,} ASL-LEX entries; properties used: "
+            f"{', '.join(result['properties'])}; classifier {result['classifier']} (phonology scored as "
+            f"{'the likelihood ratio' if result['likelihood'] == 'ratio' else 'the posterior'}); {len(splits)} gloss split(s) of "
+            f"{result['num_glosses']} glosses / {result['num_clips']} clips (test per split: {min(test_glosses)}-"
+            f"{max(test_glosses)} glosses, {min(tests)}-{max(tests)} clips); mean over splits with the 95% t "
+            f"interval. Smoothing and prior weight chosen on the validation glosses by "
+            f"{result['selection']['select_by']} (prior weight per split: {', '.join(f'{w:g}' for w in chosen)}). "
+            f"The oracle over every lexicon entry with these properties: recall@10 {100 * oracle['recall@10']:.1f}%, "
+            f"recall@50 {100 * oracle['recall@50']:.1f}% (chance {100 * oracle['chance_recall@10']:.2f}% and "
+            f"{100 * oracle['chance_recall@50']:.2f}%).")
+
+
+def paired_lines(result: Mapping[str, Any]) -> list[str]:
+    """One line per paired comparison: the mean difference over the same splits with its 95% t
+    interval, splits won / tied / lost and the Wilcoxon p."""
+    lines = []
+    for item in result.get("paired", []):
+        diff, percent = item["diff"], item["metric"].startswith("recall@")
+        scale, unit = (100.0, " points") if percent else (1.0, "")
+        interval = (f" [{scale * diff['low']:+.1f}, {scale * diff['high']:+.1f}]"
+                    if math.isfinite(diff["low"]) and math.isfinite(diff["high"]) else "")
+        lines.append(f"- {result['methods'][item['method']]} minus {result['methods'][item['reference']]}, "
+                     f"{item['metric']}: {scale * diff['mean']:+.1f}{unit}{interval}; splits higher/equal/lower "
+                     f"{item['wins']}/{item['ties']}/{item['losses']}, Wilcoxon p = {item['wilcoxon_p']:.3g}")
+    return lines
+
+
+def write_outputs(result: Mapping[str, Any], out_dir: str | Path) -> dict[str, str]:
+    """The run folder's files beside metrics.json: the table (Markdown), the per-clip ranks (CSV) and
+    the recall@k plot. Returns name -> file."""
+    from aslexp.files import write_text
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_text(out / TABLE_FILE, "# Lexicon retrieval for unseen glosses\n\n" + describe(result) + "\n\n"
+               + "\n".join(table_lines(result)) + "\n\nPaired over the same splits:\n\n"
+               + "\n".join(paired_lines(result)) + "\n")
+    rows = result["clips"]
+    with (out / RANKS_FILE).open("w", newline="", encoding="utf-8") as handle:
+        fields = list(rows[0]) if rows else ["split", "split_seed", "video_id", "gloss", "entry_id"]
+        writer = csv.DictWriter(handle, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(rows)
+    files = {"table": TABLE_FILE, "ranks": RANKS_FILE}
+    try:
+        from aslexp.viz.retrieval import plot_recall_curves
+    except ImportError as error:  # a node without matplotlib: every number is in metrics.json
+        log.warning("no plot (%s); the numbers are in metrics.json", error)
+        return files
+    title = (f"Unseen glosses among {result['lexicon_entries']:,} ASL-LEX signs: {result['classifier']} on "
+             f"{', '.join(result['properties'])}; mean over {len(result['per_split'])} gloss split(s)")
+    plot_recall_curves(result["curves"], result["methods"], out / PLOT_FILE, title=title)
+    files["plot"] = PLOT_FILE
+    return files

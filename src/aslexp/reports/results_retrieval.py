@@ -1,0 +1,186 @@
+"""The lexicon-retrieval entry of the results page (``report: retrieval``, docs/results.md): the table
+of an ``aslexp retrieve`` run folder, one row per method (chance, the frequency prior alone,
+phonology alone, phonology + prior, the oracle, oracle + prior), recall@k, MRR and the median rank,
+each the mean over gloss splits with its 95% t interval, as the run's metrics.json holds them, and a
+line that says where the issue's targets land. :func:`results_summary` makes the snapshot's rows
+from the run folder; :func:`render` draws the table (the entry's other lines are results_page's)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from aslexp.runfile import RUN_FILE
+
+log = logging.getLogger(__name__)
+
+REPORT = "retrieval"
+METRICS = ("recall@1", "recall@10", "recall@50", "mrr", "median_rank")
+HEADERS = {"recall@1": "recall@1 (%)", "recall@10": "recall@10 (%)", "recall@50": "recall@50 (%)", "mrr": "MRR",
+           "median_rank": "median rank"}
+# Issue 40 item 2's targets: phonology alone recall@50 >= 10%; with the prior >= 50% and a median
+# rank below the prior's.
+TARGET_ALONE, TARGET_COMBINED = 0.10, 0.50
+
+
+def _read(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as err:
+        log.warning("warning: %s: %s; left out", path, err)
+        return None
+
+
+def find_runs(folders: list[Path]) -> tuple[list[tuple[Path, dict[str, Any]]], dict[str, int]]:
+    """Completed ``aslexp retrieve`` runs under ``folders`` (run folder, metrics.json), and what was left out."""
+    runs, skipped = [], {}
+    for folder in folders:
+        for path in sorted(Path(folder).rglob(RUN_FILE)):
+            info = _read(path) or {}
+            if info.get("job") != "retrieve":
+                continue
+            if info.get("status") != "completed":
+                reason = f"status {info.get('status', 'unknown')}"
+                skipped[reason] = skipped.get(reason, 0) + 1
+                continue
+            metrics = _read(path.parent / "metrics.json")
+            if not isinstance(metrics, dict) or "table" not in metrics:
+                skipped["no retrieval table in metrics.json"] = skipped.get("no retrieval table in metrics.json", 0) + 1
+                continue
+            runs.append((path.parent, metrics))
+    return runs, skipped
+
+
+def _number(value: Any) -> float | None:
+    if value is None:
+        return None
+    value = float(value)
+    return round(value, 6) if math.isfinite(value) else None
+
+
+def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any]:
+    """The rows of the latest completed retrieve run under ``folders`` (one per method) and its facts;
+    the earlier runs there are counted as left out."""
+    runs, skipped = find_runs(folders)
+    if not runs:
+        return {"rows": [], "run_dirs": [], "skipped": skipped}
+    run_dir, metrics = max(runs, key=lambda r: ((_read(r[0] / RUN_FILE) or {}).get("finished") or "", str(r[0])))
+    if len(runs) > 1:
+        skipped["earlier completed runs (the latest is reported)"] = len(runs) - 1
+    rows = []
+    for method, label in metrics["methods"].items():
+        cells = {key: {k: _number(metrics["table"][method][key].get(k)) for k in ("mean", "low", "high", "half_width")}
+                 for key in METRICS}
+        rows.append({"key": method, "label": label, "thesis": None, "baselines": [], "steps": None,
+                     "learned": {"what": "test recall@50 over gloss splits", "mean": cells["recall@50"]["mean"],
+                                 "spread": cells["recall@50"]["half_width"], "spread_kind": "95% t half-width over splits",
+                                 "n": len(metrics["per_split"]), "unit": "splits", "metrics": cells}})
+    splits = metrics["per_split"]
+    tests = [s["clips"]["test"] for s in splits]
+    facts = {
+        "properties": list(metrics["properties"]), "classifier": metrics["classifier"],
+        "likelihood": metrics.get("likelihood", "posterior"), "lexicon_entries": metrics["lexicon_entries"],
+        "clips": metrics["num_clips"], "glosses": metrics["num_glosses"], "splits": len(splits),
+        "test_clips": [min(tests), max(tests)], "test_glosses": sorted({len(s["glosses"]["test"]) for s in splits}),
+        "select_by": metrics["selection"]["select_by"],
+        "prior_weights_chosen": [s["chosen"]["phonology+prior"]["weight"] for s in splits],
+        "oracle_lexicon": {k: metrics["oracle_lexicon"][k] for k in ("recall@10", "recall@50", "chance_recall@10",
+                                                                      "chance_recall@50")},
+        "paired": [{"method": p["method"], "reference": p["reference"], "metric": p["metric"],
+                    "diff": {k: _number(p["diff"][k]) for k in ("mean", "low", "high")},
+                    "wins": p["wins"], "ties": p["ties"], "losses": p["losses"], "wilcoxon_p": _number(p["wilcoxon_p"])}
+                   for p in metrics.get("paired", [])],
+    }
+    return {"rows": rows, "run_dirs": [run_dir], "skipped": skipped, "quantity": "test retrieval over gloss splits",
+            "row_name": "method", "facts": facts}
+
+
+def _cell(metric: str, cell: dict[str, Any]) -> str:
+    mean, low, high = cell.get("mean"), cell.get("low"), cell.get("high")
+    if mean is None:
+        return "-"
+    if metric.startswith("recall@"):
+        fmt = lambda v: f"{100 * v:.1f}"  # noqa: E731
+    elif metric == "median_rank":
+        fmt = lambda v: f"{v:.0f}"  # noqa: E731
+    else:
+        fmt = lambda v: f"{v:.3f}"  # noqa: E731
+    return fmt(mean) + (f" [{fmt(low)}, {fmt(high)}]" if low is not None and high is not None else "")
+
+
+def targets(snapshot: dict[str, Any]) -> str:
+    """Where the issue's targets land, from the snapshot's numbers."""
+    rows = {r["key"]: r["learned"]["metrics"] for r in snapshot["rows"]}
+    alone, both, prior = rows.get("phonology"), rows.get("phonology+prior"), rows.get("prior")
+    if not (alone and both and prior) or None in (alone["recall@50"]["mean"], both["recall@50"]["mean"]):
+        return ""
+
+    def mark(ok: bool) -> str:
+        return "reached" if ok else "not reached"
+
+    a, b = alone["recall@50"]["mean"], both["recall@50"]["mean"]
+    rb, rp = both["median_rank"]["mean"], prior["median_rank"]["mean"]
+    return (f"Targets (issue 40): phonology alone recall@50 >= {100 * TARGET_ALONE:.0f}%: {mark(a >= TARGET_ALONE)} "
+            f"({100 * a:.1f}%); phonology + prior recall@50 >= {100 * TARGET_COMBINED:.0f}%: "
+            f"{mark(b >= TARGET_COMBINED)} ({100 * b:.1f}%); its median rank below the prior's: "
+            f"{mark(rb < rp)} ({rb:.0f} against {rp:.0f}).")
+
+
+def table(snapshot: dict[str, Any]) -> list[str]:
+    header = [snapshot.get("row_name") or "method", *[HEADERS[m] for m in METRICS]]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row in snapshot["rows"]:
+        cells = row["learned"]["metrics"]
+        lines.append("| " + " | ".join([row["label"], *[_cell(m, cells[m]) for m in METRICS]]) + " |")
+    return lines
+
+
+def legend(snapshot: dict[str, Any]) -> list[str]:
+    facts = snapshot.get("facts") or {}
+    if not facts:
+        return []
+    oracle = facts["oracle_lexicon"]
+    scored = "the likelihood ratio" if facts.get("likelihood") == "ratio" else "the posterior"
+    glosses = "-".join(str(g) for g in (facts["test_glosses"][0], facts["test_glosses"][-1])) \
+        if len(facts["test_glosses"]) > 1 else str(facts["test_glosses"][0])
+    text = (f"Numbers: each test clip's gloss never seen in training, ranked among all {facts['lexicon_entries']:,} "
+            f"ASL-LEX entries; properties used: {', '.join(facts['properties'])}; classifier {facts['classifier']} "
+            f"(phonology scored as {scored}); {facts['splits']} gloss splits of {facts['glosses']} glosses / "
+            f"{facts['clips']} clips ({glosses} test glosses, {facts['test_clips'][0]}-{facts['test_clips'][1]} test "
+            f"clips per split); mean over splits [95% t interval]. Smoothing and prior weight chosen on the validation "
+            f"glosses by {facts['select_by']} (prior weight per split: "
+            f"{', '.join(f'{w:g}' for w in facts['prior_weights_chosen'])}). Over every lexicon entry the oracle with "
+            f"these properties gives recall@10 {100 * oracle['recall@10']:.1f}% and recall@50 "
+            f"{100 * oracle['recall@50']:.1f}% (chance {100 * oracle['chance_recall@10']:.2f}% and "
+            f"{100 * oracle['chance_recall@50']:.2f}%); the oracle rows above are over the test clips' glosses.")
+    line = targets(snapshot)
+    labels = {r["key"]: r["label"] for r in snapshot["rows"]}
+    paired = []
+    for item in facts.get("paired") or []:
+        diff, percent = item["diff"], item["metric"].startswith("recall@")
+        scale = 100.0 if percent else 1.0
+        interval = f" [{scale * diff['low']:+.1f}, {scale * diff['high']:+.1f}]" if diff["low"] is not None else ""
+        paired.append(f"{labels.get(item['method'], item['method'])} minus {labels.get(item['reference'], item['reference'])}, "
+                      f"{item['metric']}{' (points)' if percent else ''}: {scale * diff['mean']:+.1f}{interval}, splits "
+                      f"higher/equal/lower {item['wins']}/{item['ties']}/{item['losses']}, Wilcoxon p = "
+                      f"{'-' if item['wilcoxon_p'] is None else format(item['wilcoxon_p'], '.3g')}")
+    paired_line = [f"Paired over the same splits: {'; '.join(paired)}.", ""] if paired else []
+    return [text, ""] + ([line, ""] if line else []) + paired_line
+
+
+def render(entry: dict[str, Any], snapshot: dict[str, Any] | None,
+           render_entry: Callable[[dict[str, Any], dict[str, Any] | None], list[str]]) -> list[str]:
+    """``render_entry``'s lines for a retrieval entry with its table (and the line of numbers) in place
+    of the generic one."""
+    lines = render_entry(entry, snapshot)
+    if snapshot is None:
+        return lines
+    start = next((i for i, line in enumerate(lines) if line.startswith("| ")), None)
+    end = next((i for i, line in enumerate(lines) if line.startswith("Numbers:")), None)
+    if start is None or end is None:
+        return lines
+    return lines[:start] + table(snapshot) + [""] + legend(snapshot) + lines[end + 2:]
