@@ -2,7 +2,8 @@
 
 Data flow: lexicon + WLASL -> WLASL-Lex table -> keypoints (pose source) -> fixed-length,
 normalised arrays -> split -> classifier -> metrics -> run directory. Returns the validation MCC
-(mean over seeds), the number an Optuna sweep maximises.
+(mean over seeds), the number an Optuna sweep maximises. Ends by printing the test metrics beside
+the strongest simple baseline (``simple_baseline``, run on the same splits) and the chance baseline.
 """
 
 from __future__ import annotations
@@ -10,12 +11,13 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from aslexp.data.wlasl_lex import WlaslLexParams, build_or_load, params_from_config
 from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
 from aslexp.jobs.validation import check_config
-from aslexp.recognition.experiment import run_recognition
+from aslexp.recognition.experiment import run_recognition, simple_baseline_params
+from aslexp.recognition.report import comparison_text
 from aslexp.runs.loggers import epoch_tag, make_logger
 from aslexp.tuning.context import trial_reporter
 
@@ -29,6 +31,7 @@ def dataset_params(cfg: DictConfig) -> WlaslLexParams:
 
 def recognize(cfg: DictConfig, run) -> float:
     check_config("recognize", cfg)  # swept values (the rest: ConfigCheck); a bad one fails this run
+    simple_baseline_params(simple_baseline(cfg))  # a bad name stops here, before the dataset is built
     seed_everything(int(cfg.seed))
     dataset, dataset_dir = build_or_load(Path(cfg.cache_dir), dataset_params(cfg), root=cfg.data.root)
     log.info(
@@ -60,6 +63,7 @@ def recognize(cfg: DictConfig, run) -> float:
             on_epoch_end=on_epoch_end,
             on_epoch_record=on_epoch_record,
             split=to_dict(cfg.split),
+            simple_baseline=simple_baseline(cfg),
         )
         summary = {"val_mcc": result["val_mcc"], **{f"test_{k}": v for k, v in result.get("test", {}).items()}}
     finally:
@@ -86,7 +90,20 @@ def recognize(cfg: DictConfig, run) -> float:
         cfg.classifier.name, cfg.property.name, cfg.split.name, objective["name"], objective["value"],
         test.get("mcc"), test.get("balanced_accuracy"),
     )
+    comparison = result.get("comparison")
+    if comparison:
+        log.info("%s vs the baselines on the same split(s):\n%s", cfg.classifier.name,
+                 comparison_text(comparison, cfg.property.name, cfg.split.name))  # fmt: skip
     return float(objective["value"])
+
+
+def simple_baseline(cfg: DictConfig) -> str | list[str] | None:
+    """``simple_baseline``: a classifier name, a list of names (the best by validation is the
+    reference) or null (none); a config without the key (an older run's) has none."""
+    value = OmegaConf.select(cfg, "simple_baseline", default=None)
+    if value is None or isinstance(value, str):
+        return value
+    return [str(name) for name in value]
 
 
 @job_main("recognize")

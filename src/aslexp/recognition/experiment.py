@@ -8,7 +8,10 @@ split) and every model seed:
   2. final: retrain a fresh model on 'train+val' for that budget and test once on 'test' (or, with
      ``trainer.final_retrain=false``, test the validated model).
 The chance baselines (majority, stratified) run on the same splits; the one with the higher
-validation accuracy is *the* baseline (chosen by validation, never by test). Statistics: the
+validation accuracy is *the* baseline (chosen by validation, never by test). The simple baselines
+(``simple_baseline``: logreg and rf in the job's default) run as the model does, on the same splits;
+the one with the best validation score is the reference of ``comparison`` (the model, the simple
+baselines, the chance baseline: test MCC and balanced accuracy, the paired differences). Statistics: the
 per-split test metric (mean over model seeds) is the unit; over K splits the report gives mean,
 std and a 95% t interval of the mean, and the paired difference to the baseline on the same splits
 (t interval and Wilcoxon signed-rank test). With one split the unit is the model seed.
@@ -32,6 +35,7 @@ import numpy as np
 
 from aslexp.data.dataset import RecognitionDataset
 from aslexp.data.splits import SplitOptions, resplit
+from aslexp.errors import ConfigError
 from aslexp.recognition.device import check_precision, device_info, resolve_device
 from aslexp.recognition.metrics import (
     aggregate_over_seeds,
@@ -161,6 +165,7 @@ def run_recognition(
     on_epoch_end: EpochCallback | None = None,
     split: Mapping[str, Any] | SplitOptions | None = None,
     on_epoch_record: RecordCallback | None = None,
+    simple_baseline: str | Sequence[str] | None = None,
 ) -> dict[str, Any]:
     """Validate, retrain and test ``classifier`` = {"name": ..., "params": {...}} on ``dataset``.
 
@@ -180,6 +185,12 @@ def run_recognition(
     baselines              both baselines (test, test_std, test_per_split, val_accuracy)
     paired_vs_baseline     per KEY_METRIC: model minus baseline on the same splits (units)
     below_baseline         per KEY_METRIC: the model's mean is below the baseline's
+    simple_baselines       per ``simple_baseline`` name (none: {}): params, val_score, val_mcc, test,
+                           test_std, test_interval, test_per_split, same_as_model (the model itself:
+                           its own numbers, not run again)
+    comparison             model, strongest simple baseline (by validation score) and chance
+                           baseline side by side (:func:`comparison_block`), the paired differences
+                           and one sentence; what the job prints at its end
     splits                 per split: index, seed, sizes; statistics_unit: 'split' | 'seed'
     history, final_history per-epoch records of the validation and final runs, by 'seed S'
                            (one split) or 'split K seed S'
@@ -192,8 +203,8 @@ def run_recognition(
         raise ValueError(f"classifier config needs a 'name' (got keys {sorted(classifier)})")
     name = str(classifier["name"])
     params = resolve_params(name, classifier.get("params"), classifier.get("module"))  # a module registers it
-    config = TrainerConfig.from_dict(trainer)
-    options = split if isinstance(split, SplitOptions) else SplitOptions.from_dict(split)
+    config = TrainerConfig.parse(trainer)
+    options = split if isinstance(split, SplitOptions) else SplitOptions.parse(split)
     seeds = [int(seed) for seed in seeds]
     if not seeds:
         raise ValueError("run_recognition needs at least one seed")
@@ -205,6 +216,9 @@ def run_recognition(
     device_record = device_info(device, check_precision(config.precision, device))
     metric = config.selection_metric
 
+    simple_params = simple_baseline_params(simple_baseline)
+    simple_same = {b: b == name and p == params for b, p in simple_params.items()}  # the model itself: not run twice
+
     views = split_views(dataset, options)
     label_names = list(views[0][1].label_names)
     start = time.perf_counter()
@@ -215,6 +229,8 @@ def run_recognition(
     per_split: list[dict[str, float]] = []
     split_records: list[dict[str, Any]] = []
     baseline_runs: dict[str, dict[str, list]] = {n: {"val_accuracy": [], "test": [], "test_per_split": []} for n in BASELINE_NAMES}
+    simple_runs: dict[str, dict[str, list]] = {b: {"val_score": [], "val_mcc": [], "test": [], "test_per_split": []}
+                                               for b, same in simple_same.items() if not same}  # fmt: skip
     prediction_rows: list[dict[str, Any]] = []
     checkpoint_name, num_parameters, learning_curve = None, None, []
     is_cv = False
@@ -315,6 +331,16 @@ def run_recognition(
             baseline_runs[baseline]["val_accuracy"] += runs["val_accuracy"]
             baseline_runs[baseline]["test"] += runs["test"]
             baseline_runs[baseline]["test_per_split"].append(aggregate_over_seeds(runs["test"])[0])
+        for baseline, runs in simple_runs.items():
+            val, tests = _simple_baseline_runs(view, baseline, simple_params[baseline], folds, train_val, test, config,
+                                               seeds)  # fmt: skip
+            runs["val_score"] += [v["score"] for v in val]
+            runs["val_mcc"] += [v["mcc"] for v in val]
+            runs["test"] += tests
+            runs["test_per_split"].append(aggregate_over_seeds(tests)[0])
+            log.info("simple baseline %s (split %d): val %s %.3f -> test MCC %.3f, balanced %.3f", baseline, split_index,
+                     metric, float(np.mean([v["score"] for v in val])), runs["test_per_split"][-1]["mcc"],
+                     runs["test_per_split"][-1]["balanced_accuracy"])  # fmt: skip
 
     unit = "split" if len(views) > 1 else "seed"
     units = per_split if unit == "split" else [scalar_metrics(m) for m in test_runs]
@@ -337,6 +363,26 @@ def run_recognition(
 
     val_scores = [record["score"] for record in val_records]
     val_mcc = [record["mcc"] for record in val_records]
+    simple: dict[str, Any] = {}
+    for baseline, base_params in simple_params.items():
+        if simple_same[baseline]:
+            base_units, scores, mccs = units, val_scores, val_mcc
+        else:
+            runs = simple_runs[baseline]
+            base_units = runs["test_per_split"] if unit == "split" else [scalar_metrics(m) for m in runs["test"]]
+            scores, mccs = runs["val_score"], runs["val_mcc"]
+        mean, std = aggregate_over_seeds(base_units)
+        simple[baseline] = {
+            "params": base_params, "same_as_model": simple_same[baseline], "val_score": float(np.mean(scores)),
+            "val_mcc": float(np.mean(mccs)), "test": mean, "test_std": std,
+            "test_interval": {key: mean_interval([u[key] for u in base_units]) for key in KEY_METRICS},
+            "test_per_split": base_units,
+        }
+    comparison = comparison_block(
+        name, metric, unit, units, float(np.mean(val_scores)), simple, chosen, baselines[chosen]["test_per_split"],
+    )
+    comparison.update(split_seeds=[r["seed"] for r in split_records], test_clips=[r["sizes"]["test"] for r in split_records],
+                      model_seeds=seeds)  # fmt: skip
     total_matrix = np.sum([m["confusion_matrix"] for m in test_runs], axis=0)
 
     _write_per_class(out_dir / PER_CLASS_FILE, test_runs)
@@ -381,6 +427,8 @@ def run_recognition(
         "baselines": baselines,
         "paired_vs_baseline": paired,
         "below_baseline": below,
+        "simple_baselines": simple,
+        "comparison": comparison,
         "history": histories,
         "final_history": final_histories,
         "learning_curve": learning_curve,
@@ -390,6 +438,141 @@ def run_recognition(
         },
         "time_s": elapsed,
     }
+
+
+def simple_baseline_params(value: str | Sequence[str] | None) -> dict[str, dict[str, Any]]:
+    """``simple_baseline`` (a classifier name, a list of names, or None) -> {name: its default
+    params} (the registered defaults, which equal ``conf/classifier/<name>.yaml``). A chance
+    baseline or an unknown name is a :class:`~aslexp.errors.ConfigError` (bad input, exit 2)."""
+    if value is None or value == "" or (isinstance(value, str) and value.lower() in ("null", "none")):
+        return {}
+    names = [value] if isinstance(value, str) else list(value)
+    out: dict[str, dict[str, Any]] = {}
+    for baseline in names:
+        baseline = str(baseline)
+        if baseline in BASELINE_NAMES:
+            raise ConfigError(f"simple_baseline={baseline}: the chance baselines ({', '.join(BASELINE_NAMES)}) run in "
+                             "every run already; name a model (rf, hgb, logreg, svm) or null")  # fmt: skip
+        try:
+            out[baseline] = resolve_params(baseline, None)
+        except ValueError as error:
+            raise ConfigError(f"simple_baseline={baseline}: {error}") from None
+    return out
+
+
+def _simple_baseline_runs(view: RecognitionDataset, name: str, params: Mapping[str, Any], folds, train_val: ArraySplit,
+                          test: ArraySplit, config: TrainerConfig, seeds: Sequence[int]) -> tuple[list[dict], list[dict]]:  # fmt: skip
+    """A simple baseline run as the model is on one split: per seed, validated on every fold (its
+    validation score the mean over folds, its budget the model's rule), retrained on train+val
+    (``final_retrain``) and tested once. Returns (validation records, test metrics) per seed."""
+    val_records, tests = [], []
+    for seed in seeds:
+        results, last = [], None
+        for train_idx, val_idx in folds:
+            seed_everything(seed, config.deterministic)
+            last = _build(view, name, params)
+            results.append(fit(last, ArraySplit.from_dataset(view, train_idx), ArraySplit.from_dataset(view, val_idx),
+                               config, seed=seed))  # fmt: skip
+        epochs, _ = _retrain_budget(results, config)
+        val_records.append({"score": float(np.mean([r.best_val_score for r in results])),
+                            "mcc": float(np.mean([r.best_val_mcc for r in results]))})  # fmt: skip
+        if config.final_retrain or len(folds) > 1:
+            seed_everything(seed, config.deterministic)
+            y_pred = fit_final(_build(view, name, params), train_val, test, config, epochs=epochs, seed=seed).y_pred
+        else:
+            y_pred = last.predict(test.X, test.mask)
+        tests.append(classification_metrics(test.y, y_pred, view.label_names))
+    return val_records, tests
+
+
+COMPARED = ("mcc", "balanced_accuracy")  # the comparison's columns
+CHANCE_WORDS = {"majority": "majority class", "stratified": "stratified chance baseline"}
+
+
+def comparison_block(name: str, metric: str, unit: str, units: Sequence[Mapping[str, float]], val_score: float,
+                     simple: Mapping[str, Mapping[str, Any]], chance: str,
+                     chance_units: Sequence[Mapping[str, float]]) -> dict[str, Any]:  # fmt: skip
+    """The model beside the simple baselines ``simple`` and the chance baseline ``chance`` on the same
+    units (splits, or seeds of one split): test MCC and balanced accuracy (mean, std, n) per row, the
+    paired differences model minus the reference (the simple baseline with the best validation
+    score, never chosen by test) and model minus chance, a verdict on test MCC and one sentence
+    saying what the model adds. Rows: the model, each simple baseline that is not the model itself
+    (the reference first, ``reference: true``), the chance baseline."""
+
+    def row(role: str, row_name: str, per_unit: Sequence[Mapping[str, float]], **extra) -> dict[str, Any]:
+        test = {key: {k: v for k, v in mean_interval([u[key] for u in per_unit]).items() if k in ("mean", "std", "n")}
+                for key in COMPARED}  # fmt: skip
+        return {"role": role, "name": row_name, **extra, "test": test}
+
+    def paired(per_unit: Sequence[Mapping[str, float]]) -> dict[str, Any]:
+        return {key: paired_comparison([u[key] for u in units], [u[key] for u in per_unit]) for key in COMPARED}
+
+    order = sorted(simple, key=lambda b: -simple[b]["val_score"])  # stable: ties keep the order listed
+    reference = order[0] if order else None
+    selected_by = f"validation {metric}" if len(simple) > 1 else "the only one"
+    model_is_reference = reference is not None and bool(simple[reference]["same_as_model"])
+    rows = [row("model", name, units, val_score=val_score, reference=model_is_reference)]
+    for baseline in order:
+        if not simple[baseline]["same_as_model"]:
+            rows.append(row("simple_baseline", baseline, simple[baseline]["test_per_split"],
+                            val_score=simple[baseline]["val_score"], reference=baseline == reference,
+                            selected_by=selected_by))  # fmt: skip
+    rows.append(row("chance_baseline", chance, chance_units, selected_by="validation accuracy"))
+    vs_simple = paired(simple[reference]["test_per_split"]) if reference is not None else None
+    vs_chance = paired(chance_units)
+    if reference is None:
+        verdict = "no_simple_baseline"
+    elif model_is_reference:
+        verdict = "model_is_simple_baseline"
+    else:
+        difference = vs_simple["mcc"]["diff"]["mean"]
+        verdict = "above" if difference > 0 else "below" if difference < 0 else "equal"
+    block = {"metrics": list(COMPARED), "unit": unit, "n": len(units), "candidates": list(simple),
+             "simple_baseline": reference, "simple_baseline_selected_by": selected_by, "chance_baseline": chance,
+             "rows": rows, "model_minus_simple_baseline": vs_simple, "model_minus_chance_baseline": vs_chance,
+             "verdict": verdict}  # fmt: skip
+    block["sentence"] = _comparison_sentence(name, block)
+    return block
+
+
+def _signed(value: float) -> str:
+    return f"{value:+.3f}"
+
+
+def _comparison_sentence(name: str, block: Mapping[str, Any]) -> str:
+    vs_chance, vs_simple = block["model_minus_chance_baseline"], block["model_minus_simple_baseline"]
+    reference, verdict = block["simple_baseline"], block["verdict"]
+    chance = CHANCE_WORDS.get(block["chance_baseline"], f"chance baseline {block['chance_baseline']}")
+
+    def gains(paired: Mapping[str, Any]) -> str:
+        return (f"{_signed(paired['mcc']['diff']['mean'])} test MCC and "
+                f"{_signed(paired['balanced_accuracy']['diff']['mean'])} balanced accuracy")
+
+    def interval(paired: Mapping[str, Any]) -> str:
+        diff = paired["mcc"]["diff"]
+        if block["unit"] != "split":
+            return " on one split (split.repeats=10 gives an interval over splits)"
+        state = {1: "resolved above 0", -1: "resolved below 0", 0: "not resolved: it includes 0"}[paired["mcc"]["resolved"]]
+        return f" (MCC 95% interval [{diff['low']:+.3f}, {diff['high']:+.3f}] over {diff['n']} paired splits, {state})"
+
+    if verdict == "no_simple_baseline":
+        return f"{name} adds {gains(vs_chance)} over the {chance} (no simple baseline: simple_baseline=null)."
+    if verdict == "model_is_simple_baseline":
+        best = (f"the strongest simple baseline itself (the best of {'/'.join(block['candidates'])} by validation)"
+                if len(block["candidates"]) > 1 else "the simple baseline itself")  # fmt: skip
+        return (f"{name} is {best}; it adds {gains(vs_chance)} over the {chance}; "
+                f"classifier=stgcn (or another model) is compared with it.")  # fmt: skip
+    if reference == name:
+        reference = f"{reference} at its defaults"
+    strongest = (f"{reference} (the strongest simple baseline by validation)" if len(block["candidates"]) > 1
+                 else f"the simple baseline {reference}")  # fmt: skip
+    if verdict == "below":
+        text = f"{name} is below {strongest}: {gains(vs_simple)}{interval(vs_simple)}"
+    else:
+        text = f"{name} adds {gains(vs_simple)} over {strongest}{interval(vs_simple)}"
+    if vs_chance["mcc"]["diff"]["mean"] <= 0:
+        text += f"; it is not above the {chance}"
+    return text + "."
 
 
 def _plots(out_dir: Path, name: str, prop: str, label_names: list[str], matrix: np.ndarray, runs: int,

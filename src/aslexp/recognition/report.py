@@ -26,6 +26,7 @@ from aslexp.recognition.registry import BUILT_IN
 __all__ = [
     "BELOW_BASELINE",
     "collect_table",
+    "comparison_text",
     "comparisons",
     "comparisons_markdown",
     "thesis_c2_table",
@@ -246,6 +247,51 @@ def comparisons_markdown(rows: Sequence[Mapping[str, Any]], metric: str = "mcc")
             cells = [_diff_text(r["vs_feature"].get(m)) for m in references]
             lines.append(f"| {r['split']} | {r['property']} | {r['model']} | {r['n']} | " + " | ".join(cells) + " |")
         lines.append("")
+    return "\n".join(lines)
+
+
+ROLE_WORDS = {"model": "this run", "simple_baseline": "simple baseline", "chance_baseline": "chance"}
+
+
+def comparison_text(block: Mapping[str, Any], prop: str | None = None, split: str | None = None) -> str:
+    """A run's ``comparison`` (metrics.json) as the lines the job prints at its end: a header, one
+    row per model (this run, the simple baselines, the best by validation first, the chance
+    baseline) with test MCC and balanced accuracy (mean ± std over the splits when there are
+    several), and the sentence."""
+    n, unit = int(block["n"]), str(block["unit"])
+    seeds, clips = block.get("split_seeds") or [], block.get("test_clips") or []
+    where = ", ".join(x for x in (prop, f"{split} split" if split else None) if x)
+    if unit == "split":
+        over = f"mean ± std over {n} splits (seeds {seeds[0]}..{seeds[-1]})" if seeds else f"mean ± std over {n} splits"
+    else:
+        over = f"one split (seed {seeds[0]})" if seeds else "one split"
+        over += f", mean ± std over {n} model seeds" if n > 1 else ""
+    if clips:
+        over += f", {min(clips)}-{max(clips)} test clips" if min(clips) != max(clips) else f", {clips[0]} test clips"
+    several = len(block.get("candidates", [])) > 1
+    rows = []
+    for row in block["rows"]:
+        words = ROLE_WORDS.get(row["role"], row["role"])
+        if row["role"] == "model" and row.get("reference"):
+            words = "this run, best simple model by validation" if several else "this run = the simple baseline"
+        elif row["role"] == "simple_baseline" and several and row.get("reference"):
+            words = "simple baseline, best by validation"
+        label = f"{row['name']} ({words})"
+        cells = []
+        for key in block["metrics"]:
+            value = row["test"][key]
+            text = _fmt(value["mean"])
+            if n > 1 and math.isfinite(_number(value.get("std"))):
+                text += f" ± {_fmt(value['std'])}"
+            cells.append(text)
+        rows.append((label, *cells))
+    header = ("model", *("test MCC" if key == "mcc" else "balanced acc." if key == "balanced_accuracy" else key
+                         for key in block["metrics"]))  # fmt: skip
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+    lines = [f"{where}: test, {over}" if where else f"test, {over}"]
+    for r in [header, *rows]:
+        lines.append("  " + r[0].ljust(widths[0]) + "".join("   " + c.rjust(w) for c, w in zip(r[1:], widths[1:])))
+    lines.append(str(block["sentence"]))
     return "\n".join(lines)
 
 
