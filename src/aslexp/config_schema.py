@@ -3,7 +3,7 @@
 Every numeric (and a few other) key that a job reads is declared here once, with its type and
 range or choices: :data:`PPO` (``conf/ppo/*.yaml``, read by :meth:`aslexp.rl.ppo.PPOConfig.parse`),
 :data:`TRAINER` (``conf/trainer/*.yaml``, read by
-:meth:`aslexp.recognition.train.TrainerConfig.from_dict`) and :data:`JOBS` (each job's keys,
+:meth:`aslexp.recognition.train.TrainerConfig.parse`) and :data:`JOBS` (each job's keys,
 sections included). The jobs check their composed config against :data:`JOBS` before anything
 runs (:mod:`aslexp.jobs.validation`); the two readers coerce their section through the same
 declarations, so a value is refused or accepted the same way wherever it comes from. What

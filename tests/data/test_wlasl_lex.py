@@ -108,7 +108,7 @@ def test_directory_source_with_bad_files(tmp_path, data_root):
 def test_bad_parameters():
     with pytest.raises(DataError, match="handshape"):
         WlaslLexParams(property="handshape")
-    with pytest.raises(DataError, match="bogus"):
-        WlaslLexParams.from_dict({"bogus": 1})
+    with pytest.raises(ValueError, match="wlasl_lex.bogus=1: unknown key"):
+        WlaslLexParams.parse({"bogus": 1})
     with pytest.raises(DataError, match="split"):
         WlaslLexParams(split="random")

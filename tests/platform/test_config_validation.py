@@ -161,9 +161,9 @@ def test_integers_are_never_rounded_and_the_readers_refuse_the_same():
             PPOConfig.parse({key: value})
         assert str(err.value) == message
     with pytest.raises(ConfigError, match=r"^trainer\.max_epochs=abc: expected a positive integer$"):
-        TrainerConfig.from_dict({"max_epochs": "abc"})
+        TrainerConfig.parse({"max_epochs": "abc"})
     with pytest.raises(ConfigError, match=r"^trainer\.nesterov=yes: expected true or false$"):
-        TrainerConfig.from_dict({"nesterov": "yes"})
-    assert TrainerConfig.from_dict({"precision": "bf16-mixed", "batch_size": 8.0}).batch_size == 8
+        TrainerConfig.parse({"nesterov": "yes"})
+    assert TrainerConfig.parse({"precision": "bf16-mixed", "batch_size": 8.0}).batch_size == 8
     with pytest.raises(ConfigError, match=r"^ppo\.epoch=3: unknown key; did you mean ppo\.epochs\?$"):
         check_section("ppo", {"epoch": 3}, PPO)

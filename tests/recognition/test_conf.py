@@ -21,4 +21,4 @@ def test_classifier_files_list_every_default(name):
 
 def test_trainer_default_file_is_the_config_default():
     raw = yaml.safe_load((ROOT / "conf" / "trainer" / "default.yaml").read_text())
-    assert TrainerConfig.from_dict(raw) == TrainerConfig()
+    assert TrainerConfig.parse(raw) == TrainerConfig()

@@ -35,7 +35,7 @@ def runs(lex_dataset, tmp_path_factory):
 
 
 def test_repeated_splits_are_independent_and_shared(lex_dataset, runs):
-    views = split_views(lex_dataset, SplitOptions.from_dict(SPLIT))
+    views = split_views(lex_dataset, SplitOptions.parse(SPLIT))
     tests = [set(np.asarray(view.video_ids)[view.splits["test"]]) for _, view in views]
     assert len(tests) == 3 and tests[0] != tests[1] != tests[2]
     # The first repeat with the built split's seed reproduces the dataset's own split.
@@ -106,7 +106,7 @@ def test_tables_show_intervals_flags_and_paired_comparisons(runs, tmp_path):
 
 
 def test_one_clip_per_gloss_cross_validation(lex_dataset):
-    options = SplitOptions.from_dict({"name": "cv5", "one_clip_per_gloss": True, "repeats": 2, "seed": 4})
+    options = SplitOptions.parse({"name": "cv5", "one_clip_per_gloss": True, "repeats": 2, "seed": 4})
     views = split_views(lex_dataset, options)
     for _, view in views:
         assert len(set(view.glosses)) == len(view.glosses)  # one clip per gloss

@@ -120,6 +120,6 @@ def test_checkpoint_roundtrip_reproduces_predictions(gloss_dataset, tmp_path, na
 
 
 def test_trainer_config_rejects_unknown_keys():
-    with pytest.raises(ValueError, match="unknown keys \\['epochs'\\]"):
-        TrainerConfig.from_dict({"epochs": 3})
-    assert TrainerConfig.from_dict({"lr": "0.01", "class_weights": 1}).lr == 0.01
+    with pytest.raises(ValueError, match="trainer.epochs=3: unknown key; did you mean trainer.max_epochs\\?"):
+        TrainerConfig.parse({"epochs": 3})
+    assert TrainerConfig.parse({"lr": "0.01", "class_weights": 1}).lr == 0.01

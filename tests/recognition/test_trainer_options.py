@@ -32,7 +32,7 @@ def _build(data, name, seed=0):
 
 
 def test_slgcn_learning_rate_schedule_matches_the_authors():
-    config = TrainerConfig.from_dict(SLGCN_SCHEDULE)
+    config = TrainerConfig.parse(SLGCN_SCHEDULE)
 
     def authors(epoch):  # SL-GCN main.py adjust_learning_rate
         if epoch < 20:
@@ -115,5 +115,5 @@ def test_unknown_choices_are_rejected():
     for key, value in (("optimizer", "rmsprop"), ("lr_schedule", "cosine"), ("selection_metric", "auc"),
                        ("retrain_epochs", "last")):  # fmt: skip
         with pytest.raises(ValueError, match=f"trainer.{key}={value}: expected one of "):
-            TrainerConfig.from_dict({key: value})
-    assert TrainerConfig.from_dict({"lr_milestones": ["120", 140]}).lr_milestones == (120, 140)
+            TrainerConfig.parse({key: value})
+    assert TrainerConfig.parse({"lr_milestones": ["120", 140]}).lr_milestones == (120, 140)

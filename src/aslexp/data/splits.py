@@ -28,6 +28,7 @@ from typing import Sequence
 
 import numpy as np
 
+from aslexp.config_schema import Choice, Int, Section, key
 from aslexp.data.dataset import DataError
 
 log = logging.getLogger(__name__)
@@ -181,32 +182,20 @@ def one_per_group(groups: Sequence[str], seed: int) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class SplitOptions:
+class SplitOptions(Section):
     """How to split a built dataset again (the ``split`` config group): ``repeats`` independent
     seeded splits (seeds ``seed`` .. ``seed + repeats - 1``), optionally on one clip per gloss."""
 
-    name: str = "phoneme"
+    SECTION = "split"
+
+    name: str = field(default="phoneme", metadata=key(Choice(*SPLIT_KINDS)))
     seed: int = 0
-    repeats: int = 1
+    repeats: int = field(default=1, metadata=key(Int(1)))
     one_clip_per_gloss: bool = False
     rare_classes: str = "drop"
     val_fraction: float = 0.15
     test_fraction: float = 0.15
     num_folds: int = 5
-
-    @classmethod
-    def from_dict(cls, values: dict | None) -> SplitOptions:
-        values = dict(values or {})
-        known = {f for f in cls.__dataclass_fields__}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise DataError(f"split: unknown keys {unknown}; accepted: {sorted(known)}")
-        options = cls(**values)
-        if options.name not in SPLIT_KINDS:
-            raise DataError(f"split.name={options.name!r}; expected one of {SPLIT_KINDS}")
-        if int(options.repeats) < 1:
-            raise DataError(f"split.repeats must be >= 1, got {options.repeats}")
-        return options
 
     @property
     def rebuilds(self) -> bool:

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aslexp.config_schema import Section
 from aslexp.data.dataset import DataError, KeypointLayout, RecognitionDataset
 from aslexp.data.keypoints import open_keypoint_source
 from aslexp.data.lexicon import check_property, lexicon_spec, load_lexicon
@@ -62,8 +63,10 @@ LEXICON_NAMES = {"asllex1": "ASL-LEX 1.0", "asllex2": "ASL-LEX 2.0"}
 
 
 @dataclass(frozen=True)
-class WlaslLexParams:
+class WlaslLexParams(Section):
     """Everything that determines a WLASL-Lex build (and its cache key)."""
+
+    SECTION = "wlasl_lex"
 
     lexicon: str = "asllex2"  # asllex1 | asllex2
     property: str = "sign_type"  # one of lexicon.PROPERTIES
@@ -89,15 +92,6 @@ class WlaslLexParams:
                 raise DataError(f"WLASL-Lex parameter {name}={value!r}; expected one of {allowed}")
         if self.channels is not None:
             object.__setattr__(self, "channels", tuple(self.channels))
-
-    @classmethod
-    def from_dict(cls, values: dict) -> WlaslLexParams:
-        """Build from a plain mapping (e.g. a config section); unknown keys are an error."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            raise DataError(f"unknown WLASL-Lex parameter(s) {unknown}; expected some of {sorted(known)}")
-        return cls(**dict(values))
 
     def to_dict(self) -> dict:
         values = dataclasses.asdict(self)

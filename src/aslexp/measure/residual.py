@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from aslexp import compose
 from aslexp.files import atomic_write_text
 
 log = logging.getLogger("aslexp.residual")
@@ -71,7 +72,7 @@ def residual_baselines(cfg: dict[str, Any], cache: Path | None = None) -> dict[s
     scored_env = {k: v for k, v in cfg["env"].items() if k not in TRAINING_ONLY_KEYS + RESIDUAL_BASE_KEYS}
     key = {"settings": settings, "body": cfg["body"], "controller": cfg["controller"], "reward": cfg["reward"],
            "env": scored_env, "motion": cfg["motion"], "protocol": ppo.eval_protocol}
-    if (cfg.get("engine") or {}).get("name", "pybullet") != "pybullet":  # PyBullet caches stay valid
+    if cfg.get("engine") and cfg["engine"] != compose.group("engine"):  # the default engine's caches stay valid
         key["engine"] = cfg["engine"]
     key = json.loads(json.dumps(key))
     if cache is not None and cache.is_file():

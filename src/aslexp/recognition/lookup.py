@@ -134,7 +134,7 @@ def save_lookup_model(
                "glosses")
     else:
         first = splits[0]
-        options = split if isinstance(split, SplitOptions) else SplitOptions.from_dict(split)
+        options = split if isinstance(split, SplitOptions) else SplitOptions.parse(split)
         parts = resplit(["all"] * n, clips.glosses, options, int(first["seed"]))
         fitted = np.sort(np.concatenate([parts.keep[np.asarray(parts.splits[name], dtype=np.int64)]
                                          for name in ("train", "val")]))
@@ -144,7 +144,7 @@ def save_lookup_model(
         epochs = {p: int(first["epochs"][p]) for p in table.properties}
         how = f"chosen on the validation glosses of the first split (seed {first['seed']})"
     params = resolve_params(str(classifier["name"]), classifier.get("params"), classifier.get("module"))
-    config = TrainerConfig.from_dict(trainer)
+    config = TrainerConfig.parse(trainer)
     codes_all = table.codes[clips.entry_rows]
     _, channels, frames, nodes, _ = clips.X.shape
     heads: dict[str, Any] = {}

@@ -137,7 +137,7 @@ def run_retrieval(
 
     if "name" not in classifier:
         raise ValueError(f"classifier config needs a 'name' (got keys {sorted(classifier)})")
-    options = split if isinstance(split, SplitOptions) else SplitOptions.from_dict(split)
+    options = split if isinstance(split, SplitOptions) else SplitOptions.parse(split)
     if options.name != "gloss":
         raise ValueError(f"retrieval needs a gloss split (unseen glosses), got split={options.name}")
     if likelihood not in R.LIKELIHOODS:
@@ -149,7 +149,7 @@ def run_retrieval(
     if not prior_weights or not all(float(w) >= 0.0 for w in prior_weights):
         raise ValueError(f"retrieval.prior_weights must be a non-empty list of numbers >= 0, got {list(prior_weights)}")
     params = resolve_params(str(classifier["name"]), classifier.get("params"), classifier.get("module"))
-    config = TrainerConfig.from_dict(trainer)
+    config = TrainerConfig.parse(trainer)
     recall_at = tuple(int(k) for k in recall_at)
     codes_all = table.codes[clips.entry_rows]  # (n_clips, P)
     ks = R.curve_ks(len(table))

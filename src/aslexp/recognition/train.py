@@ -33,7 +33,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from aslexp.config_schema import TRAINER, check_section
+from aslexp.config_schema import TRAINER, read
 from aslexp.data.dataset import RecognitionDataset
 from aslexp.recognition.augment import pad_frames, random_shift, random_temporal_crop
 from aslexp.recognition.device import autocast, check_precision, resolve_device
@@ -104,7 +104,7 @@ class TrainerConfig:
     lr_schedule: str = "step"
     lr_step_size: int = 20
     lr_gamma: float = 0.5
-    lr_milestones: tuple = ()
+    lr_milestones: tuple[int, ...] = ()
     warmup_epochs: int = 0
     batch_size: int = 32
     drop_last: bool = False
@@ -119,7 +119,7 @@ class TrainerConfig:
     class_weights: bool = False
     crop_window: int = 0
     shift: float = 0.0
-    shift_channels: tuple = (0, 1)
+    shift_channels: tuple[int, ...] = (0, 1)
     device: str = "auto"
     precision: str = "32"
     data_on_device: bool = True
@@ -128,23 +128,12 @@ class TrainerConfig:
     eval_batch_size: int = 128
 
     @classmethod
-    def from_dict(cls, values: Mapping[str, Any] | TrainerConfig | None) -> TrainerConfig:
-        """Config from a plain dict; unknown keys raise ValueError naming the accepted ones."""
+    def parse(cls, values: Mapping[str, Any] | TrainerConfig | None, section: str = "trainer") -> TrainerConfig:
+        """Types, ranges and choices: aslexp.config_schema.TRAINER (the recognize job checks the
+        same before anything runs); a TrainerConfig is taken as it is."""
         if isinstance(values, TrainerConfig):
             return values
-        values = dict(values or {})
-        accepted = {f.name: f for f in dataclasses.fields(cls)}
-        unknown = sorted(set(values) - set(accepted))
-        if unknown:
-            raise ValueError(f"trainer: unknown keys {unknown}; accepted: {sorted(accepted)}")
-        # Types, ranges and choices: aslexp.config_schema.TRAINER (the recognize job checks the
-        # same before anything runs).
-        converted = check_section("trainer", values, TRAINER)
-        for key in ("lr_milestones", "shift_channels"):
-            if key in converted:
-                converted[key] = tuple(converted[key])
-        config = cls(**converted)
-        return config
+        return read(cls, values, section, TRAINER)
 
     def to_dict(self) -> dict[str, Any]:
         values = dataclasses.asdict(self)
@@ -517,7 +506,7 @@ def fit(
     ``learning_curve`` (scikit-learn only) also fits on growing stratified subsets of ``train``
     and keeps train/validation scores per size in ``FitResult.curve``.
     """
-    config = TrainerConfig.from_dict(config)
+    config = TrainerConfig.parse(config)
     if len(train) == 0 or len(val) == 0:
         raise ValueError(f"fit needs non-empty train and val splits, got {len(train)} and {len(val)} clips")
     seed_everything(seed, config.deterministic)
@@ -541,7 +530,7 @@ def fit_final(
     """Train a fresh ``classifier`` on ``train`` (train+val) for exactly ``epochs`` epochs, no
     validation, then predict ``test`` once. ``epochs`` is ignored by scikit-learn classifiers.
     """
-    config = TrainerConfig.from_dict(config)
+    config = TrainerConfig.parse(config)
     if len(train) == 0:
         raise ValueError("fit_final needs a non-empty training split")
     seed_everything(seed, config.deterministic)
@@ -595,7 +584,7 @@ def load_checkpoint(path: str | Path) -> tuple[Classifier, dict[str, Any]]:
         raise ValueError(f"{path}: not an aslexp recognition checkpoint (expected format {CHECKPOINT_FORMAT!r})")
     if payload["kind"] == "sklearn":
         return payload["classifier"], payload["extra"]
-    classifier = rebuild_classifier(ClassifierSpec.from_dict(payload["spec"]))
+    classifier = rebuild_classifier(ClassifierSpec.from_saved(payload["spec"]))
     assert isinstance(classifier, TorchClassifier)
     classifier.module.load_state_dict(payload["state_dict"])
     classifier.module.eval()

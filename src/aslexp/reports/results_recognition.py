@@ -222,7 +222,7 @@ def split_facts(cfg: Any) -> dict[str, Any]:
 
     dataset, build = build_or_load(Path(cfg.cache_dir), params_from_config(OmegaConf.to_container(cfg, resolve=True)),
                                    root=cfg.data.root)
-    options = SplitOptions.from_dict(OmegaConf.to_container(cfg.split, resolve=True))
+    options = SplitOptions.parse(OmegaConf.to_container(cfg.split, resolve=True))
     views = split_views(dataset, options)
     manifest = json.loads((Path(build) / "manifest.json").read_text(encoding="utf-8"))
     unit = "glosses" if options.name == "gloss" else "clips"

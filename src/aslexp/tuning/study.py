@@ -81,7 +81,8 @@ class SweepInfo:
     updated: str | None = None
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> "SweepInfo":
+    def from_saved(cls, data: Mapping[str, Any]) -> "SweepInfo":
+        """A sweep.json aslexp wrote (keys of a newer version ignored): a record, not configuration."""
         known = set(cls.__dataclass_fields__)
         return cls(**{k: v for k, v in data.items() if k in known})
 
@@ -121,7 +122,7 @@ def read_sweep_info(sweep_dir: str | os.PathLike) -> SweepInfo | None:
         raise ValueError(f"{path}: not valid JSON ({err})") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: a JSON {type(data).__name__}, expected an object")
-    return SweepInfo.from_dict(data)
+    return SweepInfo.from_saved(data)
 
 
 def safe_name(name: str) -> str:

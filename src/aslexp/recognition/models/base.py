@@ -55,7 +55,8 @@ class ClassifierSpec:
         }
 
     @classmethod
-    def from_dict(cls, values: dict[str, Any]) -> ClassifierSpec:
+    def from_saved(cls, values: dict[str, Any]) -> ClassifierSpec:
+        """The spec a checkpoint stored (:meth:`to_dict`): a record aslexp wrote, not configuration."""
         layout = values.get("layout")
         if layout is not None:
             layout = KeypointLayout(
