@@ -77,15 +77,20 @@ def group(name: str, choice: str | None = None, job: str = IMITATE, overrides: S
     """One group's config as the job composes it: ``conf/<name>/<choice>.yaml`` (None: the job's
     default, after ``overrides`` such as ``body=upper_body``), its defaults list applied."""
     if choice is not None:
-        path = CONF_DIR / name / f"{choice}.yaml"
-        if not path.is_file():
-            available = sorted(p.stem for p in (CONF_DIR / name).glob("*.yaml"))
-            raise ConfigError(f"{name}={choice}: no such config ({path}); available: {', '.join(available)}")
+        check_choice(name, choice)
         overrides = (*overrides, f"{name}={choice}")
     config = compose(job, overrides)
     if name not in config:
         raise ConfigError(f"conf/{job}.yaml has no group {name!r}")
     return config[name]
+
+
+def check_choice(name: str, choice: str) -> None:
+    """``conf/<name>/<choice>.yaml`` exists, else one line naming the group and what there is."""
+    path = CONF_DIR / name / f"{choice}.yaml"
+    if not path.is_file():
+        available = sorted(p.stem for p in (CONF_DIR / name).glob("*.yaml"))
+        raise ConfigError(f"{name}={choice}: no such config ({path}); available: {', '.join(available)}")
 
 
 def body_groups(body: str, job: str = IMITATE) -> dict[str, str]:

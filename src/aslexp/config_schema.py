@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import math
 import types
 import typing
@@ -292,7 +293,7 @@ def read(cls: type[T], values: Mapping[str, Any] | None, section: str,
                and f.default_factory is dataclasses.MISSING]
     if missing:
         raise ConfigError(f"{section}: missing {', '.join(f'{section}.{name}' for name in missing)}")
-    hints = typing.get_type_hints(cls)
+    hints = _type_hints(cls)
     out: dict[str, Any] = {}
     for name, value in values.items():
         where = f"{section}.{name}"
@@ -309,6 +310,12 @@ def read(cls: type[T], values: Mapping[str, Any] | None, section: str,
     except ConfigError as error:
         text = str(error)
         raise ConfigError(text if text.startswith(section) else f"{section}.{text}") from None
+
+
+@functools.lru_cache(maxsize=None)
+def _type_hints(cls: type) -> dict[str, Any]:
+    """A section class's field types (its string annotations evaluated once, not at every read)."""
+    return typing.get_type_hints(cls)
 
 
 def _default(f: dataclasses.Field) -> Any:

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.compose import IMITATE, compose, deep_merge, group, resolve_group
+from aslexp.compose import IMITATE, check_choice, compose, deep_merge, group, resolve_group
 from aslexp.paths import CONF_DIR
 from aslexp.envs.reward import ImitationReward, RewardSpec
 from aslexp.envs.spec import EnvSpec
@@ -74,7 +74,7 @@ class ImitationSetup:
         given = {"body": body, "controller": controller, "reward": reward, "env": env, "engine": engine}
         chosen = {**(defaults or {}), **{name: value for name, value in given.items() if isinstance(value, str)}}
         for name, value in chosen.items():
-            group(name, value)  # a name that is no file: one line naming the group and what there is
+            check_choice(name, value)  # a name that is no file: one line naming the group and what there is
         composed = compose(IMITATE, [f"{name}={value}" for name, value in chosen.items()])
         groups = {}
         for name, value in given.items():
