@@ -41,8 +41,8 @@ def test_every_rows_command_composes_for_its_job_with_its_overlay_engine_and_rew
 
     job, overrides = results_page.command_overrides(entry["command"])
     assert job == entry["job"]
-    if entry["overlay"] is None:  # a retrieval entry: the job's defaults are its setting
-        assert entry["report"] in results_page.RETRIEVAL_REPORTS and not any(o.startswith("experiment=") for o in overrides)
+    if entry["overlay"] is None:  # a job-table entry (retrieval, seen glosses): the job's defaults are its setting
+        assert entry["report"] in results_page.JOB_TABLE_REPORTS and not any(o.startswith("experiment=") for o in overrides)
     else:
         assert entry["overlay"] in cli.experiments_of(job)  # the catalogue, not archive/
         assert f"experiment={entry['overlay']}" in overrides

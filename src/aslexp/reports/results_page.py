@@ -18,7 +18,9 @@ For each entry of the catalogue, the first of its ``runs`` alternatives whose fo
   reads recognition runs); :mod:`aslexp.reports.results_recognition` adds each row's test clips, its
   interval, the "no better than chance" mark and the line "Differences from the thesis";
 * ``retrieval``: an ``aslexp retrieve`` run's table (:mod:`aslexp.reports.results_retrieval`: one row
-  per method, recall@k, MRR and median rank over gloss splits, and where the issue's targets land).
+  per method, recall@k, MRR and median rank over gloss splits, and where the issue's targets land);
+* ``seen_glosses``: an ``aslexp glosses`` run's table (:mod:`aslexp.reports.results_seen_glosses`: one
+  row per method, top-k over splits stratified by gloss, the paired effect of the auxiliary heads).
 
 The snapshot holds numbers (fractions; the page prints percentages where the entry says so), the
 run folders it came from (relative to ``--outputs``), when the runs started and finished, where
@@ -44,7 +46,7 @@ import numpy as np
 
 from aslexp.files import atomic_write_text
 from aslexp.paths import CONF_DIR
-from aslexp.reports import results_recognition, results_retrieval
+from aslexp.reports import results_recognition, results_retrieval, results_seen_glosses
 from aslexp.reports.commands import command_overrides  # noqa: F401 - part of this module's interface
 from aslexp.runfile import RUN_FILE
 
@@ -56,9 +58,10 @@ SNAPSHOTS = Path("docs") / "results"
 SNAPSHOT_SCHEMA = 1
 IMITATION_REPORTS = ("thesis", "scratch", "residual")
 RECOGNITION_REPORTS = ("recognition", "recognition_per_class")
-# An `aslexp retrieve` run's table (aslexp.reports.results_retrieval); such an entry may name no
-# overlay (overlay: null): the job's defaults are its setting.
-RETRIEVAL_REPORTS = (results_retrieval.REPORT,)
+# One job run's own table (`aslexp retrieve`: aslexp.reports.results_retrieval; `aslexp glosses`:
+# aslexp.reports.results_seen_glosses), each module with results_summary and render; such an entry
+# may name no overlay (overlay: null): the job's defaults are its setting.
+JOB_TABLE_REPORTS = {module.REPORT: module for module in (results_retrieval, results_seen_glosses)}
 _REQUIRED = ("id", "title", "beside", "thesis", "overlay", "job", "command", "engine", "reward", "report",
              "runs", "earlier")
 # Overrides that name where a run goes or how it is watched, not what it runs.
@@ -88,7 +91,7 @@ def load_catalogue(path: str | Path = CATALOGUE) -> list[dict[str, Any]]:
         if not re.fullmatch(r"[a-z0-9_]+", str(entry["id"])) or entry["id"] in seen:
             raise ValueError(f"{where}: the id must be unique, lower case, digits and _")
         seen.add(entry["id"])
-        if entry["report"] not in IMITATION_REPORTS + RECOGNITION_REPORTS + RETRIEVAL_REPORTS:
+        if entry["report"] not in IMITATION_REPORTS + RECOGNITION_REPORTS + tuple(JOB_TABLE_REPORTS):
             raise ValueError(f"{where}: unknown report {entry['report']!r}")
         runs = entry["runs"]
         if not isinstance(runs, list) or not all(isinstance(r, dict) and isinstance(r.get("folders"), list)
@@ -852,8 +855,8 @@ def render(catalogue: list[dict[str, Any]], snapshots: Path) -> str:
                      f"{_cell(_status(entry, snapshot))} |")
     lines.append("")
     for entry in catalogue:
-        if entry["report"] in RETRIEVAL_REPORTS:
-            lines += results_retrieval.render(entry, found[entry["id"]], render_entry)
+        if entry["report"] in JOB_TABLE_REPORTS:
+            lines += JOB_TABLE_REPORTS[entry["report"]].render(entry, found[entry["id"]], render_entry)
             continue
         lines += results_recognition.render(entry, found[entry["id"]], render_entry)  # others: render_entry
     return "\n".join(lines).rstrip("\n") + "\n"
@@ -864,7 +867,7 @@ def write_results(catalogue_path: Path, outputs: Path, snapshots: Path, page: Pa
     """Update the snapshots from ``outputs`` (unless ``render_only``) and write the page."""
     catalogue = load_catalogue(catalogue_path)
     summarizers = {**{kind: imitation_summary for kind in IMITATION_REPORTS},
-                   results_retrieval.REPORT: results_retrieval.results_summary, **(summarizers or {})}
+                   **{kind: module.results_summary for kind, module in JOB_TABLE_REPORTS.items()}, **(summarizers or {})}
     done = {} if render_only else update(catalogue, outputs, snapshots, summarizers)
     text = render(catalogue, snapshots)
     atomic_write_text(page, text)

@@ -7,18 +7,14 @@ from the run folder; :func:`render` draws the table (the entry's other lines are
 
 from __future__ import annotations
 
-import json
-import logging
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from aslexp.runfile import RUN_FILE
-
-log = logging.getLogger(__name__)
+from aslexp.reports.job_table import find_runs, latest, number, render_with_table
 
 REPORT = "retrieval"
+JOB = "retrieve"
 METRICS = ("recall@1", "recall@10", "recall@50", "mrr", "median_rank")
 HEADERS = {"recall@1": "recall@1 (%)", "recall@10": "recall@10 (%)", "recall@50": "recall@50 (%)", "mrr": "MRR",
            "median_rank": "median rank"}
@@ -27,53 +23,16 @@ HEADERS = {"recall@1": "recall@1 (%)", "recall@10": "recall@10 (%)", "recall@50"
 TARGET_ALONE, TARGET_COMBINED = 0.10, 0.50
 
 
-def _read(path: Path) -> Any:
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as err:
-        log.warning("warning: %s: %s; left out", path, err)
-        return None
-
-
-def find_runs(folders: list[Path]) -> tuple[list[tuple[Path, dict[str, Any]]], dict[str, int]]:
-    """Completed ``aslexp retrieve`` runs under ``folders`` (run folder, metrics.json), and what was left out."""
-    runs, skipped = [], {}
-    for folder in folders:
-        for path in sorted(Path(folder).rglob(RUN_FILE)):
-            info = _read(path) or {}
-            if info.get("job") != "retrieve":
-                continue
-            if info.get("status") != "completed":
-                reason = f"status {info.get('status', 'unknown')}"
-                skipped[reason] = skipped.get(reason, 0) + 1
-                continue
-            metrics = _read(path.parent / "metrics.json")
-            if not isinstance(metrics, dict) or "table" not in metrics:
-                skipped["no retrieval table in metrics.json"] = skipped.get("no retrieval table in metrics.json", 0) + 1
-                continue
-            runs.append((path.parent, metrics))
-    return runs, skipped
-
-
-def _number(value: Any) -> float | None:
-    if value is None:
-        return None
-    value = float(value)
-    return round(value, 6) if math.isfinite(value) else None
-
-
 def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any]:
     """The rows of the latest completed retrieve run under ``folders`` (one per method) and its facts;
     the earlier runs there are counted as left out."""
-    runs, skipped = find_runs(folders)
+    runs, skipped = find_runs(folders, JOB)
     if not runs:
         return {"rows": [], "run_dirs": [], "skipped": skipped}
-    run_dir, metrics = max(runs, key=lambda r: ((_read(r[0] / RUN_FILE) or {}).get("finished") or "", str(r[0])))
-    if len(runs) > 1:
-        skipped["earlier completed runs (the latest is reported)"] = len(runs) - 1
+    run_dir, metrics = latest(runs, skipped)
     rows = []
     for method, label in metrics["methods"].items():
-        cells = {key: {k: _number(metrics["table"][method][key].get(k)) for k in ("mean", "low", "high", "half_width")}
+        cells = {key: {k: number(metrics["table"][method][key].get(k)) for k in ("mean", "low", "high", "half_width")}
                  for key in METRICS}
         rows.append({"key": method, "label": label, "thesis": None, "baselines": [], "steps": None,
                      "learned": {"what": "test recall@50 over gloss splits", "mean": cells["recall@50"]["mean"],
@@ -91,8 +50,8 @@ def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any
         "oracle_lexicon": {k: metrics["oracle_lexicon"][k] for k in ("recall@10", "recall@50", "chance_recall@10",
                                                                       "chance_recall@50")},
         "paired": [{"method": p["method"], "reference": p["reference"], "metric": p["metric"],
-                    "diff": {k: _number(p["diff"][k]) for k in ("mean", "low", "high")},
-                    "wins": p["wins"], "ties": p["ties"], "losses": p["losses"], "wilcoxon_p": _number(p["wilcoxon_p"])}
+                    "diff": {k: number(p["diff"][k]) for k in ("mean", "low", "high")},
+                    "wins": p["wins"], "ties": p["ties"], "losses": p["losses"], "wilcoxon_p": number(p["wilcoxon_p"])}
                    for p in metrics.get("paired", [])],
     }
     return {"rows": rows, "run_dirs": [run_dir], "skipped": skipped, "quantity": "test retrieval over gloss splits",
@@ -176,11 +135,6 @@ def render(entry: dict[str, Any], snapshot: dict[str, Any] | None,
            render_entry: Callable[[dict[str, Any], dict[str, Any] | None], list[str]]) -> list[str]:
     """``render_entry``'s lines for a retrieval entry with its table (and the line of numbers) in place
     of the generic one."""
-    lines = render_entry(entry, snapshot)
     if snapshot is None:
-        return lines
-    start = next((i for i, line in enumerate(lines) if line.startswith("| ")), None)
-    end = next((i for i, line in enumerate(lines) if line.startswith("Numbers:")), None)
-    if start is None or end is None:
-        return lines
-    return lines[:start] + table(snapshot) + [""] + legend(snapshot) + lines[end + 2:]
+        return render_entry(entry, snapshot)
+    return render_with_table(entry, snapshot, render_entry, table(snapshot), legend(snapshot))

@@ -262,13 +262,17 @@ class MultiTaskModel:
 
 def fit_multitask(X: np.ndarray, mask: np.ndarray, codes: np.ndarray, names: Sequence[str], train_idx: np.ndarray,
                   val_idx: np.ndarray, params: Mapping[str, Any] | None = None, *, seed: int = 0,
-                  calibrate: bool = True, glosses: Sequence[str] | None = None) -> MultiTaskModel:
+                  calibrate: bool = True, glosses: Sequence[str] | None = None,
+                  select: Sequence[str] | None = None) -> MultiTaskModel:
     """Train one encoder with a head per column of ``codes`` (N, H) (-1: unknown, its loss masked)
-    on ``train_idx``; keep the epoch of the best mean validation MCC over the heads (ties: lower
-    validation loss), stop after ``patience`` epochs without a better one; then fit each head's
-    temperature on ``val_idx``. ``params``: the encoder's (:data:`DEFAULTS`) and the fit's
-    (:data:`FIT_DEFAULTS`) keys; with ``gloss_head`` the clips' ``glosses`` label one more head
-    (named ``gloss``, last), which neither chooses the epoch nor is calibrated."""
+    on ``train_idx``; keep the epoch of the best mean validation MCC over the heads named in
+    ``select`` (None: every head; ties: lower validation loss over them), stop after ``patience``
+    epochs without a better one; then fit each head's temperature on ``val_idx``. ``params``: the
+    encoder's (:data:`DEFAULTS`) and the fit's (:data:`FIT_DEFAULTS`) keys; with ``gloss_head`` the
+    clips' ``glosses`` label one more head (named ``gloss``, last), which neither chooses the epoch
+    nor is calibrated. With ``select`` naming only some heads, the others are auxiliary tasks: they
+    shape the encoder through their loss and never choose the epoch (seen-gloss classification with
+    phonology heads: :mod:`aslexp.recognition.seen_glosses`)."""
     from aslexp.recognition.metrics import mcc
 
     p = check_params(params or {})
@@ -290,6 +294,12 @@ def fit_multitask(X: np.ndarray, mask: np.ndarray, codes: np.ndarray, names: Seq
         if len(classes) < 2:
             raise ValueError(f"multitask: head {name!r} has {len(classes)} class(es) among the training clips; need 2")
         heads.append(Head(name, classes))
+    chooses = [h for h, name in enumerate(names) if not (name == GLOSS and p["gloss_head"])]
+    if select is not None:
+        missing = sorted(set(select) - set(names))
+        if missing or not select:
+            raise ValueError(f"multitask: select={list(select)} names no head or unknown heads {missing}; heads: {names}")
+        chooses = [h for h, name in enumerate(names) if name in set(select)]
     weights = p["head_weights"] or [1.0] * len(heads)
     if len(weights) != len(heads):
         raise ValueError(f"multitask: head_weights has {len(weights)} values for {len(heads)} heads")
@@ -327,7 +337,7 @@ def fit_multitask(X: np.ndarray, mask: np.ndarray, codes: np.ndarray, names: Seq
         val_logits = model.logits(X[val_idx], mask[val_idx])
         scores, losses = [], []
         for h, (z, head) in enumerate(zip(val_logits, heads)):
-            if head.name == GLOSS and p["gloss_head"]:
+            if h not in chooses:
                 continue
             truth = codes[val_idx, h]
             known = truth >= 0
