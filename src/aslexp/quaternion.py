@@ -116,7 +116,7 @@ def z_to(direction) -> list[float]:
 
 
 def wxyz_to_xyzw(q) -> list[float]:
-    """PyBullet's order (x, y, z, w) of one quaternion."""
+    """The scalar-last order (x, y, z, w) of one quaternion."""
     return [float(q[1]), float(q[2]), float(q[3]), float(q[0])]
 
 

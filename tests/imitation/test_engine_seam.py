@@ -109,10 +109,10 @@ def _engine_words(path: Path) -> list[str]:
     return found
 
 
-@pytest.mark.parametrize("room", ["envs", "rl", "jobs", "tuning", "runs"])
+@pytest.mark.parametrize("room", ["envs", "rl", "jobs", "tuning", "runs", "reports", "measure", "control"])
 def test_no_room_above_the_engines_names_or_imports_one(room):
-    # reports/ still simulates (issue 36 item 4 moves its baselines into the runs); the engine
-    # agreement report compares the two engines by name
+    # what differs between engines is data (conf/engine/*.yaml `report:`, conf/engine_agreement.yaml);
+    # tests/platform/test_engine_names.py reads comments and docstrings too
     found = [hit for path in sorted((SRC / room).rglob("*.py")) for hit in _engine_words(path)
              if not hit.startswith("record.py")]  # runs/record.py lists installed package versions
     assert found == []

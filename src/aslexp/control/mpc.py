@@ -1,7 +1,7 @@
 """Sampling-based model-predictive control: the ceiling of an imitation task (``conf/planner``).
 
 At every control step the planner copies the simulated body's full physics state into ``samples``
-rows of a batch (:class:`~aslexp.envs.batched.BatchedImitationEnv`, an engine that batches: MuJoCo),
+rows of a batch (:class:`~aslexp.envs.batched.BatchedImitationEnv`, on an engine that batches),
 rolls each row ``horizon`` control steps forward under a candidate sequence of actions, scores each
 by the task's own reward summed over the horizon, and applies the first action of the updated plan
 (receding horizon). The actions are the environment's residual corrections to its PD controller's

@@ -2,7 +2,7 @@
 
 ``BatchedImitationEnv(num_envs, motion, ..., engine=...)`` is what ``N`` copies of
 :class:`~aslexp.envs.imitation.ImitationEnv` on an engine that batches
-(:class:`~aslexp.sim.engine.BatchedBody`; MuJoCo's, :mod:`aslexp.sim.mujoco_engine`) would be, with
+(its :class:`~aslexp.sim.engine.BatchedBody`) would be, with
 no Python per environment in a step: the physics of all N advances in one call (C threads), the
 link states of the N bodies and of their N references come back from one more, and the reference, the targets, the observation
 (:func:`~aslexp.envs.imitation.observe`) and the reward (``ImitationReward.many``) are computed on

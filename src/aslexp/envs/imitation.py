@@ -77,7 +77,7 @@ class ImitationEnv(gym.Env):
         """Group values are names, partial dicts merged over the group default, or None; with
         ``complete_configs`` dicts are taken as they are (the jobs pass Hydra-composed groups,
         which merged over another body's default file would gain its keys and reward terms).
-        ``engine``: ``conf/engine`` (a name or a dict; None: PyBullet, the thesis' engine).
+        ``engine``: ``conf/engine`` (a name or a dict; None: the default engine, the thesis').
         ``shape_reward``: a training env, whose returned reward carries the env's training-only
         shaping (``heading_shaping``, ``offset_shaping``); every other env returns the reward config's reward.
         ``score_rewards``: name -> reward config (a name or a complete dict) under which every step is
@@ -181,7 +181,7 @@ class ImitationEnv(gym.Env):
                                  f"joints {empty} of body {self.body_spec.name} have lower == upper")
             self.action_space = gym.spaces.Box(-1.0, 1.0, shape=self.physical_action_space.shape, dtype=np.float32)
         self.observed_links = self._select_links(self.spec_env.observe_links)
-        # Links read from PyBullet each step: the observed ones and the end effectors (None: all).
+        # Links read from the engine each step: the observed ones and the end effectors (None: all).
         self._state_links = (None if self.spec_env.observe_links is None else
                              sorted(set(self.observed_links.tolist()) | set(self.sim.end_effector_links)))
         obs_size = 1 + 13 * len(self.observed_links) + len(self.spec_env.observe_future) * self.layout.action_size
@@ -414,8 +414,8 @@ class ImitationEnv(gym.Env):
 
         links = self.sim.link_states(links=self._state_links)
         sim_state = self._sim_snapshot(links)
-        # MuJoCo clamps joint speeds as PyBullet does: its guard reads the speed before the clamp,
-        # which a simulation that blew up sends far past max_joint_velocity (or to NaN).
+        # An engine that clamps joint speeds after each step reports the speed before its clamp
+        # (peak_speed), which a simulation that blew up sends far past max_joint_velocity (or to NaN).
         speed = np.max([np.max(np.abs(sim_state.qd)), getattr(self.sim, "peak_speed", 0.0)])  # NaN stays NaN
         if (not np.all(np.isfinite(links)) or not np.all(np.isfinite(sim_state.qd))
                 or not speed <= self.spec_env.max_joint_velocity):
@@ -456,7 +456,7 @@ class ImitationEnv(gym.Env):
         return self._observation(links), reward, early, truncated, info
 
     def _divergence(self, qd: np.ndarray, speed: float) -> dict[str, Any]:
-        """Where a blow-up showed: the fastest joint (MuJoCo: before its clamp; a NaN counts as the
+        """Where a blow-up showed: the fastest joint (before any engine's clamp; a NaN counts as the
         fastest), its speed and the time into the episode (for the one line that reports it)."""
         joint = getattr(self.sim, "peak_joint", "")
         if not joint:
@@ -481,7 +481,7 @@ class ImitationEnv(gym.Env):
 
     # ------------------------------------------------------------------------------------
     def render(self) -> np.ndarray | None:
-        """Reference (left) and simulation (right) side by side, PyBullet's TinyRenderer."""
+        """Reference (left) and simulation (right) side by side, as the engine renders them."""
         if self.render_mode != "rgb_array":
             return None
         return self.simulation.render({**DEFAULT_CAMERA, **(self.spec_env.camera or {})}, self.render_size)

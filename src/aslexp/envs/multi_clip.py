@@ -5,7 +5,7 @@ Each episode imitates one clip, drawn uniformly at reset (or named: ``options={"
 evaluation env cycles through the clips). The observation is the clip's observation followed by
 a one-hot clip code, so one policy conditions on which sign to make. All clips must share the
 body (same observation and action spaces); each clip keeps its own
-:class:`~aslexp.envs.imitation.ImitationEnv` (two PyBullet worlds each).
+:class:`~aslexp.envs.imitation.ImitationEnv` (its own simulation and reference each).
 """
 
 from __future__ import annotations

@@ -54,7 +54,7 @@ def build_envs(cfg: dict[str, Any], data_root: Path, vector_env: str = "auto"):
     """A factory of training envs (picklable: PPO may build them in worker processes) and the
     evaluation env (no early termination: evaluations score whole episodes; also scored under
     ``report.score_rewards``). With
-    ``vector_env: batched`` (an engine that batches: engine=mujoco) the factory takes the number of environments and
+    ``vector_env: batched`` (an engine that batches) the factory takes the number of environments and
     builds one :class:`~aslexp.envs.batched.BatchedImitationEnv` of them."""
     import functools
 
@@ -83,7 +83,7 @@ def _engine(cfg: dict[str, Any]):
 
 
 def engine_vector_env(cfg: dict[str, Any], vector_env: str) -> str:
-    """``auto`` on an engine that batches (engine=mujoco) is ``batched``: every environment in one
+    """``auto`` on an engine that batches is ``batched``: every environment in one
     batch; any other choice stays."""
     return "batched" if vector_env == "auto" and _engine(cfg).batched else vector_env
 

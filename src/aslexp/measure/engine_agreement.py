@@ -1,16 +1,16 @@
-"""How far the engines agree: the no-learning baselines in PyBullet and in MuJoCo, side by side.
+"""How far the engines agree: the no-learning baselines on each engine configuration, side by side.
 
     python -m aslexp.measure.engine_agreement [--letters A,B,C,D,E] [--signs 00433,52861,69318,69546]
                                          [--seconds 10] [--out outputs/engine_agreement]
 
 For each letter (the hand, the thesis reward ``hand_thesis``) and each sign (the upper body,
 ``upper_body_thesis``), every controller is driven by the reference (lookahead 0: the reference as
-the PD target; 1: one control step ahead) for ``seconds`` of simulated time from phase 0, in both
-engines, scored by the same reward code. MuJoCo runs with PyBullet's joint-speed clamp (100 rad/s,
-``engine.joint_speed_limit``, the default) and, in one more column, without it, so the table shows
-what the clamp changes. A row that fell or blew up (diverged) says so beside its number. Writes
-``agreement.json`` and ``agreement.md`` (the table docs/engines.md shows) with the difference
-MuJoCo - PyBullet per row.
+the PD target; 1: one control step ahead) for ``seconds`` of simulated time from phase 0, on every
+column of ``conf/engine_agreement.yaml`` (an engine configuration each: today the thesis' engine, the
+batching engine with the thesis engine's joint-speed clamp, and the same without it, so the table shows
+what the clamp changes), scored by the same reward code. A row that fell or blew up (diverged) says so
+beside its number. Writes ``agreement.json`` and ``agreement.md`` (the table docs/engines.md shows)
+with the difference of the two columns the YAML's ``difference`` names, per row.
 """
 
 from __future__ import annotations
@@ -18,13 +18,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from aslexp.compose import compose, resolve_group
+from aslexp.config_schema import Section, Text, key
 from aslexp.data.root import resolve_data_root
 from aslexp.envs.assembly import ImitationSetup
 from aslexp.envs.baselines import Baseline, no_learning_baselines
-from aslexp.compose import resolve_group
+from aslexp.errors import ConfigError
 from aslexp.reports.report import ended_early
 
 # (body, reward, env, rows): the settings whose baselines the thesis and aslexp report.
@@ -34,9 +37,6 @@ HAND_ROWS = [
     ("reference-velocity PD (tuned), 30 Hz", "reference_velocity_tuned", {}, "default"),
     ("reference-velocity PD (tuned), 240 Hz", "reference_velocity_tuned", {}, "hand_thesis"),
 ]
-# MuJoCo as configured (PyBullet's clamp reproduced) and MuJoCo's own semantics (no clamp).
-ENGINES = {"pybullet": "pybullet", "mujoco": {"name": "mujoco"},
-           "mujoco_unclamped": {"name": "mujoco", "joint_speed_limit": None}}
 UPPER_ROWS = [
     # the authors' code's controller (stable PD everywhere, hands 50 / 0.5): one mode, comparable across engines
     ("authors' code: stable PD, pinned base, 240 Hz", "upper_body_thesis_code", {"base": "pinned"}, "upper_body_thesis"),
@@ -45,8 +45,42 @@ UPPER_ROWS = [
 ]
 
 
-def measure(kind: str, name: str, seconds: float, data_root: Path) -> list[dict[str, Any]]:
-    """Both engines' baselines of one letter (``kind`` hand) or sign (upper_body)."""
+@dataclass(frozen=True)
+class Column(Section):
+    """One column of the table: its heading and its engine (a ``conf/engine`` name or a section)."""
+
+    SECTION = "engine_agreement.columns"
+
+    heading: str = field(metadata=key(Text()))
+    engine: Any = None
+
+
+@dataclass(frozen=True)
+class Agreement(Section):
+    """``conf/engine_agreement.yaml``: the columns (key -> :class:`Column`, in order) and the two
+    whose difference gets a column of its own (None: no such column)."""
+
+    SECTION = "engine_agreement"
+
+    columns: dict[str, Column] = field(default_factory=dict)
+    difference: tuple[str, str] | None = None
+
+    def __post_init__(self) -> None:
+        if not self.columns:
+            raise ConfigError("columns: expected at least one engine configuration")
+        unknown = [name for name in self.difference or () if name not in self.columns]
+        if unknown:
+            raise ConfigError(f"difference={list(self.difference or ())}: {unknown[0]} is no column; "
+                              f"expected two of {', '.join(self.columns)}")
+
+
+def load_agreement(overrides: list[str] | None = None) -> Agreement:
+    """The columns as ``conf/engine_agreement.yaml`` (with Hydra ``overrides``) gives them."""
+    return Agreement.parse(compose("engine_agreement", overrides or []))
+
+
+def measure(kind: str, name: str, seconds: float, data_root: Path, agreement: Agreement) -> list[dict[str, Any]]:
+    """Every column's baselines of one letter (``kind`` hand) or sign (upper_body)."""
     if kind == "hand":
         body, reward, rows = resolve_group("body", "hand15"), resolve_group("reward", "hand_thesis"), HAND_ROWS
         motion = data_root / "motions" / "hand" / f"{name}.txt"
@@ -58,16 +92,19 @@ def measure(kind: str, name: str, seconds: float, data_root: Path) -> list[dict[
         env = resolve_group("env", env_name)
         row = Baseline.parse({"label": label, "controller": controller, "body": body_overrides})
         measured = {}
-        for engine, config in ENGINES.items():
-            setup = ImitationSetup.from_groups(motion, body, None, reward, env, config, data_root=data_root,
+        for column, spec in agreement.columns.items():
+            setup = ImitationSetup.from_groups(motion, body, None, reward, env, spec.engine, data_root=data_root,
                                                complete=True)
-            measured[engine] = no_learning_baselines(setup, [row], seconds)
-        for pb, mj, free in zip(measured["pybullet"], measured["mujoco"], measured["mujoco_unclamped"]):
-            out.append({"body": kind, "motion": name, "label": label, "lookahead": pb["lookahead"],
-                        "pybullet": pb["reward"], "mujoco": mj["reward"], "difference": mj["reward"] - pb["reward"],
-                        "mujoco_unclamped": free["reward"],
-                        **{f"{engine}_{end}": run[end] for engine, run in
-                           (("pybullet", pb), ("mujoco", mj), ("mujoco_unclamped", free)) for end in ("fell", "diverged")}})
+            measured[column] = no_learning_baselines(setup, [row], seconds)
+        for runs in zip(*measured.values()):
+            by_column = dict(zip(measured, runs))
+            entry = {"body": kind, "motion": name, "label": label, "lookahead": runs[0]["lookahead"]}
+            for column, run in by_column.items():
+                entry[column] = run["reward"]
+                if agreement.difference and column == agreement.difference[0]:
+                    entry["difference"] = run["reward"] - by_column[agreement.difference[1]]["reward"]
+            entry.update({f"{column}_{end}": run[end] for column, run in by_column.items() for end in ("fell", "diverged")})
+            out.append(entry)
     return out
 
 
@@ -77,12 +114,21 @@ def _mark(row: dict[str, Any], engine: str) -> str:
     return f"{row[engine]:.3f}" + (f" ({ends})" if ends else "")
 
 
-def table(rows: list[dict[str, Any]]) -> str:
-    lines = ["| body | motion | controller | lookahead | PyBullet | MuJoCo | MuJoCo - PyBullet | MuJoCo, no speed clamp |",
-             "|---|---|---|---|---|---|---|---|"]
+def table(rows: list[dict[str, Any]], agreement: Agreement) -> str:
+    headings, difference = [], agreement.difference
+    for column, spec in agreement.columns.items():
+        headings.append(spec.heading)
+        if difference and column == difference[0]:
+            headings.append(f"{spec.heading} - {agreement.columns[difference[1]].heading}")
+    lines = ["| body | motion | controller | lookahead | " + " | ".join(headings) + " |",
+             "|" + "---|" * (4 + len(headings))]
     for r in rows:
-        lines.append(f"| {r['body']} | {r['motion']} | {r['label']} | {r['lookahead']} | {_mark(r, 'pybullet')} | "
-                     f"{_mark(r, 'mujoco')} | {r['difference']:+.3f} | {_mark(r, 'mujoco_unclamped')} |")
+        cells = []
+        for column in agreement.columns:
+            cells.append(_mark(r, column))
+            if difference and column == difference[0]:
+                cells.append(f"{r['difference']:+.3f}")
+        lines.append(f"| {r['body']} | {r['motion']} | {r['label']} | {r['lookahead']} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -93,18 +139,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per baseline")
     parser.add_argument("--out", default="outputs/engine_agreement")
     parser.add_argument("--data-root", default=None)
+    parser.add_argument("overrides", nargs="*", help="overrides of conf/engine_agreement.yaml (the columns), "
+                        "e.g. difference=[B,A]")
     args = parser.parse_args(argv)
+    agreement = load_agreement(args.overrides)
     data_root = resolve_data_root(args.data_root)
     rows = []
     jobs = [("hand", m) for m in args.letters.split(",") if m] + [("upper_body", m) for m in args.signs.split(",") if m]
     for k, (kind, name) in enumerate(jobs, 1):
-        rows += measure(kind, name, args.seconds, data_root)
+        rows += measure(kind, name, args.seconds, data_root, agreement)
         print(f"[{k}/{len(jobs)}] {kind} {name}", file=sys.stderr, flush=True)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "agreement.json").write_text(json.dumps(rows, indent=1))
-    (out / "agreement.md").write_text(table(rows))
-    print(table(rows))
+    (out / "agreement.md").write_text(table(rows, agreement))
+    print(table(rows, agreement))
     return 0
 
 

@@ -72,8 +72,10 @@ def residual_baselines(cfg: dict[str, Any], cache: Path | None = None) -> dict[s
     scored_env = {k: v for k, v in cfg["env"].items() if k not in TRAINING_ONLY_KEYS + RESIDUAL_BASE_KEYS}
     key = {"settings": settings, "body": cfg["body"], "controller": cfg["controller"], "reward": cfg["reward"],
            "env": scored_env, "motion": cfg["motion"], "protocol": ppo.eval_protocol}
-    if cfg.get("engine") and cfg["engine"] != compose.group("engine"):  # the default engine's caches stay valid
-        key["engine"] = cfg["engine"]
+    # the default engine's caches stay valid; what a report says of an engine (`report:`) simulates nothing
+    engine = {k: v for k, v in (cfg.get("engine") or {}).items() if k != "report"}
+    if engine and engine != {k: v for k, v in compose.group("engine").items() if k != "report"}:
+        key["engine"] = engine
     key = json.loads(json.dumps(key))
     if cache is not None and cache.is_file():
         stored = json.loads(cache.read_text())

@@ -9,8 +9,12 @@ composes Table D.1, the thesis' hand, PD, reward and 240 Hz). Snapshots store th
 page renders them without reading configs.
 
 A run from before an option existed has no key for it; its value is then the behaviour it had
-(no joint-speed clamp on MuJoCo, aslexp's box action mapping, torchrl's KL reading), and the
-sentence says so.
+(no joint-speed clamp, aslexp's box action mapping, torchrl's KL reading), and the sentence says so.
+
+What a row says about the engine is the engine's own data: ``report:`` of ``conf/engine/<name>.yaml``
+(a sentence and its parts, :class:`aslexp.sim.engine.EngineReport`), filled here from the run's engine
+section; this module names no engine. A run from before ``report:`` existed gets today's
+``conf/engine/<name>.yaml``'s, and an engine with none (one registered by the tests) is said by its name.
 """
 
 from __future__ import annotations
@@ -21,7 +25,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from aslexp.compose import compose
+from aslexp.compose import compose, group
+from aslexp.errors import ConfigError
 from aslexp.paths import CONF_DIR
 
 # What a key meant before it existed (the behaviour of the code that ran without it).
@@ -34,20 +39,56 @@ def compose_overlay(job: str, overrides: list[str], conf_dir: Path = CONF_DIR) -
     return compose(job, overrides, conf_dir=conf_dir, resolve=False)
 
 
+def _engine_today(name: str | None) -> dict[str, Any]:
+    """``conf/engine/<name>.yaml`` as the imitate job composes it today (None: the job's default
+    engine; {} for an engine that has no file there, one registered by the tests)."""
+    try:
+        return group("engine", name)
+    except ConfigError:
+        return {}
+
+
+def engine_section(cfg: dict[str, Any]) -> dict[str, Any]:
+    """A run's engine section, completed as it ran: no section at all (a run from before the engine
+    group) is the default engine; a key the run lacks is what it meant then (:data:`_BEFORE`), else
+    today's file's (``report:`` included)."""
+    engine = dict(cfg.get("engine") or {})
+    today = _engine_today(engine.get("name"))
+    before = {k: v for k, v in _BEFORE.items() if k in today}
+    return {**today, **before, **engine}
+
+
+def _chosen(by: str, engine: dict[str, Any], cfg: dict[str, Any]) -> Any:
+    """The value a report part is chosen by: an engine key, or ``section.key`` of the config."""
+    if "." not in by:
+        return engine.get(by)
+    section, _, name = by.partition(".")
+    return (cfg.get(section) or {}).get(name)
+
+
+def engine_text(cfg: dict[str, Any]) -> str:
+    """What a row says about a run's engine: its ``report:`` filled from its own values (the name
+    where it has none)."""
+    engine = engine_section(cfg)
+    report = engine.get("report")
+    if not report:
+        return str(engine.get("name", "?"))
+    values = {k: v for k, v in engine.items() if k != "report"}
+    try:
+        for name, part in (report.get("parts") or {}).items():
+            value = _chosen(part["by"], engine, cfg)
+            text = part.get("null" if value is None else str(value), part.get("otherwise", ""))
+            values[name] = text.format(**values)
+        return report["text"].format(**values)
+    except (KeyError, ValueError) as error:
+        raise ConfigError(f"engine.report of engine {engine.get('name')}: {error!r} cannot be filled "
+                          f"from {sorted(values)}") from None
+
+
 def facts(cfg: dict[str, Any]) -> dict[str, str]:
     """The comparable facts of one composed imitation config, each as the page prints it."""
     ppo, env, controller = cfg.get("ppo") or {}, cfg.get("env") or {}, cfg.get("controller") or {}
-    engine = cfg.get("engine") or {"name": "pybullet"}
-    out: dict[str, str] = {}
-    if engine.get("name") == "mujoco":
-        limit = engine.get("joint_speed_limit", _BEFORE["joint_speed_limit"])
-        clamp = (f"joint speeds clamped at {limit:g} rad/s as PyBullet's" if limit is not None
-                 else "no joint-speed clamp (PyBullet clamps at 100 rad/s)")
-        stand_in = (f", PyBullet's position motor stood in by a PD actuator (stiffness x {engine.get('motor_gain_scale', 2.0):g})"
-                    if controller.get("mode") == "position" else "")
-        out["engine"] = f"MuJoCo{stand_in}, {clamp}"
-    else:
-        out["engine"] = "PyBullet"
+    out: dict[str, str] = {"engine": engine_text(cfg)}
     gains = (controller.get("groups") or {}).get("default") or {}
     out["controller"] = (f"{controller.get('name', '?')} ({controller.get('mode', '?')}, kp {gains.get('kp', '?')}, "
                          f"kd {gains.get('kd', '?')})")

@@ -42,7 +42,7 @@ entries into vector infos costs 17 us per environment step (SyncVectorEnv, measu
 training reads the terms from the environments' own running sums (``pop_term_means``) instead.
 
 Workers start with ``forkserver`` where the platform has it (``spawn`` otherwise): never
-``fork``, which would copy the learner's threads and PyBullet clients into every worker. The
+``fork``, which would copy the learner's threads and the engine's clients into every worker. The
 environment must therefore come as a picklable factory (``functools.partial(ImitationEnv, ...)``);
 an environment instance can only be stepped in this process (``sync``, one environment).
 """
@@ -60,7 +60,7 @@ import numpy as np
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv, VectorEnv
 
 # workers: aslexp.rl.workers (the policy in each worker); batched: one vector environment that steps
-# every environment together (aslexp.envs.batched, engine=mujoco; the imitate job's auto picks it there)
+# every environment together (aslexp.envs.batched, on an engine that batches; the imitate job's auto picks it there)
 MODES = ("auto", "sync", "async", "workers", "batched")
 START_METHOD = "forkserver" if "forkserver" in multiprocessing.get_all_start_methods() else "spawn"
 

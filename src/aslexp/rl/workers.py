@@ -152,7 +152,7 @@ class PolicyWorkers:
     """``num_envs`` worker processes, each an environment and a copy of the policy; or, with
     ``envs_per_worker`` > 0, ``num_envs / envs_per_worker`` processes each stepping a batch of
     ``envs_per_worker`` environments (``make_env(k)``: :class:`~aslexp.envs.batched.BatchedImitationEnv`)
-    with its policy copy batched over them: many cores, each with a MuJoCo batch.
+    with its policy copy batched over them: many cores, each stepping its batch.
 
     ``make_env`` must be picklable (e.g. ``functools.partial(ImitationEnv, ...)``), as must
     ``make_agent`` (observation space, action space -> an :class:`Agent` of the learner's

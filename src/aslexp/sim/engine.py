@@ -28,12 +28,12 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from aslexp.config_schema import read, shown
+from aslexp.config_schema import Section, Text, key, read, shown
 from aslexp.errors import ConfigError
 from aslexp.plugins import import_registering_module, load_entry_points
 
@@ -62,13 +62,37 @@ DEFAULT_CAMERA = {"distance": 0.5, "yaw": 90.0, "pitch": -10.0}
 
 
 @dataclass(frozen=True)
+class EngineReport(Section):
+    """``report:`` of ``conf/engine/<name>.yaml``: what a results row says about the engine (its
+    "Differences from the thesis" line, :mod:`aslexp.reports.differences`, which names no engine).
+
+    ``text`` is the sentence, its ``{field}`` filled from ``parts`` and from the engine section's own
+    values (``{motor_gain_scale:g}``). A part is chosen by one value: ``by`` names it (an engine key,
+    or ``controller.mode``), the part's entry for that value (``"null"`` for null) is used, else its
+    ``otherwise`` (else nothing). Without ``report:`` (an engine of the tests) a row says the name."""
+
+    SECTION = "engine.report"
+
+    text: str = field(metadata=key(Text()))
+    parts: dict[str, dict[str, str]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name, part in self.parts.items():
+            if "by" not in part:
+                raise ConfigError(f"parts.{name}: expected a `by:` naming the value that chooses the text")
+
+
+@dataclass(frozen=True)
 class EngineSpec:
     """``conf/engine/<name>.yaml``: the engine's ``name``, the ``module`` that registers it (None:
-    built in or an entry point) and its own keys, parsed by its options class (``options``)."""
+    built in or an entry point), what a report says about it (``report``, :class:`EngineReport`;
+    every engine may have one, nothing simulated reads it) and its own keys, parsed by its options
+    class (``options``)."""
 
     name: str = "pybullet"
     module: str | None = None
     options: Any = None
+    report: EngineReport | None = field(default=None, compare=False)
 
     def replace(self, **changes: Any) -> "EngineSpec":
         """This spec with some of the engine's own keys changed (e.g. ``threads``)."""
@@ -81,14 +105,16 @@ class EngineSpec:
         values = dict(values or {})
         name = values.pop("name", "pybullet")
         module = values.pop("module", None)
+        report = values.pop("report", None)
+        report = None if report is None else read(EngineReport, report, f"{section}.report")
         entry = get_engine(name, module)
         if entry.options is None:
             if values:
                 first = next(iter(values))
                 raise ConfigError(f"{section}.{first}={shown(values[first])}: unknown key; engine {name} takes "
-                                  f"none besides name and module")
-            return cls(name=name, module=module, options=None)
-        return cls(name=name, module=module, options=read(entry.options, values, section))
+                                  f"none besides name, module and report")
+            return cls(name=name, module=module, options=None, report=report)
+        return cls(name=name, module=module, options=read(entry.options, values, section), report=report)
 
 
 @dataclass(frozen=True)
