@@ -144,6 +144,37 @@ def test_a_batch_is_n_single_environments_step_for_step(data_root, env_name, kwa
         e.close()
 
 
+def test_a_standing_batch_falls_where_each_single_environment_falls(data_root):
+    """A free-base upper body with early_termination.fall: random targets at 30 Hz tip it over; the
+    batch ends and counts the same rows' episodes as falls, step for step, and says which fell."""
+    from aslexp.compose import deep_merge, resolve_group
+
+    env_cfg = deep_merge(resolve_group("env", "upper_body_thesis"),
+                         {"early_termination": {"fall": True, "min_reward": None}, "control_hz": 30})
+    kwargs = dict(controller="upper_body_thesis", reward="upper_body_thesis", env=env_cfg, body={"base": "free"},
+                  engine="mujoco")
+    motion, n, seeds = data_root / "motions/upper_body/00433.txt", 3, [7, 8, 9]
+    singles = [UpperBodyImitationEnv(motion, **kwargs) for _ in range(n)]
+    batch = BatchedImitationEnv(n, motion, env_class=UpperBodyImitationEnv, **kwargs)
+    obs = np.stack([e.reset(seed=s)[0] for e, s in zip(singles, seeds)])
+    np.testing.assert_array_equal(batch.reset(seed=seeds)[0], obs)
+    rng, space, falls = np.random.default_rng(1), batch.single_action_space, 0
+    for t in range(150):
+        actions = rng.uniform(space.low, space.high, size=(n, space.shape[0])).astype(np.float32)
+        results = [e.step(a) for e, a in zip(singles, actions)]
+        _, reward, terminated, truncated, info = batch.step(actions)
+        for i, (_, r, term, trunc, one) in enumerate(results):
+            assert (terminated[i], truncated[i], bool(info["fall"][i])) == (term, trunc, bool(one.get("fall"))), (t, i)
+            assert reward[i] == pytest.approx(r, abs=1e-9)
+            if term or trunc:
+                falls += bool(one.get("fall"))
+                singles[i].reset()
+    assert falls >= 3 and batch.call("counter_values")[0]["falls"] == falls
+    batch.close()
+    for e in singles:
+        e.close()
+
+
 def test_the_batch_refuses_what_only_the_single_environment_does(data_root):
     with pytest.raises(ValueError, match="env.residual_base_smoothing"):
         BatchedImitationEnv(2, data_root / "motions/hand/A.txt", engine="mujoco",

@@ -130,11 +130,13 @@ def test_the_results_page_shows_a_planner_s_runs_as_a_ceiling(tmp_path):
     assert "ceiling" not in alone["rows"][0]
 
 
-def test_the_signs_ceiling_plans_on_the_pinned_upper_body(tmp_path):
-    """experiment=signs_mpc, tiny: the planner drives the upper body (pinned, MuJoCo) on its controller
-    and is scored beside that controller alone under the same protocol; no episode blows up."""
+@pytest.mark.parametrize("overlay, body", [("signs_mpc", "base: pinned"), ("signs_mpc_standing", "base: free")])
+def test_the_signs_ceiling_plans_on_the_upper_body_pinned_and_standing(tmp_path, overlay, body):
+    """experiment=signs_mpc (pinned) and signs_mpc_standing (a fall ends an episode), tiny: the planner
+    drives the upper body (MuJoCo) on its controller and is scored beside that controller alone under
+    the same protocol; no episode blows up, and falls are counted."""
     run = tmp_path / "run"
-    done = subprocess.run([sys.executable, "-m", "aslexp.cli", "imitate", "experiment=signs_mpc", "motion='69546'",
+    done = subprocess.run([sys.executable, "-m", "aslexp.cli", "imitate", f"experiment={overlay}", "motion='69546'",
                            "ppo.eval_steps=6", "ppo.eval_phases=[0.0]", "planner.samples=4", "planner.horizon=2",
                            "report.baselines=[]", "plots=false", f"hydra.run.dir={run}"],
                           capture_output=True, text=True, timeout=300)
@@ -144,4 +146,5 @@ def test_the_signs_ceiling_plans_on_the_pinned_upper_body(tmp_path):
     assert planner["name"] == "mpc" and planner["seconds_per_step"] > 0 and metrics["last_eval_diverged"] == 0
     assert 0 < metrics["last_eval"] <= 1 and 0 < planner["controller_alone"] <= 1
     composed = (run / ".hydra" / "config.yaml").read_text()
-    assert "base: pinned" in composed and "name: upper_body_reference_velocity" in composed
+    assert body in composed and "name: upper_body_reference_velocity" in composed
+    assert planner["fell"] == 0 and ("fall: true" in composed) == (overlay == "signs_mpc_standing")

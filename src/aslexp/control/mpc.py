@@ -145,6 +145,7 @@ class PlannedEpisode:
     diverged: bool
     seconds: float
     actions: list[np.ndarray]  # the corrections applied, one per control step
+    fell: bool = False  # a free-base body fell (early_termination.fall): ended early, counted, scored 0 after
 
     @property
     def mean_reward(self) -> float:
@@ -157,12 +158,16 @@ def plan_episode(planner: SamplingPlanner, body: BatchedImitationEnv, start_time
     """One episode of ``body`` (a batch of one: the system the planner drives) from ``start_time``."""
     planner.reset()
     body.reset(options={"time": start_time})
-    rewards, actions, started, diverged = [], [], time.perf_counter(), False
+    rewards, actions, started, diverged, fell = [], [], time.perf_counter(), False, False
     for step in range(steps):
         action = planner.act(body.states[0], float(body.time[0]))
         actions.append(action)
-        _, reward, terminated, _, _ = body.step(action[None])
-        if terminated[0]:  # no early end in an evaluation: only a blow-up (or a NaN) ends it
+        _, reward, terminated, _, info = body.step(action[None])
+        if terminated[0] and bool(info.get("fall", [False])[0]):  # a fall ends it as an evaluation's does
+            rewards.append(float(reward[0]))
+            fell = True
+            break
+        if terminated[0]:  # no other early end in an evaluation: only a blow-up (or a NaN) ends it
             diverged = True
             break
         rewards.append(float(reward[0]))
@@ -170,7 +175,7 @@ def plan_episode(planner: SamplingPlanner, body: BatchedImitationEnv, start_time
             spent = time.perf_counter() - started
             log.info("%s: %d/%d control steps, mean reward %.4f, %.3f s per step, ETA %.0f s", progress, step + 1,
                      steps, np.mean(rewards), spent / (step + 1), spent / (step + 1) * (steps - step - 1))
-    return PlannedEpisode(rewards, steps, diverged, time.perf_counter() - started, actions)
+    return PlannedEpisode(rewards, steps, diverged, time.perf_counter() - started, actions, fell)
 
 
 def evaluate_planner(spec: PlannerSpec, setup: ImitationSetup, phases: tuple[float, ...], steps: int,
@@ -191,6 +196,7 @@ def evaluate_planner(spec: PlannerSpec, setup: ImitationSetup, phases: tuple[flo
     control_steps = sum(len(e.rewards) for e in episodes)
     return {"reward": float(np.mean([e.mean_reward for e in episodes])),
             "per_phase": [e.mean_reward for e in episodes], "phases": list(phases), "steps": steps,
-            "diverged": sum(e.diverged for e in episodes), "seconds": round(seconds, 2),
+            "diverged": sum(e.diverged for e in episodes), "fell": sum(e.fell for e in episodes),
+            "seconds": round(seconds, 2),
             "seconds_per_step": round(seconds / max(control_steps, 1), 5),
             "rollout_steps_per_step": planner.rollouts // max(control_steps, 1)}

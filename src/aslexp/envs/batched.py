@@ -13,9 +13,11 @@ Vector-environment conventions as :mod:`aslexp.rl.vector`'s: same-step autoreset
 last observation in ``info["final_obs"]``, the returned one starts the next), reset seeds per
 environment, and the running statistics PPO reads (``call("term_means")``,
 ``call("counter_values")``). The tracking PD's options run here as in the single environment
-(physics-rate targets, velocity-target corrections: tested step for step); the training options of
-the upper body's free-base residual work (``residual_base_smoothing``, drift shaping, falls) are the
-single environment's: they are refused here with the key that needs them.
+(physics-rate targets, velocity-target corrections: tested step for step), and so does a fall of a
+free-base body (``early_termination.fall``: the engine's ground contacts read row by row, the row's
+episode ended early and counted in ``falls``; ``info["fall"]`` says which rows fell). The training
+options of the upper body's free-base residual work (``residual_base_smoothing``, drift shaping) are
+the single environment's: they are refused here with the key that needs them.
 """
 
 from __future__ import annotations
@@ -100,6 +102,11 @@ class BatchedImitationEnv(VectorEnv):
         self._ref_root = tuple(np.broadcast_to(v, (n, len(v))) for v in self.reference.root(0.0)[:2])
         self.counters: dict[str, int] = defaultdict(int)
         self._term_sums: dict[str, float] = defaultdict(float)
+        # A fall (early_termination.fall, free base): a link other than the body's ground_contacts
+        # touching the ground, read per row from the engine's contacts (as the single environment).
+        ending = self.spec_env.early_termination or {}
+        self._fall_check = bool(ending.get("fall")) and t.body_spec.base == "free" and t.ground is not None
+        self._allowed_contacts = set(t._allowed_contacts)
 
     # -- episodes -------------------------------------------------------------------------------------
     def reset(self, *, seed: int | list[int] | None = None, options: dict[str, Any] | None = None):
@@ -188,25 +195,30 @@ class BatchedImitationEnv(VectorEnv):
         min_reward = ending.get("min_reward")
         low = (reward < float(min_reward)) if min_reward is not None else np.zeros(n, bool)
         self._below = np.where(low, self._below + 1, 0)
-        early = scored & (self._below >= int(ending.get("patience", 1)))
+        fell = np.zeros(n, dtype=bool)
+        if self._fall_check:
+            for row in np.flatnonzero(scored):
+                fell[row] = bool(self.body.contacts(self.states[row]) - self._allowed_contacts)
+        early = scored & ((self._below >= int(ending.get("patience", 1))) | fell)
         reward = np.where(scored, reward, 0.0)
         terminated = early | ~finite | diverged
         truncated = scored & ~early & (self.steps >= self.spec_env.episode_steps)
         self.counters["nan_actions"] += int((~finite).sum())
         self.counters["diverged"] += int(diverged.sum())
         self.counters["early_terminations"] += int(early.sum())
+        self.counters["falls"] += int(fell.sum())
 
         obs = self._observe(slice(None), sim_frames, q, qd)
         if len(nan_rows):
             obs[nan_rows] = nan_obs
         if diverged.any():
             obs[diverged] = np.nan_to_num(obs[diverged], nan=0.0, posinf=0.0, neginf=0.0)
-        info: dict[str, Any] = {}
+        info: dict[str, Any] = {"fall": fell, "_fall": fell.copy()} if self._fall_check else {}
         ended = np.flatnonzero(terminated | truncated)
         if len(ended):  # same-step autoreset
             final = np.zeros_like(obs)
             final[ended] = obs[ended]
-            info = {"final_obs": final, "_final_obs": np.isin(all_rows, ended)}
+            info.update({"final_obs": final, "_final_obs": np.isin(all_rows, ended)})
             self._start(ended, {})
             obs[ended] = self._observe(ended, self._read(ended)[0])
         return obs, reward.astype(np.float64), terminated, truncated, info
@@ -275,7 +287,6 @@ def _refuse_unbatched(env: ImitationEnv, shape_reward: bool) -> None:
     checks = [
         (spec.residual_base_smoothing > 0, "env.residual_base_smoothing"),
         (shape_reward and (spec.heading_shaping > 0 or spec.offset_shaping > 0), "env.heading_shaping/offset_shaping"),
-        (bool((spec.early_termination or {}).get("fall")) and env.body_spec.base == "free", "env.early_termination.fall"),
     ]
     for refused, key in checks:
         if refused:

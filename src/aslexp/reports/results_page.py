@@ -455,7 +455,7 @@ def ceiling_summary(planned: list[dict[str, Any]]) -> dict[str, Any]:
             "mean": _round(found["mean"]), "spread": _round(found["spread"]), "n": found["n"],
             "controller_alone": _round(found["controller_alone"]), "gain": _round(found["gain"]),
             "saturated": bool(found["saturated"]), "seconds_per_step": _round(found["seconds_per_step"]),
-            "diverged": found["diverged"]}
+            "diverged": found["diverged"], **({"fell": found["fell"]} if found["fell"] else {})}
 
 
 def thesis_differences(entry: dict[str, Any], configs: list[dict[str, Any]], metrics: list[dict[str, Any]],
@@ -614,6 +614,7 @@ def _ceiling_cell(ceiling: dict[str, Any] | None) -> str:
         return "-"
     seeds = f" ± {ceiling['spread']:.3f}" if ceiling["n"] > 1 else ""
     diverged = f"; {ceiling['diverged']} episode(s) diverged" if ceiling.get("diverged") else ""
+    diverged += f"; {ceiling['fell']} episode(s) fell" if ceiling.get("fell") else ""
     return (f"{ceiling['mean']:.3f}{seeds} (n={ceiling['n']}; its controller alone {ceiling['controller_alone']:.4f}, "
             f"{ceiling['gain']:+.4f}{', saturated' if ceiling['saturated'] else ''}; "
             f"{ceiling['seconds_per_step']:.3f} s per control step{diverged})")

@@ -134,7 +134,8 @@ def ceiling(planned: list[dict[str, Any]]) -> dict[str, Any]:
     return {"spec": planned[0]["planner"], "scores": scores, "mean": mean, "spread": float(np.std(scores)),
             "n": len(scores), "controller_alone": alone, "gain": mean - alone, "saturated": mean - alone < SATURATED,
             "seconds_per_step": float(np.mean([m["planner"]["seconds_per_step"] for m in planned])),
-            "diverged": sum(int(m.get("last_eval_diverged") or 0) for m in planned)}
+            "diverged": sum(int(m.get("last_eval_diverged") or 0) for m in planned),
+            "fell": sum(int(m["planner"].get("fell") or 0) for m in planned)}
 
 
 def ceiling_columns(planned: list[dict[str, Any]]) -> dict[str, Any]:
