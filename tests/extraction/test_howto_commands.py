@@ -4,7 +4,7 @@ docs/howto_keypoints.md, docs/howto_imitate.md and README.md are read from their
 a command that stops working, or a new one, is caught here. The commands run in one folder, in page
 order (the imitate page retargets a `.pose` file the keypoints page extracted), with small budgets:
 ten frames a clip (the WLASL JSON cut as in conftest.SHORT_RANGES, `--frames` on a video, one
-video of a folder), one epoch,
+video of a folder), one epoch, two model seeds where an overlay asks for ten (thesis_ch3),
 a few hundred PPO steps, an overlay's swept lists cut to one cell with plain overrides, small
 SL-GCN channels, the CPU where a GPU is named but absent. `DIR` is a folder made here for the
 source the command names; the README's `<date>/<time>` folder is the one its runs were written
@@ -56,7 +56,8 @@ def _elsewhere(line: str) -> bool:
 CUT = {
     "experiment=recognition_table": ["classifier=logreg", "property=sign_type", "split=phoneme", "split.repeats=2"],
     "experiment=thesis_ch4": ["classifier=mlp", "property=sign_type", "split=phoneme"],
-    "experiment=thesis_ch3": ["classifier=logreg_thesis_ch3", "property=sign_type"],
+    # Ten model seeds x five folds, the model and both simple baselines: two seeds keep mean and std.
+    "experiment=thesis_ch3": ["classifier=logreg_thesis_ch3", "property=sign_type", "n_seeds=2"],
     "classifier=slgcn": ["classifier.params.channels=[16,16]"],
     # DIR holds the six clips (five with a hand): rare classes go to training.
     "pose.path=DIR": ["split.rare_classes=train_only"],

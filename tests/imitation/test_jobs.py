@@ -17,6 +17,9 @@ ROOT = Path(__file__).resolve().parents[2]
 SMALL = ["env=residual", "ppo=fast", "ppo.hidden_sizes=[32,32]", "ppo.steps_per_rollout=256",
          "ppo.minibatch_size=128", "ppo.epochs=2", "ppo.eval_interval=256", "ppo.eval_steps=40",
          "render.frames_every=4", "render.size=[64,64]"]
+# For runs whose figures no test reads: the tracking plots and the GIF's rendered frames cost a small
+# run more than its training (the metrics are the same without them).
+NO_FIGURES = ["plots=false", "render.gif=false", "render.mp4=false"]
 
 
 def run_job(job: str, *overrides: str, check: bool = True) -> subprocess.CompletedProcess:
@@ -41,7 +44,8 @@ def test_imitate_trains_writes_figures_and_resumes(tmp_path):
 
     # Continue the same run to 512 steps in a new folder.
     out2 = tmp_path / "run2"
-    run_job("imitate", "motion=B", *SMALL, "ppo.total_steps=512", f"+resume={out}", f"hydra.run.dir={out2}")
+    run_job("imitate", "motion=B", *SMALL, *NO_FIGURES, "ppo.total_steps=512", f"+resume={out}",
+            f"hydra.run.dir={out2}")
     assert json.loads((out2 / "metrics.json").read_text())["steps"] == 512
 
     # A corrupt checkpoint: a clear error, the trained run untouched.
@@ -61,12 +65,13 @@ def test_a_sweep_re_evaluated_by_job_number_reports_what_training_under_that_pro
         return json.loads((folder / "metrics.json").read_text())
 
     sweep = tmp_path / "sweep"
-    run_job("imitate", "-m", "motion=B", *SMALL, "ppo.total_steps=256", "seed=0,1", f"hydra.sweep.dir={sweep}")
+    run_job("imitate", "-m", "motion=B", *SMALL, *NO_FIGURES, "ppo.total_steps=256", "seed=0,1",
+            f"hydra.sweep.dir={sweep}")
     finished = {p: p.read_bytes() for p in sweep.rglob("*") if p.is_file()}
 
     # Resumed with no steps left, by job number: nothing trains; each run's policy under 3 phases.
     again = tmp_path / "eval3"
-    run_job("imitate", "-m", "motion=B", *SMALL, "ppo.total_steps=256", "seed=0,1", "ppo.eval_episodes=3",
+    run_job("imitate", "-m", "motion=B", *SMALL, *NO_FIGURES, "ppo.total_steps=256", "seed=0,1", "ppo.eval_episodes=3",
             f"resume={sweep}/${{hydra:job.num}}", f"hydra.sweep.dir={again}")
     for num in (0, 1):
         m = metrics(again / str(num))
@@ -76,13 +81,13 @@ def test_a_sweep_re_evaluated_by_job_number_reports_what_training_under_that_pro
 
     # Exactly what a run trained with 3 phases reports: evaluation draws nothing from training's streams.
     direct = tmp_path / "direct"
-    run_job("imitate", "motion=B", *SMALL, "ppo.total_steps=256", "seed=1", "ppo.eval_episodes=3",
+    run_job("imitate", "motion=B", *SMALL, *NO_FIGURES, "ppo.total_steps=256", "seed=1", "ppo.eval_episodes=3",
             f"hydra.run.dir={direct}")
     assert metrics(again / "1")["last_eval"] == metrics(direct)["last_eval"]
     assert metrics(again / "1")["baselines"] == metrics(direct)["baselines"]
 
     # A misnumbered run folder is refused before any work, in one line; the sweep is never rewritten.
-    proc = run_job("imitate", "motion=B", *SMALL, "ppo.total_steps=256", "seed=1", f"resume={sweep}/0",
+    proc = run_job("imitate", "motion=B", *SMALL, *NO_FIGURES, "ppo.total_steps=256", "seed=1", f"resume={sweep}/0",
                    f"hydra.run.dir={tmp_path / 'wrong'}", check=False)
     assert proc.returncode == 2 and "seed is 0, expected this run's 1" in proc.stderr, proc.stderr[-2000:]
     assert len(proc.stderr.strip().splitlines()) == 1 and not (tmp_path / "wrong" / "metrics.json").exists()

@@ -18,7 +18,8 @@ def test_direct_table_runs_cells_and_reports(tmp_path):
     proc = subprocess.run(
         [sys.executable, "bench/recognition_table.py", "--direct", "--experiment", "thesis_ch4", "--models", "mlp,logreg",
          "--properties", "sign_type", "--splits", "phoneme", "--repeats", "2", "--trainer-set", "max_epochs=2",
-         "--device", "cpu", "--out", str(out)],
+         "--device", "cpu", "--out", str(out),
+         "simple_baseline=logreg"],  # one simple baseline: the 500-tree rf would be most of the cells' time
         cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)  # fmt: skip
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     assert "2 cell(s) completed, 0 failed" in proc.stdout
