@@ -173,3 +173,17 @@ def test_the_job_refuses_a_bad_simple_baseline_in_one_line(tmp_path):
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert "simple_baseline=forest: unknown classifier 'forest'" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "cache").exists()  # refused before the dataset was built
+
+
+def test_a_simple_baselines_params_are_overridden_by_name_and_a_stray_or_unknown_one_is_one_line():
+    from aslexp.errors import ConfigError
+    from aslexp.recognition.experiment import simple_baseline_params
+
+    params = simple_baseline_params(["logreg", "rf"], {"rf": {"n_estimators": 20}})
+    assert params["rf"] == {**DEFAULT_PARAMS["rf"], "n_estimators": 20} and params["logreg"] == DEFAULT_PARAMS["logreg"]
+    assert simple_baseline_params(None) == {}
+    with pytest.raises(ConfigError, match=r"simple_baseline_params.rf: rf is not a simple baseline of this run"):
+        simple_baseline_params("logreg", {"rf": {"n_estimators": 20}})
+    with pytest.raises(ConfigError, match=r"simple_baseline_params.rf: classifier 'rf': unknown params \['trees'\]"):
+        simple_baseline_params(["rf"], {"rf": {"trees": 20}})
+    assert _compose("+simple_baseline_params.rf.n_estimators=20").simple_baseline_params.rf.n_estimators == 20

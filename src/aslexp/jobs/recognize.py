@@ -31,7 +31,7 @@ def dataset_params(cfg: DictConfig) -> WlaslLexParams:
 
 def recognize(cfg: DictConfig, run) -> float:
     check_config("recognize", cfg)  # swept values (the rest: ConfigCheck); a bad one fails this run
-    simple_baseline_params(simple_baseline(cfg))  # a bad name stops here, before the dataset is built
+    simple_baseline_params(simple_baseline(cfg), simple_overrides(cfg))  # a bad name stops here, before the build
     seed_everything(int(cfg.seed))
     dataset, dataset_dir = build_or_load(Path(cfg.cache_dir), dataset_params(cfg), root=cfg.data.root)
     log.info(
@@ -64,6 +64,7 @@ def recognize(cfg: DictConfig, run) -> float:
             on_epoch_record=on_epoch_record,
             split=to_dict(cfg.split),
             simple_baseline=simple_baseline(cfg),
+            simple_baseline_overrides=simple_overrides(cfg),
         )
         summary = {"val_mcc": result["val_mcc"], **{f"test_{k}": v for k, v in result.get("test", {}).items()}}
     finally:
@@ -104,6 +105,12 @@ def simple_baseline(cfg: DictConfig) -> str | list[str] | None:
     if value is None or isinstance(value, str):
         return value
     return [str(name) for name in value]
+
+
+def simple_overrides(cfg: DictConfig) -> dict[str, dict]:
+    """``simple_baseline_params``: per simple baseline, params over its conf/classifier defaults."""
+    value = OmegaConf.select(cfg, "simple_baseline_params", default=None)
+    return to_dict(value) if value else {}
 
 
 @job_main("recognize")

@@ -166,6 +166,7 @@ def run_recognition(
     split: Mapping[str, Any] | SplitOptions | None = None,
     on_epoch_record: RecordCallback | None = None,
     simple_baseline: str | Sequence[str] | None = None,
+    simple_baseline_overrides: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """Validate, retrain and test ``classifier`` = {"name": ..., "params": {...}} on ``dataset``.
 
@@ -216,7 +217,7 @@ def run_recognition(
     device_record = device_info(device, check_precision(config.precision, device))
     metric = config.selection_metric
 
-    simple_params = simple_baseline_params(simple_baseline)
+    simple_params = simple_baseline_params(simple_baseline, simple_baseline_overrides)
     simple_same = {b: b == name and p == params for b, p in simple_params.items()}  # the model itself: not run twice
 
     views = split_views(dataset, options)
@@ -440,23 +441,32 @@ def run_recognition(
     }
 
 
-def simple_baseline_params(value: str | Sequence[str] | None) -> dict[str, dict[str, Any]]:
-    """``simple_baseline`` (a classifier name, a list of names, or None) -> {name: its default
-    params} (the registered defaults, which equal ``conf/classifier/<name>.yaml``). A chance
-    baseline or an unknown name is a :class:`~aslexp.errors.ConfigError` (bad input, exit 2)."""
+def simple_baseline_params(value: str | Sequence[str] | None,
+                           overrides: Mapping[str, Mapping[str, Any]] | None = None) -> dict[str, dict[str, Any]]:
+    """``simple_baseline`` (a classifier name, a list of names, or None) -> {name: its params}: the
+    registered defaults (which equal ``conf/classifier/<name>.yaml``) updated by ``overrides[name]``
+    (``simple_baseline_params``, e.g. a smaller forest). A chance baseline, an unknown name, an
+    override for a baseline not run or an unknown parameter is a :class:`~aslexp.errors.ConfigError`
+    (bad input, exit 2)."""
+    overrides = dict(overrides or {})
     if value is None or value == "" or (isinstance(value, str) and value.lower() in ("null", "none")):
-        return {}
-    names = [value] if isinstance(value, str) else list(value)
+        names: list[str] = []
+    else:
+        names = [str(v) for v in ([value] if isinstance(value, str) else list(value))]
+    stray = sorted(set(overrides) - set(names))
+    if stray:
+        raise ConfigError(f"simple_baseline_params.{stray[0]}: {stray[0]} is not a simple baseline of this run "
+                          f"(simple_baseline={names or None})")
     out: dict[str, dict[str, Any]] = {}
     for baseline in names:
-        baseline = str(baseline)
         if baseline in BASELINE_NAMES:
             raise ConfigError(f"simple_baseline={baseline}: the chance baselines ({', '.join(BASELINE_NAMES)}) run in "
                              "every run already; name a model (rf, hgb, logreg, svm) or null")  # fmt: skip
         try:
-            out[baseline] = resolve_params(baseline, None)
+            out[baseline] = resolve_params(baseline, dict(overrides.get(baseline) or {}) or None)
         except ValueError as error:
-            raise ConfigError(f"simple_baseline={baseline}: {error}") from None
+            key = f"simple_baseline_params.{baseline}" if overrides.get(baseline) else f"simple_baseline={baseline}"
+            raise ConfigError(f"{key}: {error}") from None
     return out
 
 
