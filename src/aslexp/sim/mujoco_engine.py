@@ -238,6 +238,7 @@ class MujocoBody:
             missing = [n for n, b in zip(self.link_names, self.link_bodies) if b < 0]
             raise ValueError(f"body {spec.name}: MuJoCo has no bodies for links {missing} of {urdf}")
         self.root_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, self.root_name)
+        self._body_link = {int(b): i for i, b in enumerate(self.link_bodies)}  # a body id -> its link index
         self.root_free_qpos = (int(m.jnt_qposadr[m.body_jntadr[self.root_body]]) if spec.base == "free" else None)
         self.root_free_qvel = (int(m.jnt_dofadr[m.body_jntadr[self.root_body]]) if spec.base == "free" else None)
         self.tip_bodies = np.asarray([m.site_bodyid[k] for k in range(len(spec.end_effectors))], dtype=int)
@@ -490,14 +491,14 @@ class MujocoBody:
         d.mocap_quat[:] = state[self.slices["mocap_quat"]].reshape(-1, 4)
         mujoco.mj_kinematics(m, d)
         mujoco.mj_collision(m, d)
-        touching = set()
-        body_link = {int(b): i for i, b in enumerate(self.link_bodies)}
-        for c in d.contact[:d.ncon]:
-            for geom, other in ((c.geom1, c.geom2), (c.geom2, c.geom1)):
-                if other == self.ground_geom and geom != self.ground_geom:
-                    body = int(m.geom_bodyid[geom])
-                    touching.add(-1 if body == self.root_body else body_link.get(body, -1))
-        return touching
+        if d.ncon == 0:
+            return set()
+        # the contact arrays at once (slicing d.contact builds a Python object per contact: ~10x slower)
+        pairs = np.asarray(d.contact.geom)[:d.ncon]
+        ground = self.ground_geom
+        others = np.concatenate([pairs[pairs[:, 0] == ground, 1], pairs[pairs[:, 1] == ground, 0]])
+        bodies = {int(b) for b in m.geom_bodyid[others[others != ground]]}
+        return {-1 if body == self.root_body else self._body_link.get(body, -1) for body in bodies}
 
     def close(self) -> None:
         if self._runner is not None:
