@@ -130,8 +130,9 @@ def test_the_results_page_shows_a_planner_s_runs_as_a_ceiling(tmp_path):
     assert "ceiling" not in alone["rows"][0]
 
 
-@pytest.mark.parametrize("overlay, body", [("signs_mpc", "base: pinned"), ("signs_mpc_standing", "base: free")])
-def test_the_signs_ceiling_plans_on_the_upper_body_pinned_and_standing(tmp_path, overlay, body):
+@pytest.mark.parametrize("overlay, body, controller", [("signs_mpc", "base: pinned", "upper_body_reference_velocity"),
+                                                      ("signs_mpc_standing", "base: free", "upper_body_thesis")])
+def test_the_signs_ceiling_plans_on_the_upper_body_pinned_and_standing(tmp_path, overlay, body, controller):
     """experiment=signs_mpc (pinned) and signs_mpc_standing (a fall ends an episode), tiny: the planner
     drives the upper body (MuJoCo) on its controller and is scored beside that controller alone under
     the same protocol; no episode blows up, and falls are counted."""
@@ -146,5 +147,5 @@ def test_the_signs_ceiling_plans_on_the_upper_body_pinned_and_standing(tmp_path,
     assert planner["name"] == "mpc" and planner["seconds_per_step"] > 0 and metrics["last_eval_diverged"] == 0
     assert 0 < metrics["last_eval"] <= 1 and 0 < planner["controller_alone"] <= 1
     composed = (run / ".hydra" / "config.yaml").read_text()
-    assert body in composed and "name: upper_body_reference_velocity" in composed
+    assert body in composed and f"name: {controller}\n" in composed
     assert planner["fell"] == 0 and ("fall: true" in composed) == (overlay == "signs_mpc_standing")
