@@ -29,6 +29,7 @@ import math
 import os
 import statistics
 import time
+from typing import Any
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
@@ -127,16 +128,18 @@ def raw_rates(cls, motion: str, kwargs: dict, seconds: float, threads: int) -> t
 
 
 def ppo_split(num_envs: int, device: str, threads: int, steps_per_rollout: int | None = None,
-              rollout_device: str = "cpu", updates: int = 2) -> dict[str, float]:
-    """Collection and learning time of hand_thesis updates on ``num_envs`` batched MuJoCo hands (with
-    more than two updates the first, which pays the device's warm-up, is left out)."""
+              rollout_device: str = "cpu", updates: int = 2, ppo: str = "hand_thesis",
+              ppo_set: dict[str, Any] | None = None, env: str = "hand_thesis") -> dict[str, float]:
+    """Collection and learning time of ``ppo`` updates (a conf/ppo file, ``ppo_set`` over it) on
+    ``num_envs`` batched MuJoCo hands (letter A, ``env``; with more than two updates the first, which
+    pays the device's warm-up, is left out)."""
     import functools
     import tempfile
 
     from aslexp.compose import resolve_group
     from aslexp.rl.ppo import PPOConfig, PPOTrainer
 
-    values = resolve_group("ppo", "hand_thesis")
+    values = {**resolve_group("ppo", ppo), **(ppo_set or {})}
     values.pop("defaults", None)
     if steps_per_rollout:  # a smaller update (the test's); the figures are for Table D.1's 10,240
         values["steps_per_rollout"] = steps_per_rollout
@@ -145,7 +148,7 @@ def ppo_split(num_envs: int, device: str, threads: int, steps_per_rollout: int |
                                   "total_steps": updates * int(values["steps_per_rollout"]), "eval_interval": 10**9,
                                   "progress_interval": 1e9, "torch_threads": threads})
     make = functools.partial(BatchedImitationEnv, motion="motions/hand/A.txt", engine="mujoco",
-                             env="hand_thesis", reward="hand_thesis")
+                             env=env, reward="hand_thesis")
     with tempfile.TemporaryDirectory() as out:
         trainer = PPOTrainer(make, None, config, out, seed=0)
         result = trainer.train()
@@ -163,6 +166,19 @@ def ppo_split(num_envs: int, device: str, threads: int, steps_per_rollout: int |
                 batch / config.minibatch_size))}
 
 
+def _split_top(text: str) -> list[str]:
+    """``a=1,b=[2,3]`` -> ["a=1", "b=[2,3]"] (commas inside brackets kept)."""
+    items, depth, current = [], 0, ""
+    for char in text:
+        depth += 1 if char in "[{" else -1 if char in "]}" else 0
+        if char == "," and depth == 0:
+            items.append(current)
+            current = ""
+        else:
+            current += char
+    return [item for item in items + [current] if item.strip()]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--seconds", type=float, default=3.0, help="timed seconds per row (7 windows, the median reported)")
@@ -174,6 +190,9 @@ def main() -> None:
     parser.add_argument("--device", default="cpu", help="the learner's device for --ppo (cpu | cuda)")
     parser.add_argument("--ppo-updates", type=int, default=2, help="--ppo: updates timed (> 2: the first left out)")
     parser.add_argument("--rollout-device", default="cpu", help="--ppo: policy inference while collecting: cpu | learner")
+    parser.add_argument("--ppo-config", default="hand_thesis", help="--ppo: the conf/ppo file timed")
+    parser.add_argument("--ppo-set", default="", help="--ppo: key=value,... over it (e.g. hidden_sizes=[64,64])")
+    parser.add_argument("--ppo-env", default="hand_thesis", help="--ppo: the conf/env file (e.g. residual)")
     parser.add_argument("--ppo-steps-per-rollout", type=int, default=None,
                         help="--ppo with smaller updates than Table D.1's 10,240 steps (a quick check)")
     args = parser.parse_args()
@@ -209,10 +228,14 @@ def main() -> None:
         print(f"  best batched / raw rollout ceiling           "
               f"{best / (row['raw mujoco rollout 256 (physics steps/s)'] / substeps):12.2f}")
     if args.ppo:
+        import yaml
+
+        settings = {k: yaml.safe_load(v) for k, v in (item.split("=", 1) for item in _split_top(args.ppo_set))}
         split = ppo_split(args.ppo, args.device, cores, args.ppo_steps_per_rollout, args.rollout_device,
-                          args.ppo_updates)
-        results["ppo hand_thesis"] = split
-        print(f"\nppo=hand_thesis on {args.ppo} batched MuJoCo hands (240 Hz), learner on {args.device}, "
+                          args.ppo_updates, args.ppo_config, settings, args.ppo_env)
+        label = args.ppo_config + "".join(f" {k}={v}" for k, v in settings.items())
+        results[f"ppo {label}"] = split
+        print(f"\nppo={label}, env={args.ppo_env}, on {args.ppo} batched MuJoCo hands, learner on {args.device}, "
               f"rollout inference on {args.rollout_device}")
         for key, value in split.items():
             print(f"  {key:44s} {value:12,.2f}")
