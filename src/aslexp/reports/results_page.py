@@ -169,14 +169,14 @@ def uncovered_overrides(command: str, ran: dict[str, Any]) -> list[str]:
 
 def swept_values(command: str, overlay: str, conf_dir: Path = CONF_DIR) -> dict[str, list[str]]:
     """Per key the values the command sweeps: its own comma lists, else the overlay's
-    ``hydra.sweeper.params`` (read from ``conf/experiment/<overlay>.yaml``, no composition)."""
+    ``hydra.sweeper.params`` (read from ``conf/experiment/<overlay>.yaml`` and the overlays it lists
+    in its defaults, the later winning; no composition)."""
     from omegaconf import OmegaConf
 
     swept: dict[str, list[str]] = {}
-    path = Path(conf_dir) / "experiment" / f"{overlay}.yaml"
-    if path.is_file():
-        params = OmegaConf.select(OmegaConf.load(path), "hydra.sweeper.params", default=None) or {}
-        for key, value in OmegaConf.to_container(params).items():
+    for path in _overlay_chain(Path(conf_dir) / "experiment", overlay):
+        params = OmegaConf.select(OmegaConf.load(path), "hydra.sweeper.params", default=None)
+        for key, value in (OmegaConf.to_container(params) if params else {}).items():
             values = _split_values(str(value))
             if len(values) > 1:
                 swept[key] = values
@@ -187,6 +187,20 @@ def swept_values(command: str, overlay: str, conf_dir: Path = CONF_DIR) -> dict[
         else:
             swept.pop(key, None)
     return swept
+
+
+def _overlay_chain(folder: Path, overlay: str, seen: tuple[str, ...] = ()) -> list[Path]:
+    """``folder/<overlay>.yaml`` after the overlays its defaults list names (parents first)."""
+    from omegaconf import OmegaConf
+
+    path = folder / f"{overlay}.yaml"
+    if not path.is_file() or overlay in seen:
+        return []
+    chain: list[Path] = []
+    for item in OmegaConf.to_container(OmegaConf.load(path)).get("defaults") or []:
+        if isinstance(item, str) and item != "_self_" and (folder / f"{item}.yaml").is_file():
+            chain += _overlay_chain(folder, item, (*seen, overlay))
+    return chain + [path]
 
 
 def unrun_values(command: str, overlay: str, ran: dict[str, Any], conf_dir: Path = CONF_DIR) -> list[str]:
