@@ -14,12 +14,8 @@ NAMES = re.compile(r"pybullet|mujoco", re.IGNORECASE)
 
 # (file under src/aslexp, text of the line that may name one): each with why it stays.
 ALLOWED = {
-    # the distributions whose versions a run records: "pybullet" is a package name there
+    # the distributions whose versions a run records: the engines' package names there
     ("runs/record.py", '"pybullet", "gymnasium", "torchrl", "tensordict",'),
-    # import hygiene: names the third-party package that importing aslexp must not import
-    ("envs/__init__.py", "never imports PyBullet."),
-    # import hygiene: the packages recognition is importable without
-    ("recognition/__init__.py", "Importable without Hydra, OmegaConf, Optuna, PyBullet,"),
 }
 
 

@@ -1,6 +1,6 @@
 """Gymnasium environments of the imitation wing, registered on ``import aslexp``.
 
-Registration uses string entry points so that importing ``aslexp`` never imports PyBullet.
+Registration uses string entry points so that importing ``aslexp`` never imports a physics engine.
 """
 
 from __future__ import annotations

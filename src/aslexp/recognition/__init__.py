@@ -10,6 +10,6 @@
     experiment  run_recognition: K splits x seeds x (validate, retrain, test) -> metrics + run files
     report      the platform's table with intervals, comparisons, and the thesis' table layouts
 
-Importable without Hydra, OmegaConf, Optuna, PyBullet, gymnasium, torchrl, matplotlib or tqdm
+Importable without Hydra, OmegaConf, Optuna, a physics engine, gymnasium, torchrl, matplotlib or tqdm
 (plots are skipped with a warning where matplotlib is missing): a bare GPU node runs it.
 """

@@ -36,7 +36,7 @@ METRICS_FILE = "metrics.json"
 
 _TRACKED_PACKAGES = (
     "aslexp", "torch", "numpy", "hydra-core", "omegaconf", "optuna", "scikit-learn",
-    "pybullet", "gymnasium", "torchrl", "tensordict",
+    "pybullet", "gymnasium", "torchrl", "tensordict", "mujoco",
 )
 
 
