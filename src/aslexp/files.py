@@ -72,6 +72,16 @@ def read_json(path: str | os.PathLike) -> Any:
         return json.load(fh)
 
 
+def write_rows_csv(path: str | os.PathLike, rows: list[dict[str, Any]], fields: list[str]) -> None:
+    """One CSV row per dict (the first row's keys as the header; ``fields`` when there is none)."""
+    import csv
+
+    with open(path, "w", newline="", encoding="utf-8") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(rows[0]) if rows else fields)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
 # --------------------------------------------------------------------------- failed writes
 
 _FULL = {errno.ENOSPC: "disk full", errno.EDQUOT: "disk quota exceeded"}

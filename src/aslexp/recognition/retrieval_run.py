@@ -24,7 +24,6 @@ Per split the metrics are means over its test clips; the table is the mean over 
 
 from __future__ import annotations
 
-import csv
 import logging
 import math
 import time
@@ -338,19 +337,14 @@ def paired_lines(result: Mapping[str, Any]) -> list[str]:
 def write_outputs(result: Mapping[str, Any], out_dir: str | Path) -> dict[str, str]:
     """The run folder's files beside metrics.json: the table (Markdown), the per-clip ranks (CSV) and
     the recall@k plot. Returns name -> file."""
-    from aslexp.files import write_text
+    from aslexp.files import write_rows_csv, write_text
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_text(out / TABLE_FILE, "# Lexicon retrieval for unseen glosses\n\n" + describe(result) + "\n\n"
                + "\n".join(table_lines(result)) + "\n\nPaired over the same splits:\n\n"
                + "\n".join(paired_lines(result)) + "\n")
-    rows = result["clips"]
-    with (out / RANKS_FILE).open("w", newline="", encoding="utf-8") as handle:
-        fields = list(rows[0]) if rows else ["split", "split_seed", "video_id", "gloss", "entry_id"]
-        writer = csv.DictWriter(handle, fieldnames=fields)
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows_csv(out / RANKS_FILE, result["clips"], ["split", "split_seed", "video_id", "gloss", "entry_id"])
     files = {"table": TABLE_FILE, "ranks": RANKS_FILE}
     try:
         from aslexp.viz.retrieval import plot_recall_curves

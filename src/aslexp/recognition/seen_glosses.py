@@ -25,7 +25,6 @@ interval and the paired differences (with minus without, and each network minus 
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import logging
 import math
@@ -262,20 +261,15 @@ def describe(result: Mapping[str, Any]) -> str:
 def write_outputs(result: Mapping[str, Any], out_dir: str | Path) -> dict[str, str]:
     """The run folder's files beside metrics.json: the table (Markdown), the per-clip predictions
     (CSV) and the per-split plot. Returns name -> file."""
-    from aslexp.files import write_text
+    from aslexp.files import write_rows_csv, write_text
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     write_text(out / TABLE_FILE, "# Phonology as help for seen signs\n\n" + describe(result) + "\n\n"
                + "\n".join(table_lines(result)) + "\n\nPaired over the same splits:\n\n"
                + "\n".join(paired_lines(result)) + "\n")
-    rows = result["predictions"]
-    with (out / PREDICTIONS_FILE).open("w", newline="", encoding="utf-8") as handle:
-        fields = list(rows[0]) if rows else ["split", "split_seed", "method", "video_id", "gloss", "predicted",
-                                             "rank_of_true"]
-        writer = csv.DictWriter(handle, fieldnames=fields)
-        writer.writeheader()
-        writer.writerows(rows)
+    write_rows_csv(out / PREDICTIONS_FILE, result["predictions"],
+                   ["split", "split_seed", "method", "video_id", "gloss", "predicted", "rank_of_true"])
     files = {"table": TABLE_FILE, "predictions": PREDICTIONS_FILE}
     try:
         from aslexp.viz.seen_glosses import plot_top_k_by_split

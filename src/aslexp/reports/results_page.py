@@ -47,6 +47,7 @@ import numpy as np
 from aslexp.files import atomic_write_text
 from aslexp.paths import CONF_DIR
 from aslexp.reports import results_recognition, results_retrieval, results_seen_glosses
+from aslexp.reports.job_table import read_json
 from aslexp.reports.commands import command_overrides  # noqa: F401 - part of this module's interface
 from aslexp.runfile import RUN_FILE
 
@@ -220,14 +221,6 @@ def unrun_values(command: str, overlay: str, ran: dict[str, Any], conf_dir: Path
 # --------------------------------------------------------------------------- run folders
 
 
-def _read_json(path: Path) -> Any:
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as err:
-        log.warning("warning: %s: %s; left out", path, err)
-        return None
-
-
 def entry_folders(entry: dict[str, Any], outputs: Path) -> tuple[list[Path], dict[str, Any]]:
     """The folders of the first ``runs`` alternative under ``outputs`` that holds a completed run
     (globs expanded, sorted), and that alternative; ([], {}) when none does."""
@@ -242,7 +235,7 @@ def entry_folders(entry: dict[str, Any], outputs: Path) -> tuple[list[Path], dic
 
 
 def _completed(run_dir: Path) -> bool:
-    info = _read_json(run_dir / RUN_FILE)
+    info = read_json(run_dir / RUN_FILE)
     return isinstance(info, dict) and info.get("status") == "completed"
 
 
@@ -274,12 +267,12 @@ def provenance(run_dirs: list[Path], outputs: Path, folders: list[Path], alterna
     first start and last finish (UTC), hosts, platforms, devices, Python and torch versions, git
     commits, the engine and reward they composed, and their overrides (those all runs share, and per
     key the values of those that vary)."""
-    infos = [info for info in (_read_json(d / RUN_FILE) for d in run_dirs) if isinstance(info, dict)]
+    infos = [info for info in (read_json(d / RUN_FILE) for d in run_dirs) if isinstance(info, dict)]
     started = [t for t in (_utc(i.get("started")) for i in infos) if t]
     finished = [t for t in (_utc(i.get("finished")) for i in infos) if t]
     devices = set()
     for run_dir in run_dirs:
-        metrics = _read_json(run_dir / "metrics.json") if (run_dir / "metrics.json").is_file() else None
+        metrics = read_json(run_dir / "metrics.json") if (run_dir / "metrics.json").is_file() else None
         device = (metrics or {}).get("device")
         if isinstance(device, dict):
             device = device.get("name") or device.get("type")
@@ -346,7 +339,7 @@ def _imitation_runs(folders: list[Path]) -> tuple[dict[str, list[dict[str, Any]]
             continue
         for motion, items in found.items():
             for metrics in items:
-                info = _read_json(Path(metrics["run_dir"]) / RUN_FILE) or {}
+                info = read_json(Path(metrics["run_dir"]) / RUN_FILE) or {}
                 if info.get("status") != "completed":
                     reason = f"status {info.get('status', 'unknown')}"
                     skipped[reason] = skipped.get(reason, 0) + 1
