@@ -55,12 +55,14 @@ def plot_top_k_by_split(per_split: Sequence[Mapping[str, Any]], table: Mapping[s
         right.scatter(splits, simple, marker="x", color=_COLOR["simple"], label=labels["simple"], zorder=3)
     chance = [100 * s["metrics"]["chance"]["top1"] for s in per_split]
     right.plot(splits, chance, linestyle=":", color=_COLOR["chance"], label="chance")
-    right.set_ylim(bottom=0)
+    shown = [v for m in ("gloss", "gloss+phonology", "simple") if m in labels
+             for v in (100 * s["metrics"][m]["top1"] for s in per_split)]
+    right.set_ylim(0, 1.45 * max(shown + [1.0]))  # room above the points for the legend
     right.set_xticks(splits)
     right.set_xlabel("split")
     right.set_ylabel("top-1 (%)")
     right.set_title("per split, paired (same clips, same seed)", fontsize=10)
-    right.legend(fontsize=8)
+    right.legend(fontsize=8, ncol=2, loc="upper center")
     right.grid(alpha=0.3)
     fig.suptitle(textwrap.fill(title, 110), fontsize=11)
     fig.tight_layout()
