@@ -61,6 +61,8 @@ CUT = {
     "classifier=slgcn": ["classifier.params.channels=[16,16]"],
     # DIR holds the six clips (five with a hand): rare classes go to training.
     "pose.path=DIR": ["split.rare_classes=train_only"],
+    # one policy of many motions: a few bodies and generated motions
+    "experiment=letters_unseen": ["ppo.num_envs=8", "train_motions.generated.count=3"],
 }
 RECOGNIZE = ["trainer.max_epochs=1", "data.num_frames=16"]
 # The default simple baselines' forest at a test's size, where the rf baseline runs (not where an
@@ -168,8 +170,11 @@ def test_every_imitate_howto_command_runs(ws):
     for command in commands:
         run(command, ws)
     made = [json.loads(p.read_text()) for p in set((ws["tmp"] / "outputs").rglob("metrics.json")) - before]
-    # motion=A, and the three motions from files, each named after its file.
-    assert sorted(m["motion"] for m in made) == ["63185", "63185", "63185", "A"]
+    # motion=A, the pool's policy (tuning held out), and the four motions from files, each named after
+    # its file (the last one performed by that policy, nothing trained).
+    assert sorted(m["motion"] for m in made) == ["63185", "63185", "63185", "63185", "A", "tuning"]
+    performed = next(m for m in made if m.get("stopped") == "performed")
+    assert performed["steps"] == 0 and performed["policy"]["train_motions"] == "letters_generated"
 
 
 def test_every_readme_command_runs(ws):

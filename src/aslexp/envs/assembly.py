@@ -125,6 +125,11 @@ class ImitationSetup:
                            engine=EngineSpec.parse(groups["engine"]))
         return self._parse(self.motion, groups, self.data_root, self.defaults, self.score_rewards)
 
+    def load_motion(self, motion: str | os.PathLike | Motion) -> Motion:
+        """Another motion for this body (a name in ``conf/motion``, a file, or a :class:`Motion`),
+        checked against its layout: a pool's motions (issue 38), a motion to perform."""
+        return _load_motion(motion, self.layout, self.data_root)
+
     # -- what the consumers build ---------------------------------------------------------------------------
     @cached_property
     def reference(self) -> ReferenceMotion:

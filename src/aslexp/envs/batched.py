@@ -18,6 +18,12 @@ free-base body (``early_termination.fall``: the engine's ground contacts read ro
 episode ended early and counted in ``falls``; ``info["fall"]`` says which rows fell). The training
 options of the upper body's free-base residual work (``residual_base_smoothing``, drift shaping) are
 the single environment's: they are refused here with the key that needs them.
+
+Many motions (``motions=[...]``, issue 38): each row imitates one motion of the pool, drawn from
+the row's random stream at every episode start (or named: ``options={"clip": k}``); its targets,
+reward, reference root and observation (the reference frames ahead it sees, ``env.observe_future``)
+are that motion's (:class:`~aslexp.sim.reference.ReferencePool`). The motion the setup names gives
+the spaces only. ``clip`` holds each row's motion index, ``clip_episodes`` the episodes per motion.
 """
 
 from __future__ import annotations
@@ -35,6 +41,8 @@ from aslexp.envs.assembly import ImitationSetup
 from aslexp.envs.imitation import ImitationEnv, observe
 from aslexp.envs.reward import PoseSnapshot
 from aslexp.sim.engine import batching_engines
+from aslexp.sim.motion import Motion
+from aslexp.sim.reference import ReferenceMotion, ReferencePool
 
 
 class BatchedImitationEnv(VectorEnv):
@@ -45,27 +53,30 @@ class BatchedImitationEnv(VectorEnv):
     def __init__(self, num_envs: int, motion, body=None, controller=None, reward=None, env=None,
                  engine: str | dict | None = None, data_root: str | os.PathLike | None = None,
                  complete_configs: bool = False, shape_reward: bool = False,
-                 env_class: type[ImitationEnv] = ImitationEnv, threads: int | None = None) -> None:
+                 env_class: type[ImitationEnv] = ImitationEnv, threads: int | None = None,
+                 motions: list[Motion | str | os.PathLike] | None = None) -> None:
         """The arguments of :class:`ImitationEnv` (``env_class``: its subclass whose group defaults
         apply, e.g. the upper body's), for ``num_envs`` environments (``engine`` None: the first engine
         that batches); ``threads`` overrides ``engine.threads`` (rollout workers step their batch on
-        one thread each)."""
+        one thread each); ``motions``: a pool of motions of the body, one per row and episode (module
+        docstring)."""
         if engine is None:
             engine = batching_engines()[0]
         setup = ImitationSetup.from_groups(motion, body, controller, reward, env, engine, data_root=data_root,
                                            complete=complete_configs, defaults=env_class.GROUP_DEFAULTS)
-        self._assemble(num_envs, setup, shape_reward, threads, env_class)
+        self._assemble(num_envs, setup, shape_reward, threads, env_class, motions)
 
     @classmethod
     def from_setup(cls, num_envs: int, setup: ImitationSetup, shape_reward: bool = False, threads: int | None = None,
-                   env_class: type[ImitationEnv] = ImitationEnv) -> "BatchedImitationEnv":
+                   env_class: type[ImitationEnv] = ImitationEnv,
+                   motions: list[Motion | str | os.PathLike] | None = None) -> "BatchedImitationEnv":
         """``num_envs`` environments of an assembled experiment (:mod:`aslexp.envs.assembly`)."""
         batch = cls.__new__(cls)
-        batch._assemble(num_envs, setup, shape_reward, threads, env_class)
+        batch._assemble(num_envs, setup, shape_reward, threads, env_class, motions)
         return batch
 
     def _assemble(self, num_envs: int, setup: ImitationSetup, shape_reward: bool, threads: int | None,
-                  env_class: type[ImitationEnv]) -> None:
+                  env_class: type[ImitationEnv], motions: list[Motion | str | os.PathLike] | None = None) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"ppo config: num_envs must be an integer >= 1, got {num_envs!r}")
         # One single environment holds the configuration (specs, spaces, reference, reward, model).
@@ -78,6 +89,9 @@ class BatchedImitationEnv(VectorEnv):
         _refuse_unbatched(t, shape_reward)
         self.num_envs = int(num_envs)
         self.spec_env, self.reference, self.layout = t.spec_env, t.reference, t.layout
+        self.pool = ReferencePool([t.reference] if not motions else
+                                  [ReferenceMotion(setup.load_motion(m), t.layout) for m in motions])
+        self.pool_names = [str(r.motion.source) for r in self.pool.references]
         self.body = t.simulation.batch
         if threads is not None:
             self.body.set_threads(int(threads))
@@ -97,9 +111,12 @@ class BatchedImitationEnv(VectorEnv):
         self.steps = np.zeros(n, dtype=np.int64)
         self._below = np.zeros(n, dtype=np.int64)
         self._rngs = [np.random.default_rng() for _ in range(n)]
+        self.clip = np.zeros(n, dtype=np.int64)
+        self.clip_episodes = np.zeros(len(self.pool), dtype=np.int64)  # episodes started per pool motion
         # The reference's end effectors are read with its root where the single environment's
-        # kinematic reference stands: the motion's first root pose.
-        self._ref_root = tuple(np.broadcast_to(v, (n, len(v))) for v in self.reference.root(0.0)[:2])
+        # kinematic reference stands: each row's motion's first root pose.
+        self._clip_roots = [r.root(0.0)[:2] for r in self.pool.references]
+        self._ref_root = tuple(np.array(np.broadcast_to(v, (n, len(v)))) for v in self._clip_roots[0])
         self.counters: dict[str, int] = defaultdict(int)
         self._term_sums: dict[str, float] = defaultdict(float)
         # A fall (early_termination.fall, free base): a link other than the body's ground_contacts
@@ -122,21 +139,40 @@ class BatchedImitationEnv(VectorEnv):
         return self._observe(slice(None), self._read(slice(None))[0]), {}
 
     def _start(self, rows: np.ndarray, options: dict[str, Any]) -> None:
-        """Start new episodes in the environments ``rows`` (reference state initialisation)."""
+        """Start new episodes in the environments ``rows`` (a motion of the pool each, then reference
+        state initialisation)."""
+        if "clip" in options:
+            clips = np.broadcast_to(np.asarray(options["clip"], dtype=np.int64), (len(rows),))
+            if clips.min(initial=0) < 0 or clips.max(initial=0) >= len(self.pool):
+                raise ValueError(f"reset: clip {options['clip']} for a pool of {len(self.pool)} motions")
+            self.clip[rows] = clips
+        elif len(self.pool) > 1:  # a pool of one draws nothing: its rows' streams stay a single env's
+            self.clip[rows] = [int(self._rngs[i].integers(len(self.pool))) for i in rows]
+        durations = self.pool.durations[self.clip[rows]]
         if "time" in options:
             times = np.full(len(rows), float(options["time"]))
         elif "phase" in options:
-            times = np.full(len(rows), float(options["phase"]) * self.reference.duration)
+            times = float(options["phase"]) * durations
         elif self.spec_env.reference_state_init:
-            times = np.asarray([float(self._rngs[i].uniform(0.0, self.reference.duration)) for i in rows])
+            times = np.asarray([float(self._rngs[i].uniform(0.0, d)) for i, d in zip(rows, durations)])
         else:
             times = np.zeros(len(rows))
         self.time[rows], self.steps[rows], self._below[rows] = times, 0, 0
-        q, qd = self.reference.joints_many(times), self.reference.joint_velocities_many(times)
+        reference = self._rows(rows)
+        q, qd = reference.joints_many(times), reference.joint_velocities_many(times)
         fresh = self.body.new_states(len(rows))
-        self.body.write(fresh, slice(None), q, qd, *self.reference.root_many(times))
+        self.body.write(fresh, slice(None), q, qd, *reference.root_many(times))
         self.states[rows] = fresh
+        if len(self.pool) > 1:
+            for c, k in zip(*np.unique(self.clip[rows], return_counts=True)):
+                chosen = rows[self.clip[rows] == c]
+                self._ref_root[0][chosen], self._ref_root[1][chosen] = self._clip_roots[c]
+                self.clip_episodes[c] += int(k)
         self.counters["episodes"] += len(rows)
+
+    def _rows(self, rows) -> ReferenceMotion:
+        """The references the environments ``rows`` imitate (one motion: that motion's)."""
+        return self.pool.select(self.clip[rows])
 
     def restart_from(self, state: np.ndarray, time: float) -> None:
         """Every environment continues from one physics ``state`` (a row of this body's state array)
@@ -173,7 +209,7 @@ class BatchedImitationEnv(VectorEnv):
         self.time += self.control_dt
         self.steps += 1
 
-        ref_q, ref_qd, *ref_root = self.reference.state_many(self.time)
+        ref_q, ref_qd, *ref_root = self._rows(all_rows).state_many(self.time)
         sim_frames, sim_tips, ref_tips = self._read(slice(None), reference=ref_q)
         q, qd = self.body.joints(self.states)
         # not finite, or a joint faster than max_joint_velocity (NaN compares False: caught by the first,
@@ -229,14 +265,15 @@ class BatchedImitationEnv(VectorEnv):
         t, spec = self.template, self.template.controller_spec
         ahead = substep if substep is not None else self.spec_env.reference_lookahead
         target_time = self.time + ahead * self.control_dt
+        reference = self._rows(slice(None))
         if self.spec_env.action_mode == "residual":
-            targets = self.reference.joints_many(target_time) + physical[:, :self.layout.action_size]
+            targets = reference.joints_many(target_time) + physical[:, :self.layout.action_size]
         else:
             targets = physical[:, :self.layout.action_size]
         targets = np.clip(targets, t.joint_lower, t.joint_upper)
         velocities = None
         if spec.target_velocity == "reference" and not spec.is_thesis_pd:
-            velocities = spec.velocity_scale * self.reference.joint_velocities_many(target_time)
+            velocities = spec.velocity_scale * reference.joint_velocities_many(target_time)
         corrections = physical[:, self.layout.action_size:]  # env.residual_velocity_range > 0
         if corrections.shape[1]:
             velocities = corrections if velocities is None else velocities + corrections
@@ -260,7 +297,7 @@ class BatchedImitationEnv(VectorEnv):
             if q is None:
                 q, qd = self.body.joints(self.states[rows])
             joints = (q, qd)
-        return observe(self.spec_env, self.reference, self.time[rows], links, frames[:, 0, 0:3],
+        return observe(self.spec_env, self._rows(rows), self.time[rows], links, frames[:, 0, 0:3],
                        frames[:, 0, 3:7], joints)
 
     # -- what PPO reads ---------------------------------------------------------------------------------

@@ -510,7 +510,8 @@ def heading_rotation(root_rot: np.ndarray) -> np.ndarray:
 
 def observe(spec: EnvSpec, reference: ReferenceMotion, times: np.ndarray, links: np.ndarray, root_pos: np.ndarray,
             root_rot: np.ndarray, joints: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-    """The observations (N, size) of N bodies (module docstring): ``times`` (N,), the observed links'
+    """The observations (N, size) of N bodies (module docstring): ``times`` (N,) on ``reference`` (or on
+    a :class:`~aslexp.sim.reference.ReferencePool`'s rows, a motion per body), the observed links'
     world states (N, L, 13), the roots' positions (N, 3) and rotations (N, 4), with
     ``observe_joints`` the joint positions and velocities (N, ...). One implementation for the
     single environment (a batch of one) and the batched one."""
@@ -528,7 +529,7 @@ def observe(spec: EnvSpec, reference: ReferenceMotion, times: np.ndarray, links:
                                                               turned[:, 2 * count:])
     rot = quaternion.multiply(inverse, links[..., 3:7])
     local[..., 3:7] = np.where(rot[..., :1] < 0, -rot, rot)  # one sign per rotation
-    phase = reference.motion.phase_many(times)[:, None]
+    phase = reference.phase_many(times)[:, None]
     if deepmimic:  # phase, root height, then all poses, then all velocities (DeepMimic's order)
         parts = [phase, root_pos[:, UP_AXIS:UP_AXIS + 1], local[..., 0:7].reshape(n, -1),
                  local[..., 7:13].reshape(n, -1)]

@@ -8,6 +8,8 @@
     aslexp imitate <the run's overrides> resume=RUN ppo.eval_episodes=16 hydra.run.dir=NEW   # re-evaluate it
     aslexp imitate -m experiment=letters_tracking            # letters x seeds (figure 5.9's task), aslexp's
     aslexp imitate -m experiment=letters_thesis              # as the thesis ran it, beside figure 5.9
+    aslexp imitate -m experiment=letters_unseen              # one policy, many motions; scored on unseen letters
+    aslexp imitate motion=FILE policy=RUN_DIR                # a trained policy performs a motion (no training)
     aslexp imitate --help                                    # the catalogue of experiments
 
 The run folder gets: metrics.json (baselines, last evaluation (the headline) and best, the
@@ -50,28 +52,48 @@ def score_rewards(cfg: dict[str, Any]) -> dict[str, dict[str, Any]]:
     return {str(name): resolve_group("reward", str(name)) for name in names}
 
 
-def build_envs(cfg: dict[str, Any], data_root: Path, vector_env: str = "auto"):
+def build_envs(cfg: dict[str, Any], data_root: Path, vector_env: str = "auto", pool=None):
     """A factory of training envs (picklable: PPO may build them in worker processes) and the
     evaluation env (no early termination: evaluations score whole episodes; also scored under
     ``report.score_rewards``). With
     ``vector_env: batched`` (an engine that batches) the factory takes the number of environments and
-    builds one :class:`~aslexp.envs.batched.BatchedImitationEnv` of them."""
+    builds one :class:`~aslexp.envs.batched.BatchedImitationEnv` of them; with ``train_motions`` (``pool``:
+    :func:`training_pool`'s, when the caller has it) its rows imitate the pool's motions, the evaluation
+    env the run's motion."""
     import functools
 
     from aslexp.envs.assembly import ImitationSetup
     from aslexp.envs.imitation import ImitationEnv
 
     setup = ImitationSetup.from_config(cfg, data_root, score_rewards=score_rewards(cfg))  # Hydra composed every group
+    if pool is None and vector_env == "batched":
+        pool = training_pool(cfg, setup)
+    if pool is not None and vector_env != "batched":
+        from aslexp.sim.engine import batching_engines
+
+        raise ConfigError(f"train_motions: a pool of motions trains on a batch (ppo.vector_env batched, or auto "
+                          f"on an engine that batches: engine={'/'.join(batching_engines())}); got {vector_env!r}")
     if vector_env == "batched":
         from aslexp.envs.batched import BatchedImitationEnv
 
-        make_train_env = functools.partial(BatchedImitationEnv.from_setup, setup=setup, shape_reward=True)
+        make_train_env = functools.partial(BatchedImitationEnv.from_setup, setup=setup, shape_reward=True,
+                                           motions=None if pool is None else pool.motions)
     else:  # env.heading_shaping / offset_shaping apply to the training envs only
         make_train_env = functools.partial(ImitationEnv.from_setup, setup, shape_reward=True)
     render = cfg.get("render") or {}
     eval_env = ImitationEnv.from_setup(setup.merged(env={"early_termination": {"min_reward": None}}),
                                        render_mode="rgb_array", render_size=tuple(render.get("size", (240, 240))))
     return make_train_env, eval_env
+
+
+def training_pool(cfg: dict[str, Any], setup):
+    """``train_motions`` (aslexp.envs.motion_pool): the motions a policy trains on, the run's own held
+    out; None: it trains on the run's motion."""
+    if not cfg.get("train_motions"):
+        return None
+    from aslexp.envs.motion_pool import TrainMotionsSpec, training_motions
+
+    return training_motions(TrainMotionsSpec.parse(dict(cfg["train_motions"])), setup, cfg["motion"]["file"])
 
 
 def _engine(cfg: dict[str, Any]):
@@ -120,15 +142,28 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     from aslexp.reports import report
 
     data_root = resolve_data_root(cfg.get("data_root"))
+    performer = None
+    if cfg.get("policy"):  # a trained policy performs this run's motion under its own run's setting
+        from aslexp.jobs.performing import performing_config
+
+        cfg, performer = performing_config(cfg)
     ppo = PPOConfig.parse(cfg["ppo"])
     if cfg.get("planner"):  # a planner acts, nothing learns
         return plan(cfg, out_dir, data_root, ppo)
     ppo = dataclasses.replace(ppo, vector_env=engine_vector_env(cfg, ppo.vector_env))
     resume = _resume_path(cfg.get("resume"), cfg)  # a wrong run folder stops here, before any work
-    untrained = ppo.total_steps == 0 and resume is None
-    if untrained:  # only the baselines are measured: one environment in this process, no workers
-        ppo = dataclasses.replace(ppo, num_envs=1, vector_env="sync", batched_workers=0)
-    make_train_env, eval_env = build_envs(cfg, data_root, ppo.vector_env)
+    untrained = ppo.total_steps == 0 and resume is None and performer is None
+    if untrained or performer is not None:  # nothing trains: one environment in this process, no workers
+        ppo = dataclasses.replace(ppo, num_envs=1, vector_env="sync", batched_workers=0, total_steps=0)
+    pool = None
+    if cfg.get("train_motions") and not untrained:  # one policy, many motions: the run's own motion is
+        # evaluated, never trained on (with nothing to train, the baselines of the run's motion alone)
+        from aslexp.envs.assembly import ImitationSetup
+        from aslexp.envs.motion_pool import describe
+
+        pool = training_pool(cfg, ImitationSetup.from_config(cfg, data_root))
+        log.info("motion %s: %s", cfg["motion"]["name"], describe(pool))
+    make_train_env, eval_env = build_envs(cfg, data_root, ppo.vector_env, pool=pool)
     base = baselines(eval_env, ppo.eval_steps, ppo.phases)  # the policy's evaluation protocol
     log.info("motion %s: baselines %s", cfg["motion"]["name"], {k: round(v, 4) for k, v in base.items()})
     report_baselines = measure_report_baselines(cfg, eval_env, ppo)
@@ -146,6 +181,8 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     try:  # worker processes end with the job, also when a sweep prunes it
         if resume is not None:
             trainer.restore(resume)  # a corrupt or mismatched checkpoint stops here, before any training
+        if performer is not None:
+            trainer.load_policy(performer["checkpoint"])  # the weights alone: no steps, no history
         started = time.perf_counter()
         history_logger.logged = len(trainer.history)  # a resumed run's earlier rows were logged then
         result = trainer.train() if ppo.total_steps > trainer.steps else None
@@ -160,7 +197,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         # A resumed checkpoint with no steps left is re-evaluated ("evaluated": e.g. a finished run
         # under more start phases); with total_steps=0 only the baselines were measured, and the
         # untrained policy's level is kept as such, never as the run's result.
-        stopped = "evaluated" if trainer.steps > 0 else "no_training"
+        stopped = "performed" if performer is not None else "evaluated" if trainer.steps > 0 else "no_training"
         best_eval, last_eval = (None, None) if untrained else (result_eval, result_eval)
     else:
         best_eval, last_eval, stopped = result.best_eval, result.last_eval, result.stopped
@@ -201,8 +238,9 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         report.plot_tracking(look.trajectory, joint_names, out_dir / "tracking_baseline.png",
                              f"{cfg['motion']['name']}: reference one step ahead, controller {controller} "
                              f"(reward {look.mean_reward:.3f})")
-        report.plot_reward_curve(trainer.history, base, out_dir / "reward_curve.png",
-                                 f"{cfg['motion']['name']} (seed {cfg.get('seed')})")
+        if performer is None:  # a performance has no curve of its own (its policy's run has)
+            report.plot_reward_curve(trainer.history, base, out_dir / "reward_curve.png",
+                                     f"{cfg['motion']['name']} (seed {cfg.get('seed')})")
     if frames_every and "frames" in final.trajectory:
         from aslexp.viz.video import save_gif, save_mp4
 
@@ -214,6 +252,8 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     metrics = {
         "motion": cfg["motion"]["name"], "seed": cfg.get("seed"), "baselines": base,
         "last_eval": last_eval, "best_eval": best_eval, "eval_protocol": ppo.eval_protocol,
+        **({"train_motions": pool.summary()} if pool is not None else {}),
+        **({"policy": performer} if performer is not None else {}),
         **({"untrained_eval": result_eval} if untrained else {}),
         # The last evaluation's episodes that blew up (a number they touched is not a score), and the
         # last evaluation under report.score_rewards (the same episodes under another reward scale).

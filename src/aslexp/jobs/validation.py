@@ -69,6 +69,11 @@ def check_imitation_setup(cfg: DictConfig) -> None:
 
     groups = ("motion", "body", "controller", "reward", "env", "engine")
     plain = {key: OmegaConf.to_container(cfg[key], resolve=True) for key in groups if key in cfg}
+    if OmegaConf.select(cfg, "policy", default=None):  # a performance: the policy's run's groups, this motion
+        from aslexp.jobs.performing import performing_config
+
+        performing, _ = performing_config({**plain, "policy": cfg.policy})
+        plain = {**{key: performing[key] for key in groups if key in performing}, "motion": plain["motion"]}
     ImitationSetup.from_config(plain, resolve_data_root(OmegaConf.select(cfg, "data_root", default=None)))
 
 

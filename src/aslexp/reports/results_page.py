@@ -406,7 +406,11 @@ def imitation_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, A
     runs, skipped = _imitation_runs(folders)
     # A planner's runs (aslexp.control.mpc) give each motion its ceiling: this entry's own, and those
     # of the folders its options name (options.ceiling_folders: the same reward, controller and rate)
-    ceilings = _imitation_runs([Path(f) for f in (entry.get("options") or {}).get("ceiling_folders") or []])[0]
+    options = entry.get("options") or {}
+    ceilings = _imitation_runs([Path(f) for f in options.get("ceiling_folders") or []])[0]
+    # The policies trained on each motion alone (options.per_motion_folders), beside a policy of many
+    # motions scored on a motion it never saw (experiment=letters_unseen): the column it is measured against
+    per_motion = _imitation_runs([Path(f) for f in options.get("per_motion_folders") or []])[0]
     rows, run_dirs, configs = [], [], []
     for motion, items in runs.items():
         run_dirs += [Path(m["run_dir"]) for m in items]
@@ -424,6 +428,11 @@ def imitation_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, A
         if untrained:
             baselines = [{"label": "the untrained policy (step 0 of these runs, mean over seeds)", "kind": "no-learning",
                           "value": _round(np.mean(untrained))}, *baselines]
+        own = [float(m["last_eval"]) for m in per_motion.get(motion, []) if learned(m) and m.get("last_eval") is not None]
+        if own:
+            baselines.append({"label": options.get("per_motion_label", "the policy trained on this motion alone"),
+                              "kind": "learned", "value": _round(np.mean(own)),
+                              "name": f"± {np.std(own):.4f}, n={len(own)}" if len(own) > 1 else "n=1"})
         names = list(dict.fromkeys(k for m in trained for k in m.get("last_eval_scores") or {}))
         scores = {name: [float(m["last_eval_scores"][name]) for m in trained if name in (m.get("last_eval_scores") or {})]
                   for name in names}
@@ -442,7 +451,8 @@ def imitation_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, A
                                        for name, v in scores.items()}} if scores else {})},
             "steps": [int(min(m["steps"] for m in trained)), int(max(m["steps"] for m in trained))] if trained else None,
             **({"ceiling": ceiling_summary(planned)} if (planned := [m for m in items + ceilings.get(motion, [])
-                                                                      if m.get("planner")]) else {}),
+                                                                      if m.get("planner")]) else
+               {"ceiling": options["ceiling_rows"][motion]} if motion in (options.get("ceiling_rows") or {}) else {}),
         })
     return {"rows": rows, "run_dirs": run_dirs, "skipped": skipped, "quantity": "mean reward per step",
             "row_name": "motion", **thesis_differences(entry, configs, [m for items in runs.values() for m in items])}
@@ -485,8 +495,12 @@ def thesis_differences(entry: dict[str, Any], configs: list[dict[str, Any]], met
 # --------------------------------------------------------------------------- snapshots
 
 
-def build_snapshot(entry: dict[str, Any], outputs: Path, summarizers: dict[str, Summarizer]) -> dict[str, Any] | None:
-    """The snapshot of ``entry`` from its run folders under ``outputs``; None when it has none."""
+def build_snapshot(entry: dict[str, Any], outputs: Path, summarizers: dict[str, Summarizer],
+                   snapshots: Path | None = None) -> dict[str, Any] | None:
+    """The snapshot of ``entry`` from its run folders under ``outputs``; None when it has none.
+    ``options.ceiling_snapshot`` (an entry id): the ceilings of the rows that have no planner run here,
+    from that entry's snapshot in ``snapshots`` (made from its run folders; the same reward, controller,
+    rate and engine)."""
     folders, alternative = entry_folders(entry, outputs)
     if not folders:
         return None
@@ -494,8 +508,14 @@ def build_snapshot(entry: dict[str, Any], outputs: Path, summarizers: dict[str, 
         log.warning("warning: %s: no summary for report %r here; its snapshot is kept", entry["id"], entry["report"])
         return None
     options = entry.get("options") or {}
-    if options.get("ceiling_folders"):  # the planner runs that give the rows their ceiling, under outputs/ too
-        entry = {**entry, "options": {**options, "ceiling_folders": [str(outputs / f) for f in options["ceiling_folders"]]}}
+    for key in ("ceiling_folders", "per_motion_folders"):  # other entries' runs a row reads, under outputs/ too
+        if options.get(key):
+            options = {**options, key: [str(outputs / f) for f in options[key]]}
+    if options.get("ceiling_snapshot") and snapshots is not None:
+        kept = read_snapshot(snapshot_path(snapshots, options["ceiling_snapshot"])) or {}
+        options = {**options, "ceiling_rows": {r["key"]: {**r["ceiling"], "source": f"docs/results/{kept['id']}.json"}
+                                               for r in kept.get("rows", []) if r.get("ceiling")}}
+    entry = {**entry, "options": options}
     summary = summarizers[entry["report"]](entry, folders)
     if not summary["rows"]:
         return None
@@ -534,7 +554,7 @@ def update(catalogue: list[dict[str, Any]], outputs: Path, snapshots: Path,
     Returns id -> what happened (``from runs``, ``kept``, ``not run``)."""
     done = {}
     for entry in catalogue:
-        snapshot = build_snapshot(entry, outputs, summarizers)
+        snapshot = build_snapshot(entry, outputs, summarizers, snapshots)
         path = snapshot_path(snapshots, entry["id"])
         if snapshot is not None:
             write_snapshot(path, snapshot)

@@ -399,6 +399,17 @@ class PPOTrainer:
         log.info("resumed from %s at step %d (saved with %s environment(s), now %d)", path, self.steps,
                  payload.get("num_envs", 1), self.num_envs)
 
+    def load_policy(self, path: str | Path) -> None:
+        """The agent's weights (and observation statistics) of a checkpoint, nothing else: a trained
+        policy performing another motion (``aslexp imitate policy=RUN_DIR``) starts no training state."""
+        payload = load_checkpoint(path)
+        try:
+            self.agent.load_state_dict(payload["agent"])
+        except (KeyError, RuntimeError, ValueError) as exc:
+            raise ValueError(f"checkpoint {path} does not fit this model/config: {exc}") from exc
+        self._sync_rollout_agent()
+        log.info("policy from %s (trained %d steps)", path, int(payload.get("steps", 0)))
+
     def apply_schedules(self) -> dict[str, float]:
         """Set the learning rate and (if scheduled) the log-std for the next update."""
         lr, log_std = self.config.scheduled(self.steps)

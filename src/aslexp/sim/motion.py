@@ -315,3 +315,55 @@ def random_motion(lower: Sequence[float], upper: Sequence[float], seconds: float
     joints = keyframes[index] + ease[:, None] * (keyframes[index + 1] - keyframes[index])
     frames = np.concatenate([np.tile(np.asarray(root, float), (len(times), 1)), joints], axis=1)
     return Motion(frames, dt, loop="none", source=f"random_motion(seed={seed})")
+
+
+def mean_joint_speed(motion: Motion, columns: slice | np.ndarray = slice(ROOT_COLUMNS, None)) -> float:
+    """Mean |dq/dt| (rad/s) over the frames and the joint ``columns`` of one cycle (the wrap excluded)."""
+    if motion.num_frames < 2:
+        return 0.0
+    q = motion.frames[:, columns]
+    return float(np.mean(np.abs(np.diff(q, axis=0)) / motion.dt[:-1, None]))
+
+
+def generated_motions(examples: Sequence[Motion], lower: Sequence[float], upper: Sequence[float], count: int,
+                      seed: int = 0, keyframes: tuple[int, int] = (2, 4), margin: float = 0.05,
+                      close_loop: bool = False) -> list[Motion]:
+    """``count`` smooth random joint trajectories like ``examples`` (issue 38's training motions).
+
+    Each takes one example's duration, frame step and root, and its mean joint speed: between 2 and
+    4 (``keyframes``) poses drawn uniformly inside ``[lower, upper]`` (``margin`` of each range kept
+    clear) with a cosine ease, then scaled about their mean pose so the mean joint speed is the
+    example's (clipped back inside the limits). They loop as the examples do: ``close_loop`` False
+    leaves the jump from the last pose back to the first that the thesis' letters have at the wrap.
+    Only revolute joints (a body whose motion columns after the root are one value per joint).
+    """
+    if count < 0 or not examples:
+        raise ValueError(f"generated motions: count must be >= 0 and examples non-empty, got {count}, "
+                         f"{len(examples)} examples")
+    lower, upper = np.asarray(lower, float), np.asarray(upper, float)
+    span = upper - lower
+    rng = np.random.default_rng(seed)
+    motions = []
+    for k in range(count):
+        example = examples[int(rng.integers(len(examples)))]
+        if example.num_columns != ROOT_COLUMNS + len(lower):
+            raise ValueError(f"generated motions: {example.source} has {example.num_columns} values per frame, "
+                             f"expected {ROOT_COLUMNS} root values and one per joint ({len(lower)})")
+        dt = float(np.median(example.dt[:-1])) if example.num_frames > 1 else float(example.dt[0])
+        times = np.arange(example.num_frames) * dt
+        poses = int(rng.integers(keyframes[0], keyframes[1] + 1))
+        keys = lower + margin * span + rng.random((poses + int(close_loop), len(lower))) * (1 - 2 * margin) * span
+        if close_loop:
+            keys[-1] = keys[0]
+        position = times / max(times[-1], 1e-12) * (len(keys) - 1)
+        index = np.minimum(position.astype(int), len(keys) - 2)
+        ease = (1 - np.cos(np.pi * np.clip(position - index, 0, 1))) / 2
+        joints = keys[index] + ease[:, None] * (keys[index + 1] - keys[index])
+        speed = float(np.mean(np.abs(np.diff(joints, axis=0)) / dt)) if len(joints) > 1 else 0.0
+        if speed > 0:
+            centre = joints.mean(axis=0)
+            joints = np.clip(centre + (joints - centre) * mean_joint_speed(example) / speed, lower, upper)
+        root = np.tile(example.frames[0, :ROOT_COLUMNS], (len(times), 1))
+        motions.append(Motion(np.concatenate([root, joints], axis=1), dt, loop=example.loop,
+                              source=f"generated(seed={seed}, k={k}, like={Path(str(example.source)).stem})"))
+    return motions

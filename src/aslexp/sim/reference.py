@@ -38,6 +38,9 @@ class ReferenceMotion:
     def phase(self, t: float) -> float:
         return self.motion.phase(t)
 
+    def phase_many(self, t: np.ndarray) -> np.ndarray:
+        return self.motion.phase_many(t)
+
     def joints(self, t: float) -> np.ndarray:
         """Joint positions at time t (motion layout, quaternions w x y z)."""
         return self.motion.sample(t)[self._q_columns]
@@ -94,6 +97,71 @@ class ReferenceMotion:
         vel = self._column_velocity[i]
         omega = 2.0 * quaternion.multiply(vel[3:7], quaternion.conjugate(frame[3:7]))[1:4]
         return frame[0:3].copy(), frame[3:7].copy(), vel[0:3].copy(), omega
+
+
+class ReferencePool:
+    """Several references of one body, one per row of a batch (issue 38: one policy, many motions).
+
+    ``select(clips)`` is what a batch's rows read: an object with :class:`ReferenceMotion`'s
+    ``*_many`` methods, whose ``i``-th time is read from the reference ``clips[i]`` names. A pool of
+    one answers with that reference itself, so a one-motion batch pays nothing for the pool.
+    """
+
+    def __init__(self, references: list[ReferenceMotion]) -> None:
+        if not references:
+            raise ValueError("a reference pool needs at least one motion")
+        widths = {r.layout.motion_columns for r in references}
+        if len(widths) != 1:
+            raise ValueError(f"a reference pool holds one body's motions; got widths {sorted(widths)}")
+        self.references = list(references)
+        self.durations = np.asarray([r.duration for r in references])
+
+    def __len__(self) -> int:
+        return len(self.references)
+
+    def select(self, clips: np.ndarray) -> "ReferenceMotion | _PoolRows":
+        if len(self.references) == 1:
+            return self.references[0]
+        return _PoolRows(self.references, np.asarray(clips, dtype=int))
+
+
+class _PoolRows:
+    """:class:`ReferencePool` rows: each method reads every reference on its own rows (a row of ``t``
+    per clip) and puts the answers back in row order."""
+
+    def __init__(self, references: list[ReferenceMotion], clips: np.ndarray) -> None:
+        self.groups = [(references[c], np.flatnonzero(clips == c)) for c in np.unique(clips)]
+        self.size = len(clips)
+        self.duration = np.asarray([references[c].duration for c in clips])
+
+    def _gather(self, method: str, t: np.ndarray):
+        t = np.broadcast_to(np.asarray(t, dtype=np.float64), (self.size,))
+        if len(self.groups) == 1:
+            return getattr(self.groups[0][0], method)(t)
+        out = None
+        for reference, rows in self.groups:
+            answer = getattr(reference, method)(t[rows])
+            parts = answer if isinstance(answer, tuple) else (answer,)
+            if out is None:
+                out = tuple(np.empty((self.size,) + p.shape[1:], p.dtype) for p in parts)
+            for whole, part in zip(out, parts):
+                whole[rows] = part
+        return out if isinstance(answer, tuple) else out[0]
+
+    def joints_many(self, t: np.ndarray) -> np.ndarray:
+        return self._gather("joints_many", t)
+
+    def joint_velocities_many(self, t: np.ndarray) -> np.ndarray:
+        return self._gather("joint_velocities_many", t)
+
+    def root_many(self, t: np.ndarray):
+        return self._gather("root_many", t)
+
+    def state_many(self, t: np.ndarray):
+        return self._gather("state_many", t)
+
+    def phase_many(self, t: np.ndarray) -> np.ndarray:
+        return self._gather("phase_many", t)
 
 
 def _local_angular_velocity(q: np.ndarray, dt: np.ndarray, loop: str) -> np.ndarray:
