@@ -17,28 +17,84 @@ correction's half-range: ``env.residual_range`` rad, ``env.residual_velocity_ran
   reward per step over the horizon);
 * ``cem``: the plan is the mean of the ``elites`` best, the next iteration's noise their spread.
 
-``iterations`` updates per control step. The score is measured as every evaluation in aslexp: from
+``iterations`` updates per control step. An update is registered by name (:func:`register_update`,
+as a reward error is): a new one is a module plus a YAML whose ``module`` key imports it::
+
+    @register_update("elite_mean")
+    def elite_mean(spec, candidates, returns, noise, scale):   # -> (the new plan, the next iteration's noise)
+        best = candidates[np.argsort(-returns)[:8]]
+        return best.mean(axis=0), noise
+
+    # conf/planner/elite.yaml:  method: elite_mean, module: my_package.my_planners
+ The score is measured as every evaluation in aslexp: from
 the evaluation protocol's start phases, the mean reward per step over the episode, a blow-up counted
 and never scored. The model is the simulator itself (an empirical upper reference, not a bound).
 """
 
 from __future__ import annotations
 
+import importlib
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from aslexp.config_schema import Choice, Int, Positive, Section, key
+from aslexp.config_schema import Int, Positive, Section, key
 from aslexp.envs.assembly import ImitationSetup
 from aslexp.errors import ConfigError
 from aslexp.envs.batched import BatchedImitationEnv
 
 log = logging.getLogger("aslexp.mpc")
 
-METHODS = ("predictive_sampling", "mppi", "cem")
+# name -> update(spec, candidates (S, H, A), returns (S,), noise (A,), scale (A,)) -> (plan (H, A), noise (A,)):
+# noise is this iteration's perturbation std, scale each correction's half-range
+_UPDATES: dict[str, Callable[..., tuple[np.ndarray, np.ndarray]]] = {}
+
+
+def register_update(name: str, *, replace: bool = False):
+    """Decorator: make ``f(spec, candidates, returns, noise, scale) -> (plan, noise)`` the planner update
+    ``name`` (``planner.method``)."""
+
+    def decorate(function):
+        known = _UPDATES.get(name)
+        if known is not None and known is not function and not replace:
+            raise ValueError(f"planner update {name!r} is already registered ({known.__module__}); choose another "
+                             "name or pass replace=True")
+        _UPDATES[name] = function
+        return function
+
+    return decorate
+
+
+def unregister_update(name: str) -> None:
+    """Forget a registered update (tests register throwaway ones)."""
+    _UPDATES.pop(name, None)
+
+
+def update_names() -> tuple[str, ...]:
+    return tuple(_UPDATES)
+
+
+@register_update("predictive_sampling")
+def _best(spec, candidates, returns, noise, scale):
+    return candidates[int(np.argmax(returns))].copy(), noise
+
+
+@register_update("mppi")
+def _softmax_mean(spec, candidates, returns, noise, scale):
+    weights = np.exp((returns - returns.max()) / (spec.temperature * spec.horizon))
+    return np.tensordot(weights / weights.sum(), candidates, axes=1), noise
+
+
+@register_update("cem")
+def _elite_mean(spec, candidates, returns, noise, scale):
+    elites = candidates[np.argsort(-returns, kind="stable")[:spec.elites]]
+    return elites.mean(axis=0), np.maximum(elites.std(axis=(0, 1)), 1e-3 * spec.noise * scale)
+
+
 
 
 @dataclass(frozen=True)
@@ -48,7 +104,7 @@ class PlannerSpec(Section):
     SECTION = "planner"
 
     name: str = "mpc"
-    method: str = field(default="predictive_sampling", metadata=key(Choice(*METHODS)))
+    method: str = "predictive_sampling"  # a registered update (register_update)
     horizon: int = field(default=8, metadata=key(Int(1)))  # control steps
     # candidate sequences per iteration (the plan and the zero sequence among them)
     samples: int = field(default=64, metadata=key(Int(3)))
@@ -61,8 +117,19 @@ class PlannerSpec(Section):
     temperature: float = field(default=0.01, metadata=key(Positive()))
     elites: int = field(default=4, metadata=key(Int(1)))  # cem
     seed: int = 0
+    # module(s) imported first: they register updates (register_update) method may name
+    module: str | list[str] | None = None
 
     def __post_init__(self) -> None:
+        modules = self.module or []
+        for module in [modules] if isinstance(modules, str) else modules:
+            try:
+                importlib.import_module(str(module))
+            except ImportError as error:
+                raise ConfigError(f"module={module}: could not be imported ({error})") from None
+        if self.method not in _UPDATES:
+            raise ConfigError(f"method={self.method}: expected one of {', '.join(update_names())} (a registered "
+                              f"update: planner.module names its module)")
         if self.knots > self.horizon:
             raise ConfigError(f"knots={self.knots}: must be at most the horizon ({self.horizon})")
         if self.method == "cem" and self.elites >= self.samples:
@@ -107,16 +174,7 @@ class SamplingPlanner:
             candidates[2:] = self.plan[None] + perturbation[:, self._hold]
             np.clip(candidates, self.low, self.high, out=candidates)
             returns = self._returns(candidates, state, now)
-            order = np.argsort(-returns, kind="stable")
-            if spec.method == "predictive_sampling":
-                self.plan = candidates[order[0]].copy()
-            elif spec.method == "mppi":
-                weights = np.exp((returns - returns.max()) / (spec.temperature * spec.horizon))
-                self.plan = np.tensordot(weights / weights.sum(), candidates, axes=1)
-            else:  # cem
-                elites = candidates[order[:spec.elites]]
-                self.plan = elites.mean(axis=0)
-                noise = np.maximum(elites.std(axis=(0, 1)), 1e-3 * spec.noise * self.scale)
+            self.plan, noise = _UPDATES[spec.method](spec, candidates, returns, noise, self.scale)
         action = self.plan[0].copy()
         self.plan = np.concatenate([self.plan[1:], np.zeros((1, self.size))])  # shifted; the end: the controller
         return action
