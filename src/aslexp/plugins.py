@@ -43,3 +43,30 @@ def import_registering_module(what: str, name: str, module: str) -> None:
         importlib.import_module(module)
     except ImportError as error:
         raise ConfigError(f"{what} {name}: module {module} could not be imported ({error})") from None
+
+
+def import_modules(modules: str | list[str] | None) -> None:
+    """A config section's ``module:`` key (one module or a list), each imported: it registers what the
+    section names (a reward error, a planner update); one that cannot be is one line."""
+    for module in [modules] if isinstance(modules, str) else modules or []:
+        try:
+            importlib.import_module(str(module))
+        except ImportError as error:
+            raise ConfigError(f"module={module}: could not be imported ({error})") from None
+
+
+def register_function(registry: dict, what: str, name: str, replace: bool = False, built_in: tuple[str, ...] = ()):
+    """A decorator that puts its function into ``registry`` under ``name`` (``what`` names the kind in
+    the refusals: a built-in name, or a name another module registered, unless ``replace``)."""
+
+    def decorate(function):
+        if name in built_in:
+            raise ValueError(f"{what} {name!r} is built in")
+        known = registry.get(name)
+        if known is not None and known is not function and not replace:
+            raise ValueError(f"{what} {name!r} is already registered ({known.__module__}); choose another "
+                             "name or pass replace=True")
+        registry[name] = function
+        return function
+
+    return decorate

@@ -33,7 +33,6 @@ and never scored. The model is the simulator itself (an empirical upper referenc
 
 from __future__ import annotations
 
-import importlib
 import logging
 import time
 from collections.abc import Callable
@@ -45,6 +44,7 @@ import numpy as np
 from aslexp.config_schema import Int, Positive, Section, key
 from aslexp.envs.assembly import ImitationSetup
 from aslexp.errors import ConfigError
+from aslexp.plugins import import_modules, register_function
 from aslexp.envs.batched import BatchedImitationEnv
 
 log = logging.getLogger("aslexp.mpc")
@@ -58,15 +58,7 @@ def register_update(name: str, *, replace: bool = False):
     """Decorator: make ``f(spec, candidates, returns, noise, scale) -> (plan, noise)`` the planner update
     ``name`` (``planner.method``)."""
 
-    def decorate(function):
-        known = _UPDATES.get(name)
-        if known is not None and known is not function and not replace:
-            raise ValueError(f"planner update {name!r} is already registered ({known.__module__}); choose another "
-                             "name or pass replace=True")
-        _UPDATES[name] = function
-        return function
-
-    return decorate
+    return register_function(_UPDATES, "planner update", name, replace)
 
 
 def unregister_update(name: str) -> None:
@@ -121,12 +113,7 @@ class PlannerSpec(Section):
     module: str | list[str] | None = None
 
     def __post_init__(self) -> None:
-        modules = self.module or []
-        for module in [modules] if isinstance(modules, str) else modules:
-            try:
-                importlib.import_module(str(module))
-            except ImportError as error:
-                raise ConfigError(f"module={module}: could not be imported ({error})") from None
+        import_modules(self.module)
         if self.method not in _UPDATES:
             raise ConfigError(f"method={self.method}: expected one of {', '.join(update_names())} (a registered "
                               f"update: planner.module names its module)")

@@ -35,7 +35,6 @@ that names it in a reward YAML, whose ``module`` key imports the registering mod
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -46,6 +45,7 @@ from aslexp.config_schema import Choice, Section, key
 from aslexp.errors import ConfigError
 from aslexp.sim.body import BodyLayout
 from aslexp.quaternion import angle as quat_angle
+from aslexp.plugins import import_modules, register_function
 
 TERMS = ("pose", "velocity", "end_effector", "root")  # the built-in errors, computed together every step
 COMBINE = ("sum", "product")
@@ -55,18 +55,7 @@ _ERRORS: dict[str, Callable[..., np.ndarray]] = {}
 
 def register_error(name: str, *, replace: bool = False):
     """Decorator: make ``f(reward, sim, ref) -> (N,)`` the error ``name`` a reward term may use."""
-
-    def decorate(function: Callable[..., np.ndarray]):
-        if name in TERMS:
-            raise ValueError(f"reward error {name!r} is built in")
-        known = _ERRORS.get(name)
-        if known is not None and known is not function and not replace:
-            raise ValueError(f"reward error {name!r} is already registered ({known.__module__}); choose another "
-                             "name or pass replace=True")
-        _ERRORS[name] = function
-        return function
-
-    return decorate
+    return register_function(_ERRORS, "reward error", name, replace, built_in=TERMS)
 
 
 def unregister_error(name: str) -> None:
@@ -113,12 +102,7 @@ class RewardSpec(Section):
     module: str | list[str] | None = None
 
     def __post_init__(self) -> None:
-        modules = self.module or []
-        for module in [modules] if isinstance(modules, str) else modules:
-            try:
-                importlib.import_module(str(module))
-            except ImportError as error:
-                raise ConfigError(f"module={module}: could not be imported ({error})") from None
+        import_modules(self.module)
         for name, term in self.terms.items():
             kind = term.kind(name)
             if kind not in TERMS and kind not in _ERRORS:
