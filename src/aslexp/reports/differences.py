@@ -103,6 +103,11 @@ def facts(cfg: dict[str, Any]) -> dict[str, str]:
                          f"{planner.get('samples')} samples) on the controller")
         return out
     out["policy"] = "learned (PPO)"
+    pool = cfg.get("train_motions")  # one policy of many motions (aslexp.envs.motion_pool)
+    out["trained on"] = ("the evaluated motion" if not pool else
+                         f"a pool ({pool.get('name')}): {', '.join(map(str, pool.get('motions') or [])) or 'no listed motion'}"
+                         f"{' but the evaluated one' if pool.get('hold_out_evaluated', True) else ''} and "
+                         f"{(pool.get('generated') or {}).get('count', 0)} generated motions")
     num_envs, batch = int(ppo.get("num_envs", 1)), int(ppo.get("steps_per_rollout", 0))
     out["update"] = f"{num_envs} environment{'s' if num_envs != 1 else ''} x {math.ceil(batch / max(num_envs, 1)):,} steps = {batch:,} per update"
     out["learner"] = (f"{' x '.join(str(h) for h in ppo.get('hidden_sizes') or [])} MLP, lr {ppo.get('learning_rate')}, "
@@ -129,10 +134,27 @@ def run_facts(metrics: list[dict[str, Any]]) -> dict[str, Any]:
         protocol = m.get("eval_protocol") or {}
         learned = (len(protocol.get("phases") or [0.0]), protocol.get("steps"))
         measured = m.get("report_baselines")
-        baselines = ((len(measured[0].get("phases") or [0.0]), measured[0].get("seconds")) if measured else None)
+        if measured:
+            baselines = (len(measured[0].get("phases") or [0.0]), measured[0].get("seconds"))
+        elif protocol and not _names_report_baselines(m):
+            # no report.baselines: the columns are the run's own `baselines`, measured by the job under
+            # its evaluation protocol (every run that records eval_protocol)
+            baselines = (learned[0], None)
+        else:  # report.baselines measured by the report from phase 0 (runs before session 19)
+            baselines = None
         protocols.add((learned, baselines))
     return {"steps": [m["steps"] for m in trained], "seeds_per_motion": sorted(set(per_motion.values())),
             "protocols": sorted(protocols, key=str)}
+
+
+def _names_report_baselines(metrics: dict[str, Any]) -> bool:
+    """Whether the run's overlay named ``report.baselines`` (its composed config, beside metrics.json)."""
+    from aslexp.reports.report import run_config
+
+    try:
+        return bool(((run_config(Path(metrics["run_dir"])) or {}).get("report") or {}).get("baselines"))
+    except (KeyError, FileNotFoundError):
+        return True  # unknown: as the runs before session 19 were read
 
 
 def _phases(count: int) -> str:
