@@ -75,7 +75,11 @@ class ImitationSetup:
         chosen = {**(defaults or {}), **{name: value for name, value in given.items() if isinstance(value, str)}}
         for name, value in chosen.items():
             check_choice(name, value)  # a name that is no file: one line naming the group and what there is
-        composed = compose(IMITATE, [f"{name}={value}" for name, value in chosen.items()])
+        # composed only when a group is named or merged over its file (a job's complete groups need none)
+        needed = any(value is None or isinstance(value, str) or (isinstance(value, dict) and not complete
+                                                                  and name != "engine")
+                      for name, value in given.items())
+        composed = compose(IMITATE, [f"{name}={value}" for name, value in chosen.items()]) if needed else {}
         groups = {}
         for name, value in given.items():
             if isinstance(value, dict) and (complete or name == "engine"):
