@@ -91,7 +91,6 @@ class BatchedImitationEnv(VectorEnv):
         self.spec_env, self.reference, self.layout = t.spec_env, t.reference, t.layout
         self.pool = ReferencePool([t.reference] if not motions else
                                   [ReferenceMotion(setup.load_motion(m), t.layout) for m in motions])
-        self.pool_names = [str(r.motion.source) for r in self.pool.references]
         self.body = t.simulation.batch
         if threads is not None:
             self.body.set_threads(int(threads))

@@ -132,7 +132,6 @@ class _PoolRows:
     def __init__(self, references: list[ReferenceMotion], clips: np.ndarray) -> None:
         self.groups = [(references[c], np.flatnonzero(clips == c)) for c in np.unique(clips)]
         self.size = len(clips)
-        self.duration = np.asarray([references[c].duration for c in clips])
 
     def _gather(self, method: str, t: np.ndarray):
         t = np.broadcast_to(np.asarray(t, dtype=np.float64), (self.size,))
