@@ -12,6 +12,7 @@ from __future__ import annotations
 import datetime as _dt
 import os
 from pathlib import Path
+from typing import Any
 
 from aslexp.files import read_json, write_json
 
@@ -40,3 +41,16 @@ def mark_interrupted(run_dir: str | os.PathLike, reason: str,
     info.update(status="interrupted", finished=info.get("finished") or timestamp(), error=reason)
     write_json(path, info)
     return True
+
+
+def machines(info: dict[str, Any], metrics: dict[str, Any] | None) -> list[dict[str, Any]]:
+    """Every machine a run's steps were trained on: its own process's (run.json, metrics.json), then
+    those of the runs it was resumed from (``resumed_from``, newest first)."""
+    versions = info.get("versions") or {}
+    found = [{"host": info.get("host"), "platform": info.get("platform"), "python": versions.get("python"),
+              "torch": versions.get("torch"), "device": (metrics or {}).get("device")}]
+    origin = (metrics or {}).get("resumed_from")
+    while isinstance(origin, dict):
+        found.append({k: origin.get(k) for k in ("host", "platform", "python", "torch", "device")})
+        origin = origin.get("resumed_from")
+    return found

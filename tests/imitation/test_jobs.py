@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import os
 import subprocess
@@ -46,7 +47,17 @@ def test_imitate_trains_writes_figures_and_resumes(tmp_path):
     out2 = tmp_path / "run2"
     run_job("imitate", "motion=B", *SMALL, *NO_FIGURES, "ppo.total_steps=512", f"+resume={out}",
             f"hydra.run.dir={out2}")
-    assert json.loads((out2 / "metrics.json").read_text())["steps"] == 512
+    resumed = json.loads((out2 / "metrics.json").read_text())
+    assert resumed["steps"] == 512
+    # Where its first 256 steps were trained: the run, its machine and device (results pages list them).
+    origin, info = resumed["resumed_from"], json.loads((out / "run.json").read_text())
+    assert origin["steps"] == 256 and origin["run"] == str(out) and origin["device"] == metrics["device"]
+    assert origin["host"] == info["host"] and origin["torch"] == info["versions"]["torch"]
+    assert "resumed_from" not in metrics
+    # The new folder holds the whole curve: the first run's rows, then its own.
+    first, whole = (list(csv.DictReader((d / "progress.csv").open())) for d in (out, out2))
+    assert [(r["step"], r["eval_reward"]) for r in whole[:len(first)]] == [(r["step"], r["eval_reward"]) for r in first]
+    assert len(whole) > len(first) and whole[-1]["step"] == "512"
 
     # A corrupt checkpoint: a clear error, the trained run untouched.
     bad = tmp_path / "bad.pt"

@@ -31,8 +31,8 @@ TINY = dict(hidden_sizes=(32, 32), learning_rate=1e-3, steps_per_rollout=128, mi
 ENV = {"episode_steps": 15, "early_termination": {"min_reward": 0.15}}
 
 
-def factory(motion, **env):
-    return functools.partial(ImitationEnv, motion, env={**ENV, **env})
+def factory(motion, engine: str | None = None, **env):
+    return functools.partial(ImitationEnv, motion, engine=engine, env={**ENV, **env})
 
 
 def test_two_workers_collect_the_transitions_of_two_single_environments(tmp_path, motion_a):
@@ -197,9 +197,10 @@ def test_device_switch(tmp_path, motion_a):
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (torch finds none)")
 @pytest.mark.parametrize("rollout_device", ["cpu", "learner"])
 def test_learner_on_cuda_and_back(tmp_path, motion_a, rollout_device):
-    eval_env = ImitationEnv(motion_a, env={**ENV, "early_termination": {"min_reward": None}})
+    # MuJoCo: GPU machines run Python 3.12, where PyBullet has no wheel.
+    eval_env = ImitationEnv(motion_a, engine="mujoco", env={**ENV, "early_termination": {"min_reward": None}})
     config = PPOConfig(**TINY, device="cuda", num_envs=2, rollout_device=rollout_device)
-    trainer = PPOTrainer(factory(motion_a), eval_env, config, tmp_path)
+    trainer = PPOTrainer(factory(motion_a, engine="mujoco"), eval_env, config, tmp_path)
     try:
         before = trainer.rollout_agent.head.net[0].weight.clone()
         result = trainer.train()
@@ -211,7 +212,7 @@ def test_learner_on_cuda_and_back(tmp_path, motion_a, rollout_device):
     # The policy that collects follows the learner after every update.
     assert not torch.equal(before, trainer.rollout_agent.head.net[0].weight)
     assert torch.equal(trainer.rollout_agent.head.net[0].weight.cpu(), trainer.agent.head.net[0].weight.cpu())
-    cpu = PPOTrainer(factory(motion_a), None, PPOConfig(**TINY, device="cpu"), tmp_path / "cpu")
+    cpu = PPOTrainer(factory(motion_a, engine="mujoco"), None, PPOConfig(**TINY, device="cpu"), tmp_path / "cpu")
     cpu.restore(tmp_path / "checkpoints" / "last.pt")
     assert cpu.steps == 256
     cpu.close()

@@ -129,3 +129,28 @@ def test_optuna_sweep_keeps_its_study_and_trial_directories(aslexp, tmp_path):
     out = aslexp("report", str(sweep_dir), "--out", str(tmp_path / "report2"))
     assert [ln for ln in out.stderr.splitlines() if str(emptied) in ln] == [f"warning: {emptied}: empty file; run skipped"]
     assert "1 runs (the best by validation of 2)" in out.stdout and "Traceback" not in out.stderr
+
+
+def test_simple_baselines_are_measured_once_and_reused_with_the_same_numbers(aslexp, tmp_path, caplog):
+    """Two trials of a sweep over the model's C: the second reads the forest's numbers the first
+    measured; a run that measures its own (simple_baseline_cache=null) gets the same numbers."""
+    cache, sweep, fresh = tmp_path / "baselines", tmp_path / "sweep", tmp_path / "fresh"
+    small = [*FAST, "+simple_baseline_params.rf.n_estimators=20", f"simple_baseline_cache={cache}"]
+    ran = aslexp("recognize", "-m", *small, "classifier.params.C=0.1,0.2", f"hydra.sweep.dir={sweep}")
+    first, second = (json.loads(next(sweep.glob(f"{k}_*/metrics.json")).read_text()) for k in "01")
+    assert first["simple_baselines"]["rf"]["splits_from_cache"] == 0
+    assert second["simple_baselines"]["rf"]["splits_from_cache"] == 1
+    assert (ran.stdout + ran.stderr).count("measured by an earlier run") == 2  # rf and logreg (C differs from it)
+    assert second["simple_baselines"]["rf"]["test"] == first["simple_baselines"]["rf"]["test"]
+    assert {p.name.split("-")[0] for p in cache.iterdir()} == {"rf", "logreg"}
+    aslexp("recognize", *small[:-1], "classifier.params.C=0.2", "simple_baseline_cache=null", f"hydra.run.dir={fresh}")
+    own = json.loads((fresh / "metrics.json").read_text())
+    assert own["simple_baselines"]["rf"]["splits_from_cache"] == 0
+    for key in ("test", "val_score", "val_mcc", "test_per_split"):
+        assert own["simple_baselines"]["rf"][key] == second["simple_baselines"]["rf"][key], key
+    assert own["comparison"] == second["comparison"]
+    # Another forest is another key: measured, not read.
+    other = tmp_path / "other"
+    aslexp("recognize", *FAST, "+simple_baseline_params.rf.n_estimators=21", f"simple_baseline_cache={cache}",
+           f"hydra.run.dir={other}")
+    assert json.loads((other / "metrics.json").read_text())["simple_baselines"]["rf"]["splits_from_cache"] == 0

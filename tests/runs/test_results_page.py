@@ -214,6 +214,27 @@ def imitate_outputs(tmp_path_factory) -> Path:
     return outputs
 
 
+def test_a_resumed_run_lists_the_machine_that_trained_its_first_steps(imitate_outputs, tmp_path):
+    """A run resumed from another machine's checkpoint (metrics.json ``resumed_from``, as the imitate
+    job writes it): the page's Machine line names both machines and says how many runs resumed."""
+    import shutil
+
+    resumed = tmp_path / "letters" / "0"
+    shutil.copytree(imitate_outputs / "letters" / "0", resumed)
+    metrics = json.loads((resumed / "metrics.json").read_text())
+    metrics["resumed_from"] = {"checkpoint": "elsewhere/checkpoints/last.pt", "steps": 64, "host": "gpu-node",
+                               "platform": "Linux-gpu", "python": "3.12.3", "torch": "2.11.0+cu130", "device": "cuda"}
+    (resumed / "metrics.json").write_text(json.dumps(metrics))
+    runs = [resumed, imitate_outputs / "letters" / "1"]
+    snapshot = results_page.provenance(runs, tmp_path, [tmp_path / "letters"], {})
+    assert snapshot["hosts"] == sorted({socket.gethostname(), "gpu-node"}) and snapshot["resumed"] == 1
+    assert "cuda" in snapshot["devices"] and "2.11.0+cu130" in snapshot["versions"]["torch"]
+    line = results_page._machine(snapshot)
+    assert "gpu-node" in line and "1 of the runs resumed another run's checkpoint" in line
+    alone = results_page.provenance(runs[1:], tmp_path, [tmp_path / "letters"], {})
+    assert "resumed" not in alone and "resumed" not in results_page._machine(alone)
+
+
 def test_a_snapshot_is_made_from_real_runs_then_kept_when_they_are_gone(imitate_outputs, tmp_path):
     command = "aslexp imitate -m experiment=letters_thesis seed=0,1 ppo.total_steps=128"
     entries = [_entry("thesis_letters", "thesis", ["letters"], command,

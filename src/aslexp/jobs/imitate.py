@@ -37,6 +37,7 @@ from aslexp.errors import ConfigError
 from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
 from aslexp.jobs.validation import check_config
 from aslexp.runs.loggers import make_logger
+from aslexp.runs.read import resume_origin
 from aslexp.runs.record import Run
 from aslexp.tuning.context import trial_reporter
 
@@ -181,6 +182,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
     try:  # worker processes end with the job, also when a sweep prunes it
         if resume is not None:
             trainer.restore(resume)  # a corrupt or mismatched checkpoint stops here, before any training
+            resumed_from = resume_origin(resume, trainer.steps)  # the machine that trained those steps
         if performer is not None:
             trainer.load_policy(performer["checkpoint"])  # the weights alone: no steps, no history
         started = time.perf_counter()
@@ -254,6 +256,7 @@ def imitate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=Non
         "last_eval": last_eval, "best_eval": best_eval, "eval_protocol": ppo.eval_protocol,
         **({"train_motions": pool.summary()} if pool is not None else {}),
         **({"policy": performer} if performer is not None else {}),
+        **({"resumed_from": resumed_from} if resume is not None else {}),
         **({"untrained_eval": result_eval} if untrained else {}),
         # The last evaluation's episodes that blew up (a number they touched is not a score), and the
         # last evaluation under report.score_rewards (the same episodes under another reward scale).

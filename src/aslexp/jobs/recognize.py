@@ -65,6 +65,7 @@ def recognize(cfg: DictConfig, run) -> float:
             split=to_dict(cfg.split),
             simple_baseline=simple_baseline(cfg),
             simple_baseline_overrides=simple_overrides(cfg),
+            simple_baseline_cache=cfg.get("simple_baseline_cache") or None,
         )
         summary = {"val_mcc": result["val_mcc"], **{f"test_{k}": v for k, v in result.get("test", {}).items()}}
     finally:

@@ -36,6 +36,7 @@ import numpy as np
 from aslexp.data.dataset import RecognitionDataset
 from aslexp.data.splits import SplitOptions, resplit
 from aslexp.errors import ConfigError
+from aslexp.recognition import baseline_cache
 from aslexp.recognition.device import check_precision, device_info, resolve_device
 from aslexp.recognition.metrics import (
     aggregate_over_seeds,
@@ -167,6 +168,7 @@ def run_recognition(
     on_epoch_record: RecordCallback | None = None,
     simple_baseline: str | Sequence[str] | None = None,
     simple_baseline_overrides: Mapping[str, Mapping[str, Any]] | None = None,
+    simple_baseline_cache: str | Path | None = None,
 ) -> dict[str, Any]:
     """Validate, retrain and test ``classifier`` = {"name": ..., "params": {...}} on ``dataset``.
 
@@ -332,16 +334,24 @@ def run_recognition(
             baseline_runs[baseline]["val_accuracy"] += runs["val_accuracy"]
             baseline_runs[baseline]["test"] += runs["test"]
             baseline_runs[baseline]["test_per_split"].append(aggregate_over_seeds(runs["test"])[0])
+        data = baseline_cache.data_digest(
+            [view.X, view.mask, view.y, train_val.X, train_val.mask, train_val.y, test.X, test.mask, test.y,
+             *(np.asarray(i) for fold in folds for i in fold)]) if simple_runs and simple_baseline_cache else ""
         for baseline, runs in simple_runs.items():
-            val, tests = _simple_baseline_runs(view, baseline, simple_params[baseline], folds, train_val, test, config,
-                                               seeds)  # fmt: skip
+            key = baseline_cache.cache_key(baseline, simple_params[baseline], config, seeds, view.label_names, data)
+            val, tests, reused = baseline_cache.cached(
+                simple_baseline_cache, key, baseline,
+                lambda: _simple_baseline_runs(view, baseline, simple_params[baseline], folds, train_val, test, config,
+                                              seeds))  # fmt: skip
+            runs["from_cache"] = runs.get("from_cache", 0) + int(reused)
             runs["val_score"] += [v["score"] for v in val]
             runs["val_mcc"] += [v["mcc"] for v in val]
             runs["test"] += tests
             runs["test_per_split"].append(aggregate_over_seeds(tests)[0])
-            log.info("simple baseline %s (split %d): val %s %.3f -> test MCC %.3f, balanced %.3f", baseline, split_index,
-                     metric, float(np.mean([v["score"] for v in val])), runs["test_per_split"][-1]["mcc"],
-                     runs["test_per_split"][-1]["balanced_accuracy"])  # fmt: skip
+            log.info("simple baseline %s (split %d): val %s %.3f -> test MCC %.3f, balanced %.3f%s", baseline,
+                     split_index, metric, float(np.mean([v["score"] for v in val])), runs["test_per_split"][-1]["mcc"],
+                     runs["test_per_split"][-1]["balanced_accuracy"],
+                     " (measured by an earlier run: simple_baseline_cache)" if reused else "")  # fmt: skip
 
     unit = "split" if len(views) > 1 else "seed"
     units = per_split if unit == "split" else [scalar_metrics(m) for m in test_runs]
@@ -378,6 +388,8 @@ def run_recognition(
             "val_mcc": float(np.mean(mccs)), "test": mean, "test_std": std,
             "test_interval": {key: mean_interval([u[key] for u in base_units]) for key in KEY_METRICS},
             "test_per_split": base_units,
+            # splits whose baseline numbers another run measured (simple_baseline_cache): the same numbers
+            **({} if simple_same[baseline] else {"splits_from_cache": simple_runs[baseline].get("from_cache", 0)}),
         }
     comparison = comparison_block(
         name, metric, unit, units, float(np.mean(val_scores)), simple, chosen, baselines[chosen]["test_per_split"],

@@ -49,7 +49,7 @@ from aslexp.paths import CONF_DIR
 from aslexp.reports import results_recognition, results_retrieval, results_seen_glosses
 from aslexp.reports.job_table import read_json
 from aslexp.reports.commands import command_overrides  # noqa: F401 - part of this module's interface
-from aslexp.runfile import RUN_FILE
+from aslexp.runfile import RUN_FILE, machines
 
 log = logging.getLogger(__name__)
 
@@ -270,10 +270,17 @@ def provenance(run_dirs: list[Path], outputs: Path, folders: list[Path], alterna
     infos = [info for info in (read_json(d / RUN_FILE) for d in run_dirs) if isinstance(info, dict)]
     started = [t for t in (_utc(i.get("started")) for i in infos) if t]
     finished = [t for t in (_utc(i.get("finished")) for i in infos) if t]
-    devices = set()
+    # Every machine that trained a run's steps: its own, and those of the runs it was resumed from.
+    found, resumed = [], 0
     for run_dir in run_dirs:
+        info = read_json(run_dir / RUN_FILE) if (run_dir / RUN_FILE).is_file() else None
         metrics = read_json(run_dir / "metrics.json") if (run_dir / "metrics.json").is_file() else None
-        device = (metrics or {}).get("device")
+        chain = machines(info if isinstance(info, dict) else {}, metrics if isinstance(metrics, dict) else None)
+        found += chain
+        resumed += len(chain) > 1
+    devices = set()
+    for machine in found:
+        device = machine.get("device")
         if isinstance(device, dict):
             device = device.get("name") or device.get("type")
         if device:
@@ -289,7 +296,7 @@ def provenance(run_dirs: list[Path], outputs: Path, folders: list[Path], alterna
                 varied.setdefault(key, set()).add(value)
 
     def values(key: str) -> list[str]:
-        return sorted({str(i.get("versions", {}).get(key)) for i in infos if (i.get("versions") or {}).get(key)})
+        return sorted({str(m[key]) for m in found if m.get(key)})
 
     def relative(path: Path) -> str:
         try:
@@ -303,8 +310,9 @@ def provenance(run_dirs: list[Path], outputs: Path, folders: list[Path], alterna
         "runs": len(run_dirs),
         "started": min(started).isoformat() if started else None,
         "finished": max(finished).isoformat() if finished else None,
-        "hosts": sorted({str(i["host"]) for i in infos if i.get("host")}),
-        "platforms": sorted({str(i["platform"]) for i in infos if i.get("platform")}),
+        "hosts": values("host"),
+        "platforms": values("platform"),
+        **({"resumed": resumed} if resumed else {}),
         "devices": sorted(devices),
         "versions": {"python": values("python"), "torch": values("torch")},
         "git": sorted({f"{(i.get('git') or {}).get('commit', '')[:10]}{'+' if (i.get('git') or {}).get('dirty') else ''}"
@@ -687,7 +695,10 @@ def _machine(snapshot: dict[str, Any]) -> str:
         recorded.append("Python " + "/".join(versions.get("python") or ["?"]) + ", torch "
                         + "/".join(versions.get("torch") or ["?"]))
     if recorded:
-        parts.append("run.json: " + "; ".join(recorded))
+        resumed = snapshot.get("resumed")
+        parts.append("run.json: " + "; ".join(recorded)
+                     + (f" ({resumed} of the runs resumed another run's checkpoint: its machine is listed too)"
+                        if resumed else ""))
     return ". ".join(parts) if parts else "not recorded"
 
 

@@ -610,6 +610,8 @@ class PPOTrainer:
         next_eval = (self.steps // cfg.eval_interval + 1) * cfg.eval_interval
         stopped = "total_steps"
         csv_file = ProgressCSV(self.out_dir / "progress.csv")
+        if self.history and not csv_file.path.exists():  # resumed into a new folder: the folder keeps the whole curve
+            csv_file.extend(self.history)
         log.info("PPO %s: %d environment(s) (%s), %d steps per update, learner on %s, rollout on %s",
                  cfg.name, self.num_envs, self.mode, cfg.batch_size,
                  self.device, self.rollout_agent.device)
@@ -737,13 +739,25 @@ class ProgressCSV:
             with open(path, newline="", encoding="utf-8") as fh:
                 self.keys = list(csv.DictReader(fh).fieldnames or [])
 
+    def extend(self, rows: list[dict[str, Any]]) -> None:
+        """Write ``rows`` at once (a header of all their keys), e.g. a resumed run's earlier rows."""
+        rows = [*self._rows(), *rows]
+        self.keys = list(dict.fromkeys([*self.keys, *(k for row in rows for k in row)]))
+        with open(self.path, "w", newline="", encoding="utf-8") as fh:
+            writer = csv.DictWriter(fh, fieldnames=self.keys, restval="")
+            writer.writeheader()
+            writer.writerows(rows)
+
+    def _rows(self) -> list[dict[str, Any]]:
+        if not self.path.exists():
+            return []
+        with open(self.path, newline="", encoding="utf-8") as fh:
+            return list(csv.DictReader(fh))
+
     def append(self, row: dict[str, Any]) -> None:
         new = [k for k in row if k not in self.keys]
         if new or not self.path.exists():
-            rows = []
-            if self.path.exists():
-                with open(self.path, newline="", encoding="utf-8") as fh:
-                    rows = list(csv.DictReader(fh))
+            rows = self._rows()
             self.keys += new
             with open(self.path, "w", newline="", encoding="utf-8") as fh:
                 writer = csv.DictWriter(fh, fieldnames=self.keys, restval="")

@@ -207,3 +207,26 @@ def read_overrides(run_dir: str | os.PathLike, consequence: str = "its overrides
 def read_config(run_dir: str | os.PathLike, consequence: str = "its config left out") -> dict[str, Any] | None:
     """:func:`load_config`, or None after a warning naming the file."""
     return _or_warning(load_config, run_dir, consequence)
+
+
+def resume_origin(checkpoint: str | os.PathLike, steps: int) -> dict[str, Any]:
+    """Where a resumed run's first ``steps`` were trained: the run folder that wrote ``checkpoint``
+    (``<run>/checkpoints/<file>``), its machine and its learner's device, and, if that run was itself
+    resumed, its own origin (``resumed_from``, a chain). A checkpoint outside a run folder, or a
+    folder whose files are damaged, gives what can be read (the checkpoint and the steps at least)."""
+    checkpoint = Path(checkpoint)
+    run_dir = checkpoint.parent.parent
+    origin: dict[str, Any] = {"checkpoint": str(checkpoint), "steps": int(steps)}
+    info = read_run_info(run_dir, "its machine is not recorded") if (run_dir / RUN_FILE).is_file() else None
+    if info:
+        versions = info.get("versions") or {}
+        origin.update({"run": str(run_dir), "host": info.get("host"), "platform": info.get("platform"),
+                       "python": versions.get("python"), "torch": versions.get("torch"),
+                       "started": info.get("started"), "finished": info.get("finished")})
+    metrics = read_metrics(run_dir, "its device is not recorded") if (run_dir / METRICS_FILE).is_file() else None
+    if metrics:
+        origin["device"] = metrics.get("device")
+        if isinstance(metrics.get("resumed_from"), dict):
+            origin["resumed_from"] = metrics["resumed_from"]
+    return origin
+
