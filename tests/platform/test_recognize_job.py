@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import yaml
 from platform_helpers import error_lines, folder_hashes
 
@@ -131,7 +132,7 @@ def test_optuna_sweep_keeps_its_study_and_trial_directories(aslexp, tmp_path):
     assert "1 runs (the best by validation of 2)" in out.stdout and "Traceback" not in out.stderr
 
 
-def test_simple_baselines_are_measured_once_and_reused_with_the_same_numbers(aslexp, tmp_path, caplog):
+def test_simple_baselines_are_measured_once_and_reused_with_the_same_numbers(aslexp, tmp_path):
     """Two trials of a sweep over the model's C: the second reads the forest's numbers the first
     measured; a run that measures its own (simple_baseline_cache=null) gets the same numbers."""
     cache, sweep, fresh = tmp_path / "baselines", tmp_path / "sweep", tmp_path / "fresh"
@@ -154,3 +155,26 @@ def test_simple_baselines_are_measured_once_and_reused_with_the_same_numbers(asl
     aslexp("recognize", *FAST, "+simple_baseline_params.rf.n_estimators=21", f"simple_baseline_cache={cache}",
            f"hydra.run.dir={other}")
     assert json.loads((other / "metrics.json").read_text())["simple_baselines"]["rf"]["splits_from_cache"] == 0
+
+
+def test_a_baseline_cache_that_cannot_be_written_or_read_costs_time_only(tmp_path, caplog):
+    from aslexp.recognition import baseline_cache
+
+    measured = []
+
+    def measure():
+        measured.append(1)
+        return [{"score": np.float64(0.25), "mcc": 0.5}], [{"mcc": 0.5, "confusion_matrix": np.eye(2, dtype=int)}]
+
+    blocked = tmp_path / "a_file"
+    blocked.write_text("not a folder")
+    val, tests, reused = baseline_cache.cached(blocked, "k" * 64, "rf", measure)
+    assert not reused and val == [{"score": 0.25, "mcc": 0.5}] and tests[0]["confusion_matrix"] == [[1, 0], [0, 1]]
+    assert "not written" in caplog.text
+    folder = tmp_path / "cache"
+    baseline_cache.cached(folder, "k" * 64, "rf", measure)
+    [stored] = folder.iterdir()
+    assert baseline_cache.cached(folder, "k" * 64, "rf", measure) == (val, tests, True) and len(measured) == 2
+    stored.write_text("{damaged")
+    assert baseline_cache.cached(folder, "k" * 64, "rf", measure) == (val, tests, False) and len(measured) == 3
+    assert "unreadable" in caplog.text and json.loads(stored.read_text())["val"] == val

@@ -83,8 +83,11 @@ def cached(folder: str | Path | None, key: str, name: str,
     # the same Python numbers.
     val, tests = measure()
     text = json.dumps({"format": FORMAT, "key": key, "val": val, "tests": tests}, default=_plain)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(path, text)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, text)
+    except OSError as error:  # a cache that cannot be written costs the next run time, never this run
+        log.warning("warning: %s: not written (%s); the next run measures again", path, error)
     stored = json.loads(text)
     return stored["val"], stored["tests"], False
 
