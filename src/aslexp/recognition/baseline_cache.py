@@ -12,6 +12,7 @@ are the same as measured again (each fit is seeded; JSON keeps every float exact
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import logging
@@ -30,6 +31,7 @@ FORMAT = "aslexp.simple_baselines/1"
 _CODE = ("models/classical.py", "train.py", "metrics.py", "experiment.py")
 
 
+@functools.cache  # the source read once per process, not once per baseline and split
 def _code_digest() -> str:
     import sklearn
 

@@ -267,13 +267,13 @@ def provenance(run_dirs: list[Path], outputs: Path, folders: list[Path], alterna
     first start and last finish (UTC), hosts, platforms, devices, Python and torch versions, git
     commits, the engine and reward they composed, and their overrides (those all runs share, and per
     key the values of those that vary)."""
-    infos = [info for info in (read_json(d / RUN_FILE) for d in run_dirs) if isinstance(info, dict)]
+    read = [(d, read_json(d / RUN_FILE)) for d in run_dirs]
+    infos = [info for _, info in read if isinstance(info, dict)]
     started = [t for t in (_utc(i.get("started")) for i in infos) if t]
     finished = [t for t in (_utc(i.get("finished")) for i in infos) if t]
     # Every machine that trained a run's steps: its own, and those of the runs it was resumed from.
     found, resumed = [], 0
-    for run_dir in run_dirs:
-        info = read_json(run_dir / RUN_FILE) if (run_dir / RUN_FILE).is_file() else None
+    for run_dir, info in read:
         metrics = read_json(run_dir / "metrics.json") if (run_dir / "metrics.json").is_file() else None
         chain = machines(info if isinstance(info, dict) else {}, metrics if isinstance(metrics, dict) else None)
         found += chain

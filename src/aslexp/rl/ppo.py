@@ -741,7 +741,9 @@ class ProgressCSV:
 
     def extend(self, rows: list[dict[str, Any]]) -> None:
         """Write ``rows`` at once (a header of all their keys), e.g. a resumed run's earlier rows."""
-        rows = [*self._rows(), *rows]
+        self._rewrite([*self._rows(), *rows])
+
+    def _rewrite(self, rows: list[dict[str, Any]]) -> None:
         self.keys = list(dict.fromkeys([*self.keys, *(k for row in rows for k in row)]))
         with open(self.path, "w", newline="", encoding="utf-8") as fh:
             writer = csv.DictWriter(fh, fieldnames=self.keys, restval="")
@@ -755,14 +757,9 @@ class ProgressCSV:
             return list(csv.DictReader(fh))
 
     def append(self, row: dict[str, Any]) -> None:
-        new = [k for k in row if k not in self.keys]
-        if new or not self.path.exists():
-            rows = self._rows()
-            self.keys += new
-            with open(self.path, "w", newline="", encoding="utf-8") as fh:
-                writer = csv.DictWriter(fh, fieldnames=self.keys, restval="")
-                writer.writeheader()
-                writer.writerows(rows)
+        if any(k not in self.keys for k in row) or not self.path.exists():
+            self._rewrite([*self._rows(), row])  # a new key: the header grows, the file is written again
+            return
         with open(self.path, "a", newline="", encoding="utf-8") as fh:
             csv.DictWriter(fh, fieldnames=self.keys, restval="").writerow(row)
 
