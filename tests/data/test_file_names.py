@@ -16,12 +16,12 @@ import json
 import logging
 import os
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import job_process
 
 from aslexp.data.naming import youtube_ids
 from aslexp.data.wlasl_lex import WlaslLexParams, build_wlasl_lex
@@ -65,7 +65,7 @@ def _build(data_root, path, property="major_location", **options):
 
 
 def _cli(tmp_path, *overrides):
-    return subprocess.run(
+    return job_process.run(
         [sys.executable, "-m", "aslexp.cli", "recognize", "experiment=debug", "classifier=logreg",
          "pose=mediapipe_pose", *overrides, f"hydra.run.dir={tmp_path / 'run'}"],
         cwd=ROOT, capture_output=True, text=True, timeout=600,

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import job_process
 from hydra import compose, initialize_config_dir
 
 from aslexp.data.wlasl_lex import build_wlasl_lex
@@ -82,12 +83,11 @@ def test_recognize_on_a_folder_of_pose_files(wlasl6, data_root, tmp_path):
     `aslexp recognize pose=pose_format pose.path=DIR` (here on ten frames of the six clips)."""
     import json
     import os
-    import subprocess
     import sys
 
     out, _ = wlasl6
     run_dir = tmp_path / "run"
-    proc = subprocess.run(
+    proc = job_process.run(
         [sys.executable, "-m", "aslexp.cli", "recognize", "pose=pose_format", f"pose.path={out}",
          "classifier=logreg", "split.rare_classes=train_only", "data.num_frames=16", f"hydra.run.dir={run_dir}"],
         cwd=CONF_DIR.rsplit("/conf", 1)[0], capture_output=True, text=True, timeout=300,

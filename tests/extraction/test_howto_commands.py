@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import job_process
 from doc_commands import bash_lines
 
 from aslexp.keypoints import holistic as H
@@ -109,7 +110,7 @@ def _cuda() -> bool:
 
 def run(command: str, ws: dict) -> subprocess.CompletedProcess:
     args = tiny(command, ws)
-    proc = subprocess.run([sys.executable, "-m", "aslexp.cli", *args], cwd=ws["tmp"], env=ws["env"],
+    proc = job_process.run([sys.executable, "-m", "aslexp.cli", *args], cwd=ws["tmp"], env=ws["env"],
                           capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, f"`{command}` as `aslexp {shlex.join(args)}` exited {proc.returncode}:\n" \
                                  f"{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}"

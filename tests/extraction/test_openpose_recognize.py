@@ -13,11 +13,11 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 
 import numpy as np
 import pytest
+import job_process
 from hydra import compose, initialize_config_dir
 from pose_format import Pose
 from pose_format.numpy import NumPyPoseBody
@@ -107,7 +107,7 @@ def test_aslexp_recognize_runs_on_an_openpose_folder(openpose_folder, data_root,
     """`aslexp recognize pose=pose_format pose.path=DIR` (docs/extraction.md) on a tiny budget."""
     env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "ASLEXP_CACHE_DIR": str(tmp_path / "cache"),
            "MPLBACKEND": "Agg"}  # fmt: skip
-    proc = subprocess.run([sys.executable, "-m", "aslexp.cli", "recognize", "pose=pose_format",
+    proc = job_process.run([sys.executable, "-m", "aslexp.cli", "recognize", "pose=pose_format",
                            f"pose.path={openpose_folder}", "classifier=logreg", "data.num_frames=16"],
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)  # fmt: skip
     log = proc.stdout + proc.stderr

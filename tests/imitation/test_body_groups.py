@@ -4,11 +4,11 @@ the upper body's groups, not the hand's; a group named on the command line or by
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+import job_process
 from hydra import compose, initialize_config_dir
 
 from aslexp import paths
@@ -64,7 +64,7 @@ def test_an_upper_body_run_from_body_alone_scores_its_own_body_s_baselines(tmp_p
 
     motion = DATA / "motions" / "upper_body" / "00433.txt"
     run = tmp_path / "run"
-    proc = subprocess.run([sys.executable, "-m", "aslexp.jobs.imitate", f"motion.file={motion}", "body=upper_body",
+    proc = job_process.run([sys.executable, "-m", "aslexp.jobs.imitate", f"motion.file={motion}", "body=upper_body",
                            "ppo.total_steps=0", "ppo.eval_steps=12", "ppo.eval_phases=[0.0]", "plots=false",
                            "render.gif=false", "render.mp4=false", f"hydra.run.dir={run}"],
                           cwd=ROOT, capture_output=True, text=True, timeout=300)

@@ -10,12 +10,12 @@ from __future__ import annotations
 import ast
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import job_process
 
 from aslexp.errors import ConfigError
 from aslexp.sim import engine as engines
@@ -80,7 +80,7 @@ def test_the_imitate_job_runs_an_engine_from_a_yaml_and_a_module(tmp_path):
     (conf / "replay.yaml").write_text("name: replay\nmodule: replay_engine\nlag: 0.0\n")
     run = tmp_path / "run"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(HERE), os.environ.get("PYTHONPATH", "")])}
-    done = subprocess.run([sys.executable, "-m", "aslexp.cli", "imitate", "--config-dir", str(tmp_path / "conf"),
+    done = job_process.run([sys.executable, "-m", "aslexp.cli", "imitate", "--config-dir", str(tmp_path / "conf"),
                            "engine=replay", "ppo.total_steps=0", "render.gif=false", "render.mp4=false", "plots=false",
                            f"hydra.run.dir={run}"], capture_output=True, text=True, env=env, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import job_process
 from doc_commands import bash_lines
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
@@ -48,7 +49,7 @@ def tiny(command: str, tmp: Path) -> list[str]:
 
 @pytest.mark.parametrize("command", commands())
 def test_every_engines_doc_command_runs(command, tmp_path):
-    proc = subprocess.run(tiny(command, tmp_path), cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=900)
+    proc = job_process.run(tiny(command, tmp_path), cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, f"{command}\n{proc.stderr[-3000:]}"
 
 

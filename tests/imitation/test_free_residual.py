@@ -7,11 +7,11 @@ from __future__ import annotations
 import csv
 import json
 import shutil
-import subprocess
 import sys
 
 import numpy as np
 import pytest
+import job_process
 
 from aslexp.envs.imitation import ImitationEnv
 from aslexp.rl.evaluate import constant_correction_policy, evaluate, reference_policy, smoothed_reference_policy
@@ -119,7 +119,7 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
         np.median(rms), np.median([m["exploration_std"] for m in sizes]))
     assert (sweep / "residual_curves.png").stat().st_size > 0
     # The documented command prints the table again (baselines from the sweep's cache).
-    again = subprocess.run([sys.executable, "-m", "aslexp.reports.residual_report", str(sweep)], capture_output=True,
+    again = job_process.run([sys.executable, "-m", "aslexp.reports.residual_report", str(sweep)], capture_output=True,
                            text=True, timeout=120, check=True)
     assert "| 52861 (snow) |" in again.stdout and "verdict" in again.stdout
 
@@ -138,7 +138,7 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
             == row["learned correction RMS / exploration std (box half-widths)"])
     assert (reevaluated / "residual_curves.png").stat().st_size > 0
     # ... and the table again from a shell, outside Hydra: each run's resume=${hydra:job.num} is its own.
-    again = subprocess.run([sys.executable, "-m", "aslexp.reports.residual_report", str(reevaluated)],
+    again = job_process.run([sys.executable, "-m", "aslexp.reports.residual_report", str(reevaluated)],
                            capture_output=True, text=True, timeout=120)
     assert again.returncode == 0 and "n/a (re-evaluated)" in again.stdout, again.stderr[-2000:]
 
@@ -163,7 +163,7 @@ def test_signs_free_residual_runs_end_to_end(tmp_path):
 
     # What the exploration noise alone costs the controller in the run's training episodes (the
     # documented command, two short episodes per noise): no noise is the controller itself.
-    cost = subprocess.run([sys.executable, "-m", "aslexp.measure.noise_cost", str(sweep / "0"), "--betas", "0,2",
+    cost = job_process.run([sys.executable, "-m", "aslexp.measure.noise_cost", str(sweep / "0"), "--betas", "0,2",
                            "--log-std", "-1.75", "--episodes", "2", "--steps", "12"],
                           capture_output=True, text=True, timeout=300)
     assert cost.returncode == 0, cost.stderr[-2000:]

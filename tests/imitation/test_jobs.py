@@ -11,6 +11,7 @@ from pathlib import Path
 
 import optuna
 import pytest
+import job_process
 
 from aslexp.tuning.storage import open_storage
 
@@ -24,8 +25,8 @@ NO_FIGURES = ["plots=false", "render.gif=false", "render.mp4=false"]
 
 
 def run_job(job: str, *overrides: str, check: bool = True) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
-    proc = subprocess.run([sys.executable, "-m", f"aslexp.jobs.{job}", *overrides], cwd=ROOT, env=env,
+    env = dict(os.environ)
+    proc = job_process.run([sys.executable, "-m", f"aslexp.jobs.{job}", *overrides], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=300)
     if check and proc.returncode != 0:
         raise AssertionError(proc.stderr[-3000:])
@@ -174,8 +175,8 @@ def test_tune_pd_thesis_objective_is_eq_5_14(tmp_path, motion_a, data_root):
 def test_a_run_that_trains_nothing_measures_baselines_only_in_a_folder_named_by_engine(tmp_path):
     """Issue 39 item 8: ppo.total_steps=0 starts no worker processes, keeps the untrained policy's
     level as such (never the run's result or main metric), and the folder name says the engine."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "ASLEXP_DATA_ROOT": str(ROOT.parent / "shared" / "data")}
-    proc = subprocess.run([sys.executable, "-m", "aslexp.jobs.imitate", "motion=B", "ppo.total_steps=0",
+    env = {**os.environ, "ASLEXP_DATA_ROOT": str(ROOT.parent / "shared" / "data")}
+    proc = job_process.run([sys.executable, "-m", "aslexp.jobs.imitate", "motion=B", "ppo.total_steps=0",
                            "ppo.num_envs=4", "ppo.vector_env=workers", "ppo.eval_steps=20", "plots=false",
                            "render.gif=false", "render.mp4=false"], cwd=tmp_path, env=env, capture_output=True,
                           text=True, timeout=300)

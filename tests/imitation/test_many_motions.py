@@ -10,6 +10,7 @@ import sys
 
 import numpy as np
 import pytest
+import job_process
 
 from aslexp.compose import deep_merge, resolve_group
 from aslexp.envs.assembly import ImitationSetup
@@ -85,7 +86,7 @@ def test_a_batch_of_a_pool_is_single_environments_of_each_rows_motion(data_root)
 
 def _imitate(*overrides: str, data_root) -> subprocess.CompletedProcess:
     env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "MPLBACKEND": "Agg"}
-    return subprocess.run([sys.executable, "-m", "aslexp.cli", "imitate", *overrides], capture_output=True,
+    return job_process.run([sys.executable, "-m", "aslexp.cli", "imitate", *overrides], capture_output=True,
                           text=True, timeout=600, env=env)
 
 

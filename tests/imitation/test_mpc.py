@@ -4,11 +4,11 @@ nominal (the controller alone), and what it plans scores the same in the environ
 from __future__ import annotations
 
 import json
-import subprocess
 import sys
 
 import numpy as np
 import pytest
+import job_process
 
 from aslexp.control.mpc import PlannerSpec, SamplingPlanner, evaluate_planner, plan_episode
 from aslexp.envs.assembly import ImitationSetup
@@ -72,7 +72,7 @@ def test_cem_runs_its_iterations(setup):
 
 def test_the_imitate_job_scores_a_planner_beside_the_baselines(tmp_path):
     run = tmp_path / "run"
-    done = subprocess.run([sys.executable, "-m", "aslexp.cli", "imitate", "planner=mpc", "engine=mujoco",
+    done = job_process.run([sys.executable, "-m", "aslexp.cli", "imitate", "planner=mpc", "engine=mujoco",
                            "controller=reference_velocity_tuned", "env=residual", "reward=hand_thesis",
                            "ppo.eval_steps=6", "ppo.eval_episodes=2", "planner.samples=4", "planner.horizon=2",
                            "render.gif=false", "plots=false", f"hydra.run.dir={run}"],
@@ -100,7 +100,7 @@ def test_the_results_page_shows_a_planner_s_runs_as_a_ceiling(tmp_path):
     from aslexp.reports import results_page
 
     run = tmp_path / "planned" / "0"
-    done = subprocess.run([sys.executable, "-m", "aslexp.cli", "imitate", "planner=mpc", "engine=mujoco", "motion=B",
+    done = job_process.run([sys.executable, "-m", "aslexp.cli", "imitate", "planner=mpc", "engine=mujoco", "motion=B",
                            "controller=reference_velocity_tuned", "env=residual", "reward=hand_thesis",
                            "ppo.eval_steps=4", "ppo.eval_episodes=1", "planner.samples=3", "planner.horizon=1",
                            "planner.knots=1", "render.gif=false", "plots=false", f"hydra.run.dir={run}"],
@@ -119,7 +119,7 @@ def test_the_results_page_shows_a_planner_s_runs_as_a_ceiling(tmp_path):
     # another entry's rows (here a run that measured its baselines only) take the ceiling of the
     # planner's folder, motion by motion
     plain = tmp_path / "plain" / "0"
-    done = subprocess.run([sys.executable, "-m", "aslexp.cli", "imitate", "engine=mujoco", "motion=B",
+    done = job_process.run([sys.executable, "-m", "aslexp.cli", "imitate", "engine=mujoco", "motion=B",
                            "reward=hand_thesis", "ppo.total_steps=0", "ppo.eval_steps=4", "render.gif=false",
                            "plots=false", f"hydra.run.dir={plain}"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
@@ -137,7 +137,7 @@ def test_the_signs_ceiling_plans_on_the_upper_body_pinned_and_standing(tmp_path,
     drives the upper body (MuJoCo) on its controller and is scored beside that controller alone under
     the same protocol; no episode blows up, and falls are counted."""
     run = tmp_path / "run"
-    done = subprocess.run([sys.executable, "-m", "aslexp.cli", "imitate", f"experiment={overlay}", "motion='69546'",
+    done = job_process.run([sys.executable, "-m", "aslexp.cli", "imitate", f"experiment={overlay}", "motion='69546'",
                            "ppo.eval_steps=6", "ppo.eval_phases=[0.0]", "planner.samples=4", "planner.horizon=2",
                            "report.baselines=[]", "plots=false", f"hydra.run.dir={run}"],
                           capture_output=True, text=True, timeout=300)

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import json
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+import job_process
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT.parent / "shared" / "data"
@@ -19,7 +19,7 @@ QUICK = ["ppo.total_steps=0", "plots=false", "render.gif=false", "render.mp4=fal
 def test_a_motion_file_names_the_run_after_the_file_unless_named(tmp_path, extra, name):
     motion = tmp_path / "my_letter.txt"
     shutil.copy(DATA / "motions" / "hand" / "B.txt", motion)
-    proc = subprocess.run([sys.executable, "-m", "aslexp.jobs.imitate", f"motion.file={motion}", *extra,
+    proc = job_process.run([sys.executable, "-m", "aslexp.jobs.imitate", f"motion.file={motion}", *extra,
                            *QUICK, f"hydra.run.dir={tmp_path}/run_${{motion.name}}"], cwd=ROOT,
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]

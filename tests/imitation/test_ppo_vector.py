@@ -9,6 +9,7 @@ import logging
 
 import numpy as np
 import pytest
+import job_process
 import torch
 import yaml
 
@@ -309,12 +310,11 @@ def test_imitate_composes_quick_by_default_and_builds_a_factory_workers_can_unpi
 def test_the_scaling_benchmark_runs_on_tiny_settings(tmp_path, data_root):
     import csv
     import os
-    import subprocess
     import sys
 
     root = CONF_DIR.parent
     out = tmp_path / "scaling.csv"
-    proc = subprocess.run(
+    proc = job_process.run(
         [sys.executable, str(root / "bench" / "ppo_scaling.py"), "--bodies", "hand", "--rates", "240", "--envs", "1",
          "2", "--steps", "64", "--repeats", "1", "--ppo-hand", "quick", "--csv", str(out)],
         cwd=root, env={**os.environ, "ASLEXP_DATA_ROOT": str(data_root)}, capture_output=True, text=True, timeout=300)

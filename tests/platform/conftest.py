@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import job_process
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
@@ -24,7 +25,7 @@ def aslexp(cache_dir):
 
     def run(*args: str, check: bool = True, timeout: float = 300) -> subprocess.CompletedProcess:
         env = dict(os.environ, ASLEXP_CACHE_DIR=str(cache_dir), MPLBACKEND="Agg")
-        proc = subprocess.run(
+        proc = job_process.run(
             [sys.executable, "-m", "aslexp.cli", *args], cwd=PROJECT_ROOT, env=env,
             capture_output=True, text=True, timeout=timeout,
         )

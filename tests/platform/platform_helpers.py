@@ -7,6 +7,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+import job_process
 
 
 def folder_hashes(folder: Path) -> dict[str, str]:
@@ -18,7 +19,7 @@ def folder_hashes(folder: Path) -> dict[str, str]:
 def quadratic(*overrides: str, cwd: Path, check: bool = True, env: dict | None = None,
               timeout: float = 120) -> subprocess.CompletedProcess:
     """``python -m aslexp.jobs.quadratic OVERRIDES`` (the sweep machinery's test job)."""
-    proc = subprocess.run([sys.executable, "-m", "aslexp.jobs.quadratic", *overrides], cwd=cwd,
+    proc = job_process.run([sys.executable, "-m", "aslexp.jobs.quadratic", *overrides], cwd=cwd,
                           capture_output=True, text=True, timeout=timeout,
                           env={**os.environ, **(env or {})})
     if check and proc.returncode != 0:

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import job_process
 from platform_helpers import error_lines
 
 from aslexp.files import describe_os_error, save_npy, write_text
@@ -38,7 +39,7 @@ def small_disk(tmp_path):
 
 def test_a_dataset_build_on_a_full_disk_names_the_file_and_fails_the_run(small_disk, tmp_path):
     run_dir, cache = tmp_path / "run", small_disk / "cache"
-    proc = subprocess.run(
+    proc = job_process.run(
         [sys.executable, "-m", "aslexp.cli", "recognize", "experiment=debug", "classifier=logreg",
          f"cache_dir={cache}", f"hydra.run.dir={run_dir}"],
         cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=300,

@@ -13,6 +13,7 @@ tests/tuning/test_docs_commands.py), docs/sweeps.md (the latter), docs/engines.m
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import runpy
 import shlex
@@ -87,6 +88,16 @@ def _accepted(run, capsys) -> None:
     except SystemExit as stop:
         pytest.fail(f"refused (exit {stop.code}): {capsys.readouterr().err.strip()}")
     pytest.fail("the program returned without parsing its arguments")
+
+
+@pytest.fixture(autouse=True)
+def _environment_put_back():
+    """A program run in this process may set variables for itself (bench/imitation_env.py:
+    OMP_NUM_THREADS=1); its own process would have taken them with it."""
+    saved = dict(os.environ)
+    yield
+    os.environ.clear()
+    os.environ.update(saved)
 
 
 @pytest.mark.parametrize(("page", "command"), COMMANDS, ids=[f"{p}:{c[:70]}" for p, c in COMMANDS])

@@ -14,6 +14,7 @@ from platform_helpers import error_lines
 from platform_helpers import folder_hashes as _all_hashes
 
 from aslexp.runs.record import LOCK_FILE
+import job_process
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
@@ -94,7 +95,7 @@ SMALL = ["env=residual", "ppo=fast", "ppo.hidden_sizes=[16,16]", "ppo.steps_per_
 def _interrupted_imitate_run(tmp_path: Path) -> Path:
     """A run stopped before its budget (ppo.max_minutes=0: one rollout, then a checkpoint)."""
     run_dir = tmp_path / "run"
-    proc = subprocess.run([sys.executable, "-m", "aslexp.jobs.imitate", "motion=B", *SMALL,
+    proc = job_process.run([sys.executable, "-m", "aslexp.jobs.imitate", "motion=B", *SMALL,
                            "ppo.total_steps=128", f"hydra.run.dir={run_dir}"], cwd=PROJECT_ROOT,
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -112,7 +113,7 @@ def test_an_unfinished_imitate_run_is_never_restarted_over_and_resumes_once(tmp_
     base = ["aslexp.jobs.imitate", "motion=B", *SMALL, f"hydra.run.dir={run_dir}"]
 
     # Without resume: refused, the checkpoint and config untouched.
-    fresh = subprocess.run([sys.executable, "-m", *base, "ppo.total_steps=256"], cwd=PROJECT_ROOT,
+    fresh = job_process.run([sys.executable, "-m", *base, "ppo.total_steps=256"], cwd=PROJECT_ROOT,
                            capture_output=True, text=True, timeout=300)
     assert fresh.returncode == 2, fresh.stderr[-2000:]
     assert error_lines(fresh.stderr) == [
@@ -121,7 +122,7 @@ def test_an_unfinished_imitate_run_is_never_restarted_over_and_resumes_once(tmp_
     assert folder_hashes(run_dir) == before
 
     # Resumed in place with another motion: refused before Hydra rewrites the folder's config.
-    other = subprocess.run([sys.executable, "-m", "aslexp.jobs.imitate", "motion=C", *SMALL,
+    other = job_process.run([sys.executable, "-m", "aslexp.jobs.imitate", "motion=C", *SMALL,
                             f"hydra.run.dir={run_dir}", f"resume={run_dir}", "ppo.total_steps=256"],
                            cwd=PROJECT_ROOT, capture_output=True, text=True, timeout=300)
     assert other.returncode == 2 and "motion.name is 'B', this command asks for 'C'" in other.stderr

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+import job_process
 from platform_helpers import error_lines, folder_hashes, quadratic
 
 
@@ -114,10 +115,10 @@ def test_runs_list_looks_in_outputs_only_and_says_so(tmp_path):
     elsewhere = tmp_path / "project" / "somewhere_else"
     quadratic(f"hydra.run.dir={elsewhere}", cwd=tmp_path)  # a run outside ./outputs
     cli = [sys.executable, "-m", "aslexp.cli", "runs", "list"]
-    none = subprocess.run(cli, cwd=tmp_path / "project", capture_output=True, text=True)
+    none = job_process.run(cli, cwd=tmp_path / "project", capture_output=True, text=True)
     assert none.returncode == 2 and "no ./outputs here" in none.stderr  # the cwd is not walked
     quadratic("hydra.run.dir=outputs/r1", cwd=tmp_path / "project")
-    found = subprocess.run(cli, cwd=tmp_path / "project", capture_output=True, text=True, check=True)
+    found = job_process.run(cli, cwd=tmp_path / "project", capture_output=True, text=True, check=True)
     assert "runs under ./outputs" in found.stderr
     assert "outputs/r1" in found.stdout and "somewhere_else" not in found.stdout
 
@@ -133,7 +134,7 @@ def test_a_killed_run_is_listed_lost_not_running(tmp_path):
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     assert json.loads((run_dir / "run.json").read_text())["status"] == "running"
-    rows = json.loads(subprocess.run([sys.executable, "-m", "aslexp.cli", "runs", "list", "--format",
+    rows = json.loads(job_process.run([sys.executable, "-m", "aslexp.cli", "runs", "list", "--format",
                                       "json"], cwd=tmp_path, capture_output=True, text=True,
                                      check=True).stdout)
     assert [r["status"] for r in rows] == ["lost"]

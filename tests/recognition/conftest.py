@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+import job_process
 from recognition_data import load_gloss_dataset, load_lex_dataset
 
 from aslexp.data.dataset import RecognitionDataset
@@ -42,7 +43,7 @@ def run_cli(tmp_path_factory):
     env = dict(os.environ, ASLEXP_CACHE_DIR=str(tmp_path_factory.getbasetemp() / "cli-cache"), MPLBACKEND="Agg")
 
     def run(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
-        proc = subprocess.run([sys.executable, "-m", "aslexp.cli", *args], cwd=root, env=env, capture_output=True,
+        proc = job_process.run([sys.executable, "-m", "aslexp.cli", *args], cwd=root, env=env, capture_output=True,
                               text=True, timeout=timeout)  # fmt: skip
         assert proc.returncode == 0, f"aslexp {' '.join(args)} exited {proc.returncode}\n{proc.stderr[-4000:]}"
         return proc

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
+import job_process
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def test_direct_table_runs_cells_and_reports(tmp_path):
     out = tmp_path / "table"
     env = {**os.environ, "MPLBACKEND": "Agg", "ASLEXP_CACHE_DIR": str(tmp_path / "cache")}
-    proc = subprocess.run(
+    proc = job_process.run(
         [sys.executable, "bench/recognition_table.py", "--direct", "--experiment", "thesis_ch4", "--models", "mlp,logreg",
          "--properties", "sign_type", "--splits", "phoneme", "--repeats", "2", "--trainer-set", "max_epochs=2",
          "--device", "cpu", "--out", str(out),
@@ -28,14 +28,14 @@ def test_direct_table_runs_cells_and_reports(tmp_path):
         # the overlay's settings, as `aslexp recognize experiment=thesis_ch4` composes them
         assert metrics["context"]["lexicon"] == "asllex1" and metrics["context"]["classifier"] == model
         assert len(metrics["splits"]) == 2
-    report = subprocess.run([sys.executable, "-m", "aslexp.cli", "report", str(out)], cwd=ROOT, env=env,
+    report = job_process.run([sys.executable, "-m", "aslexp.cli", "report", str(out)], cwd=ROOT, env=env,
                             capture_output=True, text=True, timeout=300)  # fmt: skip
     assert report.returncode == 0, report.stderr[-2000:]
     assert "mlp" in (out / "table.md").read_text()
 
 
 def test_throughput_bench_runs_on_tiny_settings(tmp_path):
-    proc = subprocess.run(
+    proc = job_process.run(
         [sys.executable, "bench/recognition_throughput.py", "--models", "mlp,logreg", "--cpu-clips", "16",
          "--cpu-epochs", "2", "--threads", "1", "--frames", "32", "--json", str(tmp_path / "t.json")],
         cwd=ROOT, capture_output=True, text=True, timeout=300)  # fmt: skip

@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 
 import pytest
+import job_process
 from hydra import compose, initialize_config_dir
 
 from aslexp.recognition import experiment
@@ -162,12 +163,11 @@ def test_the_default_job_ends_with_the_comparison(run_cli, tmp_path):
 
 def test_the_job_refuses_a_bad_simple_baseline_in_one_line(tmp_path):
     import os
-    import subprocess
     import sys
 
     root = Path(__file__).resolve().parents[2]
     env = dict(os.environ, ASLEXP_CACHE_DIR=str(tmp_path / "cache"), MPLBACKEND="Agg")
-    proc = subprocess.run([sys.executable, "-m", "aslexp.cli", "recognize", "simple_baseline=[rf,forest]",
+    proc = job_process.run([sys.executable, "-m", "aslexp.cli", "recognize", "simple_baseline=[rf,forest]",
                            f"hydra.run.dir={tmp_path / 'run'}"], cwd=root, env=env, capture_output=True, text=True,
                           timeout=300)  # fmt: skip
     assert proc.returncode == 2, proc.stderr[-2000:]

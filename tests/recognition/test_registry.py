@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+import job_process
 
 from aslexp.recognition import registry
 from aslexp.recognition.models import DEFAULT_PARAMS, build_classifier
@@ -49,7 +49,7 @@ def test_recognize_trains_and_reports_a_classifier_from_a_yaml_and_a_module(tmp_
     run = tmp_path / "run"
     env = {**os.environ, "MPLBACKEND": "Agg",
            "PYTHONPATH": os.pathsep.join([str(HERE), os.environ.get("PYTHONPATH", "")])}
-    done = subprocess.run([sys.executable, "-m", "aslexp.cli", "recognize", "--config-dir", str(tmp_path / "conf"),
+    done = job_process.run([sys.executable, "-m", "aslexp.cli", "recognize", "--config-dir", str(tmp_path / "conf"),
                            "experiment=debug", "classifier=tiny_linear", f"hydra.run.dir={run}"],
                           capture_output=True, text=True, env=env, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]

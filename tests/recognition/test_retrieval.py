@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import job_process
 from doc_commands import bash_lines
 
 from aslexp.data.lexicon import load_lexicon
@@ -143,7 +144,7 @@ def _documented() -> list[str]:
 
 def _cli(args: list[str], cache: Path) -> subprocess.CompletedProcess:
     env = dict(os.environ, ASLEXP_CACHE_DIR=str(cache), MPLBACKEND="Agg")
-    return subprocess.run([sys.executable, "-m", "aslexp.cli", *args], cwd=ROOT, env=env, capture_output=True,
+    return job_process.run([sys.executable, "-m", "aslexp.cli", *args], cwd=ROOT, env=env, capture_output=True,
                           text=True, timeout=300)
 
 

@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import job_process
 from runs_helpers import run_cli
 
 N_TRIALS = 8
@@ -31,7 +32,7 @@ DAMAGE = {
 
 def report(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     """``aslexp report ...`` as the CLI dispatches it."""
-    return subprocess.run([sys.executable, "-m", "aslexp.cli", "report", *args], cwd=cwd, capture_output=True,
+    return job_process.run([sys.executable, "-m", "aslexp.cli", "report", *args], cwd=cwd, capture_output=True,
                           text=True, timeout=120, env={**os.environ, "MPLBACKEND": "Agg"})
 
 
@@ -42,7 +43,7 @@ def folders(tmp_path_factory) -> dict:
     meets it), the other kinds go to trials 1-5; trials 6-7 (and 0 unless best) stay intact."""
     root = tmp_path_factory.mktemp("damaged")
     sweep = root / "sweep"
-    subprocess.run([sys.executable, "-m", "aslexp.jobs.quadratic", "-m", "+sweeps=quadratic",
+    job_process.run([sys.executable, "-m", "aslexp.jobs.quadratic", "-m", "+sweeps=quadratic",
                     f"hydra.sweep.dir={sweep}", f"hydra.sweeper.n_trials={N_TRIALS}",
                     "hydra/sweeper/sampler=random", "hydra.sweeper.sampler.seed=5", "steps=2", "seed=11"],
                    cwd=root, check=True, capture_output=True, timeout=120)

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import job_process
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 from tensorboard.plugins.hparams import plugin_data_pb2
 
@@ -25,7 +26,7 @@ IMITATE_SMALL = ["motion=B", "env=residual", "ppo=fast", "ppo.hidden_sizes=[32,3
 def run_job(job: str, *overrides: str, env: dict | None = None) -> subprocess.CompletedProcess:
     environ = {**os.environ, "MPLBACKEND": "Agg", **(env or {})}
     environ = {k: v for k, v in environ.items() if v is not None}  # None: unset
-    proc = subprocess.run([sys.executable, "-m", f"aslexp.jobs.{job}", *overrides], cwd=ROOT, env=environ,
+    proc = job_process.run([sys.executable, "-m", f"aslexp.jobs.{job}", *overrides], cwd=ROOT, env=environ,
                           capture_output=True, text=True, timeout=300)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]
     return proc

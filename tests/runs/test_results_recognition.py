@@ -10,12 +10,12 @@ import json
 import math
 import os
 import re
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+import job_process
 
 from aslexp.recognition.metrics import accuracy_ci
 from aslexp.reports import results_page
@@ -221,8 +221,8 @@ def test_the_catalogues_thesis_sizes_are_thesis_mds():
 def test_the_summarizer_stores_the_test_clips_and_the_interval_of_a_real_run(tmp_path):
     from aslexp.tools.report import results_summary
 
-    env = {**os.environ, "PYTHONPATH": str(ROOT / "src"), "MPLBACKEND": "Agg"}
-    proc = subprocess.run([sys.executable, "-m", "aslexp.jobs.recognize", "-m", "experiment=debug",
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    proc = job_process.run([sys.executable, "-m", "aslexp.jobs.recognize", "-m", "experiment=debug",
                            "classifier=logreg", "property=sign_type", f"hydra.sweep.dir={tmp_path / 'runs'}"],
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]

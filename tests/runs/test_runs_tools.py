@@ -13,6 +13,7 @@ from pathlib import Path
 from runs_helpers import run_cli
 
 from aslexp.runs.diff import diff_mappings, diff_runs, flatten
+import job_process
 from aslexp.runs.listing import list_runs
 
 
@@ -44,7 +45,7 @@ def test_runs_diff_of_two_trials(small_sweep: Path) -> None:
 
 def test_runs_diff_reports_added_and_removed_keys(small_sweep: Path, tmp_path: Path) -> None:
     other = tmp_path / "other"
-    subprocess.run([sys.executable, "-m", "aslexp.jobs.quadratic", "+note=extra", "~overwrite",
+    job_process.run([sys.executable, "-m", "aslexp.jobs.quadratic", "+note=extra", "~overwrite",
                     f"hydra.run.dir={other}"], check=True, capture_output=True, cwd=tmp_path)
     d = diff_runs(small_sweep / "0", other)
     assert d.added == {"note": "extra"} and d.removed == {"overwrite": False}
@@ -55,7 +56,7 @@ def test_runs_list_shows_every_override_whole(tmp_path: Path) -> None:
     """Issue 39 item 8: the override that tells runs apart is often the last; the table never cuts it."""
     run = tmp_path / "run"
     tail = "+note=the_override_that_tells_this_run_apart_from_the_one_beside_it"
-    subprocess.run([sys.executable, "-m", "aslexp.jobs.quadratic", "x=0.25", "y=-0.75", "+label=a_long_label_first",
+    job_process.run([sys.executable, "-m", "aslexp.jobs.quadratic", "x=0.25", "y=-0.75", "+label=a_long_label_first",
                     tail, f"hydra.run.dir={run}"], check=True, capture_output=True, cwd=tmp_path)
     text = run_cli("runs", "list", str(tmp_path)).stdout
     header, _, row = text.splitlines()
@@ -153,7 +154,7 @@ def test_runs_diff_does_not_rank_runs_measured_on_different_splits(tmp_path: Pat
     runs = {}
     for split in ("phoneme", "gloss"):
         runs[split] = tmp_path / split
-        subprocess.run([sys.executable, "-m", "aslexp.jobs.recognize", "experiment=debug", "classifier=logreg",
+        job_process.run([sys.executable, "-m", "aslexp.jobs.recognize", "experiment=debug", "classifier=logreg",
                         f"split={split}", f"hydra.run.dir={runs[split]}"], cwd=root, env=env, check=True,
                        capture_output=True, timeout=300)
     d = diff_runs(runs["phoneme"], runs["gloss"])

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import optuna
+import job_process
 
 PG_URL_DEFAULT = "postgresql://aslexp:aslexp@127.0.0.1:5432/aslexp_test"
 
@@ -21,7 +22,7 @@ def sweep_command(sweep_dir: Path, *overrides: str, overlay: str = "quadratic") 
 def run_sweep(sweep_dir: Path, *overrides: str, overlay: str = "quadratic", check: bool = True,
               timeout: float = 120, env: dict | None = None) -> subprocess.CompletedProcess:
     """The sweep as a process of its own; ``env``: variables added to this one's environment."""
-    result = subprocess.run(sweep_command(sweep_dir, *overrides, overlay=overlay),
+    result = job_process.run(sweep_command(sweep_dir, *overrides, overlay=overlay),
                             cwd=sweep_dir.parent, capture_output=True, text=True, timeout=timeout,
                             env={**os.environ, "HYDRA_FULL_ERROR": "0", **(env or {})})
     if check and result.returncode != 0:
@@ -53,7 +54,7 @@ def postgres_url() -> str | None:
 
 def run_cli(*args: str, cwd: Path | None = None, check: bool = True) -> subprocess.CompletedProcess:
     """``python -m aslexp.runs.cli ...`` (what ``aslexp runs|sweep ...`` dispatches to)."""
-    return subprocess.run([sys.executable, "-m", "aslexp.runs.cli", *args], cwd=cwd,
+    return job_process.run([sys.executable, "-m", "aslexp.runs.cli", *args], cwd=cwd,
                           capture_output=True, text=True, check=check, timeout=120)
 
 

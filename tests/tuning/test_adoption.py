@@ -18,6 +18,7 @@ from pathlib import Path
 
 import optuna
 import pytest
+import job_process
 from optuna.trial import TrialState
 from sweep_helpers import load_study, run_cli, run_sweep, sweep_command, wait_for
 
@@ -153,7 +154,7 @@ def test_a_job_that_starts_after_its_trial_was_given_up_does_not_run(tmp_path):
     context = {"storage": str(sweep / "optuna.journal"), "study_name": "quadratic",
                "trial_id": trial._trial_id, "number": 0, "pruner": {}}
     late = tmp_path / "late"
-    result = subprocess.run([sys.executable, "-m", "aslexp.jobs.quadratic", f"hydra.run.dir={late}"],
+    result = job_process.run([sys.executable, "-m", "aslexp.jobs.quadratic", f"hydra.run.dir={late}"],
                             cwd=tmp_path, capture_output=True, text=True, timeout=60,
                             env={**os.environ, "ASLEXP_TRIAL": json.dumps(context)})
     assert result.returncode == 1

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
+import job_process
 from slurm_helpers import PROJECT_ROOT, accounting, require_cluster, wait_for_jobs
 
 DOC = PROJECT_ROOT / "docs" / "sweeps.md"
@@ -107,7 +108,7 @@ def workspace(tmp_path_factory) -> tuple[Path, dict]:
 
 
 def _aslexp(args: list[str], cwd: Path, env: dict, timeout: float = 600) -> subprocess.CompletedProcess:
-    proc = subprocess.run([sys.executable, "-m", "aslexp.cli", *args], cwd=cwd, env=env,
+    proc = job_process.run([sys.executable, "-m", "aslexp.cli", *args], cwd=cwd, env=env,
                           capture_output=True, text=True, timeout=timeout)
     assert proc.returncode == 0, (f"`aslexp {shlex.join(args)}` exited {proc.returncode}:\n"
                                   f"{proc.stdout[-2000:]}\n{proc.stderr[-3000:]}")

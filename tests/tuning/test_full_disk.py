@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import pytest
+import job_process
 from optuna.trial import TrialState
 from sweep_helpers import load_study, run_cli, sweep_command, wait_for
 
@@ -155,7 +156,7 @@ def test_a_full_disk_during_a_sweep_costs_nothing_and_a_resume_completes_the_bud
         named = (rf"aslexp quadratic: (journal file {re.escape(str(journal))}: the disk is full|"
                  rf"disk full: cannot write (in )?{re.escape(str(sweep))}/)")
         assert re.match(named, last), err[-2000:]
-    resumed = subprocess.run(command, cwd=small_disk.path, env=env, capture_output=True, text=True,
+    resumed = job_process.run(command, cwd=small_disk.path, env=env, capture_output=True, text=True,
                              timeout=180)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     study = load_study(sweep)
@@ -249,7 +250,7 @@ def test_a_disk_that_stays_full_stops_the_sweep_in_one_line_and_the_resume_rerun
     assert [t.state for t in study.trials] == [TrialState.FAIL]  # nothing burned while full
     assert _run_statuses(sweep) == ["running"]  # no room to say more, until the resume
 
-    resumed = subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True,
+    resumed = job_process.run(command, cwd=tmp_path, env=env, capture_output=True, text=True,
                              timeout=120)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     _assert_the_point_ran_again(load_study(sweep, storage=str(journal)), sweep)

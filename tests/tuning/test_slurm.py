@@ -15,6 +15,7 @@ from pathlib import Path
 
 import optuna
 import pytest
+import job_process
 from slurm_helpers import PROJECT_ROOT, accounting, require_cluster, wait_for_jobs
 from sweep_helpers import run_cli, run_sweep, sweep_command
 
@@ -117,7 +118,7 @@ def test_scancel_of_a_running_trial_interrupts_it_and_the_sweep_runs_a_replaceme
 
 
 def _extract_has_shard() -> bool:
-    out = subprocess.run([sys.executable, "-m", "aslexp.cli", "extract", "--help"],
+    out = job_process.run([sys.executable, "-m", "aslexp.cli", "extract", "--help"],
                          capture_output=True, text=True).stdout
     return "--shard" in out
 

@@ -15,6 +15,7 @@ from sweep_helpers import load_study, run_cli, run_sweep, sweep_command, wait_fo
 from optuna.trial import TrialState
 
 from aslexp.tuning.worker import ATTR_ERROR, ATTR_RERUN_OF, ATTR_STATE, ATTR_WORKER, INTERRUPTED
+import job_process
 
 
 def _completed(study):
@@ -271,7 +272,7 @@ def test_malformed_search_space_fails_before_any_trial(tmp_path: Path) -> None:
     }
     for index, (override, message) in enumerate(cases.items()):
         sweep = tmp_path / f"sweep{index}"
-        result = subprocess.run([*sweep_command(sweep), override], cwd=tmp_path,
+        result = job_process.run([*sweep_command(sweep), override], cwd=tmp_path,
                                 capture_output=True, text=True, timeout=60)
         assert result.returncode != 0, override
         assert message in result.stderr, f"{override}: {result.stderr}"
@@ -291,13 +292,13 @@ def test_direction_mismatch_with_the_job_stops_the_sweep(tmp_path: Path) -> None
 def test_best_trial_command_reproduces_its_metric(tmp_path: Path) -> None:
     sweep = tmp_path / "sweep"
     run_sweep(sweep, "hydra.sweeper.n_trials=4", "noise=0.05")  # seeded noise: still deterministic
-    out = subprocess.run([sys.executable, "-m", "aslexp.runs.cli", "sweep", "best", str(sweep),
+    out = job_process.run([sys.executable, "-m", "aslexp.runs.cli", "sweep", "best", str(sweep),
                           "--json"], capture_output=True, text=True, check=True, cwd=tmp_path)
     best = json.loads(out.stdout)
     assert best["command"].startswith("aslexp quadratic ")
     assert best["python_command"].startswith("python -m aslexp.jobs.quadratic ")
     rerun_dir = tmp_path / "rerun"
-    subprocess.run([sys.executable, "-m", "aslexp.jobs.quadratic", *best["overrides"],
+    job_process.run([sys.executable, "-m", "aslexp.jobs.quadratic", *best["overrides"],
                     f"hydra.run.dir={rerun_dir}"], check=True, cwd=tmp_path, capture_output=True)
     rerun = json.loads((rerun_dir / "run.json").read_text())
     assert rerun["main_metric"]["value"] == best["value"]  # exactly the same number

@@ -35,8 +35,8 @@ THESIS_LETTERS = "0.8-0.95 (all letters, Fig. 5.9)"
 def thesis_number(kind: str, motion: str) -> tuple[str, float | None]:
     """The thesis' cell for ``motion`` in the comparison ``kind`` (letters | signs_run1 | signs_run2)
     and a value to draw (None: a range)."""
-    if kind == "letters":
-        return THESIS_LETTERS, None
+    if kind == "letters":  # the default: the hand's letters (a sign has no number under it)
+        return (THESIS_LETTERS, None) if motion not in GLOSSES else ("-", None)
     if kind in ("signs_run1", "signs_run2") and motion in THESIS_TABLE_6_7:
         mean, std = THESIS_TABLE_6_7[motion][0:2] if kind == "signs_run1" else THESIS_TABLE_6_7[motion][2:4]
         return f"{mean:.3f} ± {std:.3f} (Table 6.7 {'Run 1' if kind == 'signs_run1' else 'Run 2'})", mean
