@@ -113,15 +113,15 @@ class _Server:
     def __init__(self) -> None:
         self.lock = threading.Lock()
         self.env = {k: os.environ.get(k) for k in _IMPORT_TIME_ENV}
-        to_server, self._requests = os.pipe()
-        self._replies, from_server = os.pipe()
+        to_server, requests = os.pipe()
+        replies, from_server = os.pipe()
         self.proc = subprocess.Popen([sys.executable, "-c", _SERVER, json.dumps(PRELOAD), str(to_server),
                                       str(from_server)], pass_fds=(to_server, from_server),
                                      stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         os.close(to_server)
         os.close(from_server)
-        self.requests = os.fdopen(self._requests, "w")
-        self.replies = os.fdopen(self._replies, "r")
+        self.requests = os.fdopen(requests, "w")
+        self.replies = os.fdopen(replies, "r")
         self.started = False
 
     def reply(self, timeout: float | None) -> str | None:
@@ -137,10 +137,6 @@ class _Server:
         if not self.started:
             self.started = self.reply(120) == "ready"
         return self.started and self.proc.poll() is None
-
-    def close(self) -> None:
-        self.requests.close()
-        self.proc.wait(timeout=30)
 
 
 _server: _Server | None = None
