@@ -9,12 +9,16 @@ A file whose tests depend on each other's files marks itself (``pytestmark = xdi
 
 from __future__ import annotations
 
+import json
+import os
+
 import pytest
 
 _SLURM_FILES = ("tests/tuning/test_slurm.py", "tests/tuning/test_docs_commands.py")
 _EXTRACTION_FIXTURES = {"extracted", "wlasl6"}
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the groups into the test ids
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     for item in items:
         if item.get_closest_marker("xdist_group"):
@@ -23,3 +27,32 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.xdist_group("slurm"))
         elif _EXTRACTION_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.xdist_group("extraction"))
+
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_finish(session: pytest.Session) -> None:
+    """Fail loudly where xdist_group would be ignored: pytest-xdist 3.8 groups a test by appending
+    "@group" to its id, which pytest 9.2 no longer reads (its ids come from elsewhere), so every group
+    above was silently spread over the workers (pyproject.toml pins pytest < 9)."""
+    # a worker of this run (not a pytest a test starts, which inherits PYTEST_XDIST_WORKER)
+    if not (hasattr(session.config, "workerinput") and getattr(session.config.option, "loadgroup", False)):
+        return
+    ignored = [item.nodeid for item in session.items
+               if item.get_closest_marker("xdist_group") and "@" not in item.nodeid]
+    if ignored:
+        raise pytest.UsageError(f"xdist_group is ignored by this pytest ({pytest.__version__}) and pytest-xdist: "
+                                f"{ignored[0]} has no @group in its id; install pytest<9 (pyproject.toml's dev extra)")
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    """ASLEXP_TEST_TIMELINE=FILE: each worker appends a JSON line per test phase (worker, test,
+    phase, start, stop), read by scripts/suite_timeline.py: where the suite's time goes, per file
+    and per worker, and how long the workers waited for each other at the end."""
+    path = os.environ.get("ASLEXP_TEST_TIMELINE")
+    if not path or hasattr(report, "node"):  # the xdist controller sees every report again
+        return
+    line = {"worker": os.environ.get("PYTEST_XDIST_WORKER", "main"), "test": report.nodeid,
+            "phase": report.when, "start": report.start, "stop": report.stop}
+    with open(path, "a", encoding="utf-8") as fh:
+        fh.write(json.dumps(line) + "\n")

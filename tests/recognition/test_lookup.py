@@ -32,7 +32,8 @@ PROPERTIES = ["sign_type", "major_location"]
 CUT = ["split.repeats=1", f"retrieval.properties=[{','.join(PROPERTIES)}]", "retrieval.smoothing=[0.01]",
        "retrieval.prior_weights=[0,4]", "classifier.params.n_estimators=10", "classifier.params.n_jobs=1"]
 
-pytestmark = pytest.mark.skipif(not (KEYPOINTS / f"{CLIP}.npy").is_file(), reason=f"shared data not found under {DATA}")
+pytestmark = [pytest.mark.skipif(not (KEYPOINTS / f"{CLIP}.npy").is_file(), reason=f"shared data not found under {DATA}"),
+              pytest.mark.xdist_group("lookup_model")]  # one worker trains the module's model once
 
 
 def _cli(args: list[str], cache: Path) -> subprocess.CompletedProcess:

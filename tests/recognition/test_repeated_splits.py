@@ -27,6 +27,8 @@ MODELS = {"logreg": {}, "rf": {"n_estimators": 30, "n_jobs": 1}, "mlp": {"hidden
 TRAINER = {"max_epochs": 2, "patience": 2, "batch_size": 32, "num_threads": 1}
 
 
+pytestmark = pytest.mark.xdist_group("repeated_splits")  # one worker trains the module's runs once
+
 @pytest.fixture(scope="module")
 def runs(lex_dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("runs")

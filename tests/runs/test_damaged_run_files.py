@@ -36,6 +36,8 @@ def report(*args: str, cwd: Path) -> subprocess.CompletedProcess:
                           text=True, timeout=120, env={**os.environ, "MPLBACKEND": "Agg"})
 
 
+pytestmark = pytest.mark.xdist_group("damaged_sweep")  # one worker runs the module's sweep once
+
 @pytest.fixture(scope="module")
 def folders(tmp_path_factory) -> dict:
     """A real Optuna sweep of the quadratic job (8 completed trials), a clean copy of it, and the

@@ -206,6 +206,11 @@ def _entry(entry_id: str, report: str, folders: list[str], command: str, **extra
             "earlier": {"link": "docs/imitation.md#how-to-run", "section": "How to run"}, **extra}
 
 
+# The tests reading this sweep share one worker: xdist spreads a module's tests, and each worker
+# would run the sweep again (32 s).
+ON_THE_SWEEPS_WORKER = pytest.mark.xdist_group("results_page_sweep")
+
+
 @pytest.fixture(scope="module")
 def imitate_outputs(tmp_path_factory) -> Path:
     """experiment=letters_thesis, letter B, seeds 0 and 1, 128 steps each: a real sweep folder."""
@@ -215,6 +220,7 @@ def imitate_outputs(tmp_path_factory) -> Path:
     return outputs
 
 
+@ON_THE_SWEEPS_WORKER
 def test_a_resumed_run_lists_the_machine_that_trained_its_first_steps(imitate_outputs, tmp_path):
     """A run resumed from another machine's checkpoint (metrics.json ``resumed_from``, as the imitate
     job writes it): the page's Machine line names both machines and says how many runs resumed."""
@@ -236,6 +242,7 @@ def test_a_resumed_run_lists_the_machine_that_trained_its_first_steps(imitate_ou
     assert "resumed" not in alone and "resumed" not in results_page._machine(alone)
 
 
+@ON_THE_SWEEPS_WORKER
 def test_a_snapshot_is_made_from_real_runs_then_kept_when_they_are_gone(imitate_outputs, tmp_path):
     command = "aslexp imitate -m experiment=letters_thesis seed=0,1 ppo.total_steps=128"
     entries = [_entry("thesis_letters", "thesis", ["letters"], command,
@@ -306,6 +313,7 @@ def test_a_snapshot_is_made_from_real_runs_then_kept_when_they_are_gone(imitate_
     assert results_page.render(results_page.load_catalogue(catalogue), snapshots) == text  # deterministic
 
 
+@ON_THE_SWEEPS_WORKER
 def test_a_later_alternative_is_read_only_when_the_first_holds_no_runs(imitate_outputs, tmp_path):
     entry = _entry("x", "scratch", ["results/x"], "aslexp imitate -m experiment=letters_thesis")
     entry["runs"].append({"folders": ["let*"], "machine": "elsewhere"})

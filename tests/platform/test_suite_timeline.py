@@ -1,0 +1,39 @@
+"""ASLEXP_TEST_TIMELINE and scripts/suite_timeline.py: a real pytest run of two of the suite's own
+tests writes one line per test phase, and the script sums them per worker and per file."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+TESTS = ["tests/platform/test_quaternion.py"]
+
+
+def test_a_run_writes_its_timeline_and_the_script_reads_it(tmp_path):
+    timeline = tmp_path / "timeline.jsonl"
+    env = {**os.environ, "ASLEXP_TEST_TIMELINE": str(timeline)}
+    env.pop("PYTEST_XDIST_WORKER", None)  # this run is not one of the suite's workers
+    ran = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "0", *TESTS],
+                         cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert ran.returncode == 0, ran.stdout[-2000:]
+    lines = [json.loads(line) for line in timeline.read_text().splitlines()]
+    tests = {r["test"] for r in lines}
+    assert tests and all(t.startswith(TESTS[0] + "::") for t in tests)
+    assert {r["phase"] for r in lines} == {"setup", "call", "teardown"} and len(lines) == 3 * len(tests)
+    assert {r["worker"] for r in lines} == {"main"} and all(r["stop"] >= r["start"] for r in lines)
+
+    report = subprocess.run([sys.executable, "scripts/suite_timeline.py", str(timeline), "--files", "3"],
+                            cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert report.returncode == 0, report.stderr
+    busy = sum(r["stop"] - r["start"] for r in lines)
+    assert f"{len(tests)} tests, {busy:.0f} worker-seconds in tests on 1 workers" in report.stdout
+    assert f"  main: busy {busy:.0f} s" in report.stdout and f"s  {TESTS[0]}" in report.stdout
+
+    timeline.write_text("not json\n")
+    bad = subprocess.run([sys.executable, "scripts/suite_timeline.py", str(timeline)], cwd=ROOT,
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and str(timeline) in bad.stderr and len(bad.stderr.splitlines()) == 1
