@@ -29,7 +29,6 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.xdist_group("extraction"))
 
 
-
 @pytest.hookimpl(trylast=True)
 def pytest_collection_finish(session: pytest.Session) -> None:
     """Fail loudly where xdist_group would be ignored: pytest-xdist 3.8 groups a test by appending
@@ -45,14 +44,25 @@ def pytest_collection_finish(session: pytest.Session) -> None:
                                 f"{ignored[0]} has no @group in its id; install pytest<9 (pyproject.toml's dev extra)")
 
 
+_timeline: dict[str, str] = {}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if config.getoption("numprocesses", None) and not hasattr(config, "workerinput"):
+        return  # the xdist controller: its workers, started next, read the variable
+    # Taken out of the environment, so that a pytest a test starts does not write into the same file.
+    path = os.environ.pop("ASLEXP_TEST_TIMELINE", None)
+    if path:
+        _timeline.update(path=path, worker=getattr(config, "workerinput", {}).get("workerid", "main"))
+
+
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:
     """ASLEXP_TEST_TIMELINE=FILE: each worker appends a JSON line per test phase (worker, test,
     phase, start, stop), read by scripts/suite_timeline.py: where the suite's time goes, per file
     and per worker, and how long the workers waited for each other at the end."""
-    path = os.environ.get("ASLEXP_TEST_TIMELINE")
-    if not path or hasattr(report, "node"):  # the xdist controller sees every report again
+    if not _timeline or hasattr(report, "node"):  # the xdist controller sees every report again
         return
-    line = {"worker": os.environ.get("PYTEST_XDIST_WORKER", "main"), "test": report.nodeid,
-            "phase": report.when, "start": report.start, "stop": report.stop}
-    with open(path, "a", encoding="utf-8") as fh:
+    line = {"worker": _timeline["worker"], "test": report.nodeid, "phase": report.when, "start": report.start,
+            "stop": report.stop}
+    with open(_timeline["path"], "a", encoding="utf-8") as fh:
         fh.write(json.dumps(line) + "\n")

@@ -1,5 +1,5 @@
-"""ASLEXP_TEST_TIMELINE and scripts/suite_timeline.py: a real pytest run of two of the suite's own
-tests writes one line per test phase, and the script sums them per worker and per file."""
+"""ASLEXP_TEST_TIMELINE and scripts/suite_timeline.py: a real pytest run of one of the suite's own
+files writes one line per test phase, and the script sums them per worker and per file."""
 
 from __future__ import annotations
 
@@ -16,7 +16,6 @@ TESTS = ["tests/platform/test_quaternion.py"]
 def test_a_run_writes_its_timeline_and_the_script_reads_it(tmp_path):
     timeline = tmp_path / "timeline.jsonl"
     env = {**os.environ, "ASLEXP_TEST_TIMELINE": str(timeline)}
-    env.pop("PYTEST_XDIST_WORKER", None)  # this run is not one of the suite's workers
     ran = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "0", *TESTS],
                          cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert ran.returncode == 0, ran.stdout[-2000:]
