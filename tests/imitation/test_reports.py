@@ -6,7 +6,7 @@ import csv
 import json
 from pathlib import Path
 
-from aslexp.reports.report import summarize_letters
+from aslexp.reports.report import seeds_on_common_steps, summarize_letters
 from aslexp.reports.upper_body_report import summarize_signs
 
 
@@ -48,6 +48,17 @@ def test_a_run_with_one_evaluation_is_drawn(tmp_path):
     image = mpimg.imread(tmp_path / "letters_curves.png")[:, :, :3]
     blue = np.all(np.abs(image - np.array([0.12, 0.47, 0.71])) < 0.08, axis=-1)  # C0, the curve's colour
     assert blue.sum() > 20  # the one evaluation is a visible point, not an empty axes
+
+
+def test_seeds_are_averaged_at_the_steps_they_share_not_by_evaluation_index():
+    # two seeds every 100 steps; seed 0 stopped and was resumed at 150 (an extra evaluation there)
+    seed0 = [(100, 0.1), (150, 0.9), (200, 0.2), (300, 0.3)]
+    seed1 = [(100, 0.3), (200, 0.4), (300, 0.5)]
+    steps, values = seeds_on_common_steps([seed0, seed1])
+    assert steps.tolist() == [100, 200, 300] and values.tolist() == [[0.1, 0.2, 0.3], [0.3, 0.4, 0.5]]
+    # schedules that do not line up (other intervals): by index, up to the shortest curve
+    steps, values = seeds_on_common_steps([[(64, 0.1), (128, 0.2)], [(100, 0.3), (200, 0.4), (300, 0.5)]])
+    assert steps.tolist() == [64, 128] and values.tolist() == [[0.1, 0.2], [0.3, 0.4]]
 
 
 def test_signs_table_times_each_sign_to_the_thesis_reward(tmp_path):

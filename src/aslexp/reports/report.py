@@ -195,6 +195,20 @@ def learned(metrics: dict[str, Any]) -> bool:
     return metrics.get("steps", 0) > 0
 
 
+def seeds_on_common_steps(curves: list[list[tuple[int, float]]]) -> tuple[np.ndarray, np.ndarray]:
+    """(steps, values: seeds x steps) of several seeds' (step, evaluation) curves, to average.
+    Seeds evaluate on one schedule (every eval_interval steps) plus once where each stopped or
+    resumed: the steps every seed evaluated at, not evaluation indices, which would pair a stop's
+    evaluation with another seed's scheduled one. Schedules that share under half their points
+    (different intervals) fall back to indices, up to the shortest curve."""
+    common = sorted(set.intersection(*({s for s, _ in c} for c in curves)))
+    if len(common) >= min(len(c) for c in curves) / 2:
+        return np.asarray(common), np.asarray([[dict(c)[s] for s in common] for c in curves])
+    length = min(len(c) for c in curves)
+    return (np.asarray([s for s, _ in curves[0][:length]]),
+            np.asarray([[v for _, v in c[:length]] for c in curves]))
+
+
 def plot_curves(runs: dict[str, list[dict[str, Any]]], path: Path, title: str,
                 lines: dict[str, dict[str, float]] | None = None) -> Path:
     """Mean ± std evaluation reward per motion over seeds; a run with one evaluation is a point.
@@ -207,9 +221,8 @@ def plot_curves(runs: dict[str, list[dict[str, Any]]], path: Path, title: str,
         curves = [[(p["step"], p["eval_reward"]) for p in m["progress"] if "eval_reward" in p] for m in items]
         curves = [c for c in curves if c]
         if curves:
-            length = min(len(c) for c in curves)
-            steps = np.asarray([s for s, _ in curves[0][:length]])
-            values = np.asarray([[v for _, v in c[:length]] for c in curves])
+            steps, values = seeds_on_common_steps(curves)
+            length = len(steps)
             mean, std = values.mean(0), values.std(0)
             ax.plot(steps, mean, color=color, marker="o", ms=3 if length > 1 else 6,
                     label=f"{motion} (n={len(curves)})")
