@@ -38,9 +38,9 @@ def test_group_modes_parse_and_are_checked():
         ControllerSpec.parse({"mode": "position", "groups": {"fingers": {"kp": 1, "kd": 1, "mode": "torque"}}})
     with pytest.raises(ValueError, match=r"controller.groups.default.kv=1: unknown key; expected one of kp, kd"):
         ControllerSpec.parse({"groups": {"default": {"kp": 1, "kv": 1}}})
-    with pytest.raises(ValueError, match="mujoco_groups are physical gains: no mode"):
+    with pytest.raises(ValueError, match="physical_groups are physical gains: no mode"):
         ControllerSpec.parse({"groups": {"default": {"kp": 1, "kd": 1}},
-                                  "mujoco_groups": {"default": {"kp": 1, "kd": 1, "mode": "position"}}})
+                                  "physical_groups": {"default": {"kp": 1, "kd": 1, "mode": "position"}}})
 
 
 def test_mixed_controller_sends_one_call_per_mode_and_the_pinned_body_follows(sign, data_root):

@@ -66,7 +66,7 @@ def test_a_real_divergence_ends_the_episode_and_is_counted(motion_a, limit):
     # clamp: a blow-up is never hidden by it.
     env = ImitationEnv(motion_a, engine={"name": "mujoco", "integrator": "Euler", "joint_speed_limit": limit},
                        reward="hand_thesis", env="hand_thesis",
-                       controller={"mujoco_groups": {"default": {"kp": 1e6, "kd": 0.0}}})
+                       controller={"physical_groups": {"default": {"kp": 1e6, "kd": 0.0}}})
     summary = evaluate_phases(env, reference_policy(1), 240, (0.0, 0.5))
     assert summary.diverged == 2 and summary.ended_early == 2
     assert env.counters["diverged"] == 2

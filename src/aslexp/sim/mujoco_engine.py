@@ -21,7 +21,7 @@ the physics rate, a site at each end effector's tip, and one PD actuator per joi
   1, 2 and 2.87 by the reference baselines' agreement on letters A-E, docs/engines.md), and no
   force limit (``max_force`` caps PyBullet's constraint impulse, not this torque: capped, the upper
   body's stand-in motors stall).
-* ``mujoco_groups`` in a controller file replaces ``groups`` in MuJoCo with physical gains given as
+* ``physical_groups`` in a controller file replaces ``groups`` in MuJoCo with physical gains given as
   such (e.g. found by ``aslexp tune_pd engine=mujoco``).
 
 Stepping goes through ``mujoco.rollout`` (C, threads, no Python per physics step) from full physics
@@ -266,7 +266,7 @@ class MujocoBody:
         if controller is not None:
             dt = m.opt.timestep
             spec = controller.spec
-            groups = spec.mujoco_groups or spec.groups
+            groups = spec.physical_groups or spec.groups
             inertia = self.joint_inertia()
             i = 0
             for joint in self.layout.joints:
@@ -274,8 +274,8 @@ class MujocoBody:
                 if gains is None:
                     raise ValueError(f"controller {spec.name}: no gains for joint group {joint.group!r} and no `default`")
                 # Per group: stable-PD groups (the group's `mode`, else the controller's) and every
-                # mujoco_groups entry carry physical gains; position groups get the motor's stand-in.
-                physical = bool(spec.mujoco_groups) or spec.mode_of(gains) == "stable_pd"
+                # physical_groups entry carry physical gains; position groups get the motor's stand-in.
+                physical = bool(spec.physical_groups) or spec.mode_of(gains) == "stable_pd"
                 for k in range(1 if joint.dof == 1 else 3):
                     if physical:  # stable PD: kp (q* - q - dt qd) + kd (qd* - qd)
                         kp[i], kv[i], kv_target[i] = gains.kp, gains.kd + gains.kp * dt, gains.kd

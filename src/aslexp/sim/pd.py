@@ -67,18 +67,19 @@ class ControllerSpec(Section):
     velocity_scale: float = 1.0  # multiplies the reference velocity target
     # control (thesis) | physics: reference re-sampled every substep
     target_rate: str = field(default="control", metadata=key(Choice(*TARGET_RATES)))
-    # engine=mujoco: physical gains (N m/rad, N m s/rad) replacing `groups` there (None: `groups`,
-    # physical for stable_pd, translated from PyBullet's motor for position: sim/mujoco_engine.py)
-    mujoco_groups: dict[str, Gains] | None = None
+    # Physical gains (N m/rad, N m s/rad) in place of `groups` for an engine whose actuators take
+    # them (MuJoCo's; PyBullet ignores them). None: `groups`, physical for stable_pd, translated
+    # from PyBullet's motor for position (sim/mujoco_engine.py).
+    physical_groups: dict[str, Gains] | None = None
 
     def __post_init__(self) -> None:
         if not self.groups:
             raise ConfigError("groups: must give gains for at least `default`")
-        moded = [name for name, gains in (self.mujoco_groups or {}).items() if gains.mode is not None]
+        moded = [name for name, gains in (self.physical_groups or {}).items() if gains.mode is not None]
         if moded:
-            raise ConfigError(f"mujoco_groups.{moded[0]}.mode: mujoco_groups are physical gains: no mode")
-        if self.mujoco_groups == {}:
-            object.__setattr__(self, "mujoco_groups", None)
+            raise ConfigError(f"physical_groups.{moded[0]}.mode: physical_groups are physical gains: no mode")
+        if self.physical_groups == {}:
+            object.__setattr__(self, "physical_groups", None)
 
     def mode_of(self, gains: Gains) -> str:
         """The mode a group's gains are applied with: its own ``mode``, else the controller's."""
