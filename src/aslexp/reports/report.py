@@ -201,9 +201,10 @@ def seeds_on_common_steps(curves: list[list[tuple[int, float]]]) -> tuple[np.nda
     resumed: the steps every seed evaluated at, not evaluation indices, which would pair a stop's
     evaluation with another seed's scheduled one. Schedules that share under half their points
     (different intervals) fall back to indices, up to the shortest curve."""
-    common = sorted(set.intersection(*({s for s, _ in c} for c in curves)))
+    by_step = [dict(c) for c in curves]
+    common = sorted(set.intersection(*(set(d) for d in by_step)))
     if len(common) >= min(len(c) for c in curves) / 2:
-        return np.asarray(common), np.asarray([[dict(c)[s] for s in common] for c in curves])
+        return np.asarray(common), np.asarray([[d[s] for s in common] for d in by_step])
     length = min(len(c) for c in curves)
     return (np.asarray([s for s, _ in curves[0][:length]]),
             np.asarray([[v for _, v in c[:length]] for c in curves]))
