@@ -16,4 +16,20 @@ def seed_everything(seed: int, deterministic: bool | None = None) -> None:
     np.random.seed(seed % (2**32))
     torch.manual_seed(seed)
     if deterministic is not None:
-        torch.use_deterministic_algorithms(deterministic, warn_only=True)
+        set_deterministic(deterministic)
+
+
+def set_deterministic(mode: bool) -> None:
+    """torch.use_deterministic_algorithms(mode, warn_only=True) without its import of the compiler.
+
+    That call imports torch._inductor (and with it dynamo, sympy and FSDP: ~1.5 s a process, as long
+    as importing torch) only to set inductor's own flag. aslexp never compiles, so the compiler's
+    flag is set only where something has already imported it; the kernels' flag is always set."""
+    import sys
+
+    import torch
+
+    torch._C._set_deterministic_algorithms(mode, warn_only=True)
+    inductor = sys.modules.get("torch._inductor.config")
+    if inductor is not None:
+        inductor.deterministic = mode

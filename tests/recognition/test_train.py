@@ -123,3 +123,24 @@ def test_trainer_config_rejects_unknown_keys():
     with pytest.raises(ValueError, match="trainer.epochs=3: unknown key; did you mean trainer.max_epochs\\?"):
         TrainerConfig.parse({"epochs": 3})
     assert TrainerConfig.parse({"lr": "0.01", "class_weights": 1}).lr == 0.01
+
+
+def test_the_deterministic_flag_is_set_without_importing_the_compiler():
+    """seed_everything's flag is torch's (kernels deterministic, warnings only) without the ~1.5 s
+    import of torch._inductor that torch.use_deterministic_algorithms makes; where the compiler is
+    already imported its flag follows too."""
+    import subprocess
+    import sys
+
+    probe = ("import sys, torch\n"
+             "from aslexp.seeding import seed_everything\n"
+             "seed_everything(0, True)\n"
+             "print(torch.are_deterministic_algorithms_enabled(), torch.is_deterministic_algorithms_warn_only_enabled(),\n"
+             "      'torch._inductor' in sys.modules)\n"
+             "import torch._inductor.config as inductor\n"
+             "seed_everything(0, False)\n"
+             "print(torch.are_deterministic_algorithms_enabled(), inductor.deterministic)\n"
+             "seed_everything(0, True)\n"
+             "print(inductor.deterministic)\n")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["True", "True", "False", "False", "False", "True"]

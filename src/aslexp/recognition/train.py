@@ -92,7 +92,7 @@ class TrainerConfig:
     data_on_device:        hold the training arrays on the device (one copy per run) instead of
                            moving every batch.
     num_threads:           torch.set_num_threads (the machine's cores are shared: keep small).
-    deterministic:         torch.use_deterministic_algorithms(warn_only=True) (cheap on CPU).
+    deterministic:         torch's deterministic kernels, warnings only (aslexp.seeding; cheap on CPU).
     eval_batch_size:       batch size for validation/test inference.
     """
 
