@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
 
 import numpy as np
 import pytest
@@ -20,7 +21,7 @@ from aslexp.rl.evaluate import baselines, evaluate, evaluate_phases, reference_p
 from aslexp.rl.noise import ActionNoise
 from aslexp.rl.policy import RunningNormalizer
 from aslexp.rl.ppo import PPOConfig, PPOTrainer, make_agent, resolve_device
-from aslexp.rl.vector import DropInfo, make_vector_env, worker_seeds
+from aslexp.rl.vector import START_METHOD, DropInfo, make_vector_env, worker_seeds
 from aslexp.rl.workers import noise_seeds, rollout_segment
 
 TINY = dict(hidden_sizes=(32, 32), learning_rate=1e-3, steps_per_rollout=128, minibatch_size=64, epochs=2,
@@ -324,3 +325,40 @@ def test_the_scaling_benchmark_runs_on_tiny_settings(tmp_path, data_root):
                                                           ("2", "async"), ("2", "workers")]
     assert float(rows[0]["collect_efficiency"]) == 1.0 and all(float(r["hours_50M"]) > 0 for r in rows)
     assert "| 2 | 2 lockstep workers |" in proc.stdout and "| 2 | 2 rollout workers |" in proc.stdout
+
+
+PRELOAD_PROBE = """
+import functools, os, sys
+from pathlib import Path
+from aslexp.envs.imitation import ImitationEnv
+from aslexp.rl.ppo import agent_for_spaces
+from aslexp.rl.policy import ModelSpec
+from aslexp.rl.workers import PolicyWorkers
+
+def children(pid):
+    with open(f"/proc/{pid}/task/{pid}/children") as fh:
+        return [int(c) for c in fh.read().split()]
+
+if __name__ == "__main__":
+    workers = PolicyWorkers(functools.partial(ImitationEnv, Path(sys.argv[1])), 2,
+                            functools.partial(agent_for_spaces, ModelSpec()))
+    [server] = [c for c in children(os.getpid()) if b"forkserver" in open(f"/proc/{c}/cmdline", "rb").read()]
+    maps = open(f"/proc/{server}/maps").read()
+    print("server holds torch:", "libtorch" in maps)
+    print("workers forked from it:", sorted(p.pid for p in workers._processes) == sorted(children(server)))
+    workers.close()
+"""
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/task") or START_METHOD != "forkserver",
+                    reason="reads the process tree from Linux's /proc; needs the forkserver start method")
+def test_rollout_workers_fork_from_a_server_that_has_their_modules_loaded(motion_a, tmp_path):
+    """The forkserver imports the workers' modules once (torch, torchrl's modules, the environment's
+    module): each worker forks from it instead of importing them again (~3 s each)."""
+    import sys
+
+    probe = tmp_path / "probe.py"
+    probe.write_text(PRELOAD_PROBE)
+    out = job_process.run([sys.executable, str(probe), str(motion_a)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.splitlines() == ["server holds torch: True", "workers forked from it: True"]

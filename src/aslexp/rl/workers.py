@@ -22,7 +22,6 @@ whole loop, and runs in this process too, for one environment or a test).
 
 from __future__ import annotations
 
-import multiprocessing
 import traceback
 from collections.abc import Callable
 from typing import Any
@@ -33,7 +32,7 @@ import torch
 
 from aslexp.rl.noise import ActionNoise
 from aslexp.rl.policy import Agent
-from aslexp.rl.vector import START_METHOD, DropInfo
+from aslexp.rl.vector import DropInfo, worker_context
 
 # The agent's entries the workers need (the critic stays with the learner).
 ACTOR_PREFIXES = ("normalizer.", "actor.", "action_center", "action_half_range")
@@ -160,7 +159,7 @@ class PolicyWorkers:
 
     def __init__(self, make_env: Callable[..., gym.Env], num_envs: int,
                  make_agent: Callable[[gym.Space, gym.Space], Agent], envs_per_worker: int = 0) -> None:
-        context = multiprocessing.get_context(START_METHOD)
+        context = worker_context(make_env)
         if envs_per_worker and num_envs % envs_per_worker:
             raise ValueError(f"ppo config: num_envs ({num_envs}) must be a multiple of the environments per "
                              f"worker ({envs_per_worker})")
