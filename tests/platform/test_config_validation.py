@@ -87,24 +87,25 @@ def test_a_multirun_refuses_a_shared_bad_value_and_fails_only_the_job_with_a_swe
 def test_every_shipped_config_passes():
     from hydra import compose, initialize_config_dir
 
+    from aslexp import cli
     from aslexp.jobs.validation import check_config
 
     def stems(group: str) -> list[str]:
         return sorted(p.stem for p in (CONF / group).glob("*.yaml"))
 
-    def imitation(experiment: str) -> bool:
-        text = (CONF / "experiment" / f"{experiment}.yaml").read_text()
-        return any(word in text for word in ("ppo", "body", "motion", "controller", "reward"))
+    def listed(job: str) -> list[list[str]]:
+        """The overlays `aslexp JOB --help` lists for the job, catalogue and archive: each composes for
+        it here (tests/platform/test_job_help_overlays.py checks the help itself)."""
+        return [[f"experiment={e}"] for e in cli.experiments_of(job) + cli.experiments_of(job, archived=True)]
 
-    # Every experiment with its job, every trainer; each ppo file alone is read through the same
-    # schema by tests/imitation/test_ppo_vector.py (PPOConfig.parse of every conf/ppo file).
+    # Every experiment with the job that lists it, every trainer; each ppo file alone is read through
+    # the same schema by tests/imitation/test_ppo_vector.py (PPOConfig.parse of every conf/ppo file).
     experiments = stems("experiment") + [f"archive/{e}" for e in stems("experiment/archive")]
     choices = {
-        "imitate": [[]] + [[f"experiment={e}"] for e in experiments if imitation(e)],
-        "recognize": [[f"trainer={t}"] for t in stems("trainer")]
-                     + [[f"experiment={e}"] for e in experiments if not imitation(e)]
+        "imitate": [[]] + listed("imitate"),
+        "recognize": [[f"trainer={t}"] for t in stems("trainer")] + listed("recognize")
                      + [["classifier=slgcn"], ["classifier=gru_thesis_ch3", "trainer=thesis_ch3"]],
-        "tune_pd": [[]],
+        "tune_pd": [[]] + listed("tune_pd"),
     }
     checked = 0
     with initialize_config_dir(str(CONF), version_base="1.3"):

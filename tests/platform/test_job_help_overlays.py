@@ -39,11 +39,9 @@ def test_the_catalogue_stays_small():
 
 
 @pytest.mark.parametrize("job", JOBS)
-def test_every_overlay_a_job_lists_composes_for_it(job):
-    with initialize_config_dir(str(CONF), version_base="1.3"):
-        for name in cli.experiments_of(job) + cli.experiments_of(job, archived=True):
-            cfg = compose(job, overrides=[f"experiment={name}"])
-            assert cfg is not None, name
+def test_the_help_lists_the_job_s_catalogue_and_counts_its_archive(job):
+    # Each overlay listed here composes for its job and passes the job's config check:
+    # tests/platform/test_config_validation.py::test_every_shipped_config_passes composes exactly these.
     if cli.experiments_of(job):
         assert _listed(job) == set(cli.experiments_of(job))
         archived = len(cli.experiments_of(job, archived=True))
