@@ -12,6 +12,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
+from scipy import stats
 from sklearn.metrics import (
     balanced_accuracy_score,
     confusion_matrix,
@@ -157,8 +158,6 @@ def cardinality_accuracy_correlation(support: Sequence[int], accuracy: Sequence[
     elif np.ptp(x) == 0 or np.ptp(y) == 0:
         result["note"] = "undefined: " + ("cardinality" if np.ptp(x) == 0 else "accuracy") + " is the same for every class"
     else:
-        from scipy import stats  # here: scipy.stats costs ~1 s to import, most jobs never test
-
         r, p_value = stats.pearsonr(x, y)
         result["r"], result["p_value"] = float(r), float(p_value)
     return result
@@ -215,8 +214,6 @@ def mean_interval(values: Sequence[float], confidence: float = 0.95) -> dict[str
     result["mean"] = float(finite.mean())
     if n >= 2:
         std = float(finite.std(ddof=1))
-        from scipy import stats
-
         half = float(stats.t.ppf(0.5 + confidence / 2, n - 1) * std / math.sqrt(n))
         result.update(std=std, half_width=half, low=result["mean"] - half, high=result["mean"] + half)
     return result
@@ -238,8 +235,6 @@ def paired_comparison(model: Sequence[float], reference: Sequence[float], confid
     if len(diff) >= 2 and np.any(diff != 0):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            from scipy import stats
-
             result["wilcoxon_p"] = float(stats.wilcoxon(diff, zero_method="zsplit").pvalue)
     elif len(diff) >= 2:
         result["wilcoxon_p"] = 1.0

@@ -71,10 +71,9 @@ START_METHOD = "forkserver" if "forkserver" in multiprocessing.get_all_start_met
 def worker_context(factory: Any = None) -> multiprocessing.context.BaseContext:
     """The context worker processes start from. Under forkserver the server imports the workers'
     modules once (torch, torchrl's modules, the environment's module: ~3 s of imports a process) and
-    each worker forks from it, so a process's later workers, and every worker after the first,
-    start without importing them again. The server is one per process, single-threaded and holds
-    no engine client; the first call's modules are the ones it loads (a later worker imports what
-    is missing itself)."""
+    every later worker forks from it without importing them again. The server is one per process,
+    single-threaded and holds no engine client; the first call's modules are the ones it loads (a
+    worker imports what is missing itself)."""
     context = multiprocessing.get_context(START_METHOD)
     if START_METHOD == "forkserver":
         context.set_forkserver_preload(["aslexp.rl.workers", *_aslexp_modules_of(factory)])
