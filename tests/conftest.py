@@ -1,7 +1,11 @@
-"""Suite-wide: which tests share one xdist worker (scripts/test.sh runs ``pytest -n auto --dist loadgroup``).
+"""Suite-wide: which tests share one xdist worker (scripts/test.sh runs ``pytest -n <cores + 1> --dist loadgroup``).
 
-* Slurm: the single-node loopback cluster has room for one test's jobs at a time (the tests count
-  jobs in flight and wait on squeue), so every Slurm test joins one group and they run in turn.
+* Waiting: the single-node loopback Slurm cluster has room for one test's jobs at a time (the tests
+  count jobs in flight and wait on squeue), so every Slurm test joins one group and they run in turn.
+  The sweep tests that mostly wait on processes they started (trials that sleep, signals, orphaned
+  jobs adopted, a disk that fills: a third of a core each, measured) join that lane: one worker
+  waits through all of them while the others compute (scripts/test.sh starts one worker more than
+  cores for it), instead of two workers waiting at once with a core idle.
 * Extraction: the MediaPipe extraction of the six videos (session fixtures ``extracted`` and
   ``wlasl6``, ~25 s each) is made once, on the worker that runs every test reading it.
 A file whose tests depend on each other's files marks itself (``pytestmark = xdist_group``).
@@ -14,7 +18,8 @@ import os
 
 import pytest
 
-_SLURM_FILES = ("tests/tuning/test_slurm.py", "tests/tuning/test_docs_commands.py")
+_WAITING_FILES = ("tests/tuning/test_slurm.py", "tests/tuning/test_docs_commands.py", "tests/tuning/test_sweeper.py",
+                  "tests/tuning/test_adoption.py", "tests/tuning/test_full_disk.py")
 _EXTRACTION_FIXTURES = {"extracted", "wlasl6"}
 
 
@@ -23,8 +28,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         if item.get_closest_marker("xdist_group"):
             continue
-        if item.nodeid.startswith(_SLURM_FILES):
-            item.add_marker(pytest.mark.xdist_group("slurm"))
+        if item.nodeid.startswith(_WAITING_FILES):
+            item.add_marker(pytest.mark.xdist_group("waiting"))
         elif _EXTRACTION_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.xdist_group("extraction"))
 

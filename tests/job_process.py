@@ -30,12 +30,14 @@ import time
 from pathlib import Path
 
 # The libraries a job imports that take most of its start (measured with -X importtime: torch 1.4 s,
-# SciPy's stats and scikit-learn 1 s, Matplotlib 0.7 s, Hydra/OmegaConf/Optuna 0.5 s on this machine).
+# SciPy's stats and scikit-learn 1 s, Matplotlib 0.7 s, Hydra/OmegaConf/Optuna 0.5 s on this machine;
+# tensordict and torchrl 1.3 s more, most of it torch's compiler, which tensordict imports: every imitate job).
 # PyBullet is left out: it prints a banner on import, which a job's output shows or hides on purpose.
 PRELOAD = ("numpy", "torch", "torch.nn", "torch.optim", "scipy.stats", "sklearn.linear_model", "sklearn.ensemble",
            "sklearn.metrics", "sklearn.model_selection", "sklearn.preprocessing", "pandas", "matplotlib",
            "matplotlib.pyplot", "hydra", "hydra.main", "hydra._internal.utils", "hydra.core.plugins", "omegaconf",
-           "optuna", "gymnasium", "mujoco", "yaml", "PIL.Image")
+           "optuna", "gymnasium", "mujoco", "yaml", "PIL.Image", "tensordict", "torchrl.modules", "torchrl.objectives",
+           "torchrl.objectives.value")
 # Read by a library while it is imported: a job asking for other values needs a fresh interpreter.
 _IMPORT_TIME_ENV = ("PYTHONPATH", "PYTHONHASHSEED", "PYTHONWARNINGS", "PYTHONOPTIMIZE", "PYTHONDONTWRITEBYTECODE",
                     "MPLBACKEND", "MPLCONFIGDIR", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS",

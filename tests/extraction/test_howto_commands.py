@@ -68,7 +68,7 @@ CUT = {
 RECOGNIZE = ["trainer.max_epochs=1", "data.num_frames=16"]
 # The default simple baselines' forest at a test's size, where the rf baseline runs (not where an
 # overlay or the command names the simple baselines itself).
-SMALL_FOREST = ["+simple_baseline_params.rf.n_estimators=20"]
+SMALL_FOREST = ["++simple_baseline_params.rf.n_estimators=20"]
 IMITATE_TINY = ["ppo.total_steps=256", "ppo.steps_per_rollout=256", "ppo.eval_interval=256", "ppo.eval_episodes=1",
                 "ppo.eval_steps=30", "ppo.hidden_sizes=[32,32]", "render.gif=false", "render.mp4=false", "plots=false"]
 

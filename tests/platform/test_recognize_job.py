@@ -136,7 +136,7 @@ def test_simple_baselines_are_measured_once_and_reused_with_the_same_numbers(asl
     """Two trials of a sweep over the model's C: the second reads the forest's numbers the first
     measured; a run that measures its own (simple_baseline_cache=null) gets the same numbers."""
     cache, sweep, fresh = tmp_path / "baselines", tmp_path / "sweep", tmp_path / "fresh"
-    small = [*FAST, "+simple_baseline_params.rf.n_estimators=20", f"simple_baseline_cache={cache}"]
+    small = [*FAST, "++simple_baseline_params.rf.n_estimators=20", f"simple_baseline_cache={cache}"]
     ran = aslexp("recognize", "-m", *small, "classifier.params.C=0.1,0.2", f"hydra.sweep.dir={sweep}")
     first, second = (json.loads(next(sweep.glob(f"{k}_*/metrics.json")).read_text()) for k in "01")
     assert first["simple_baselines"]["rf"]["splits_from_cache"] == 0
@@ -152,7 +152,7 @@ def test_simple_baselines_are_measured_once_and_reused_with_the_same_numbers(asl
     assert own["comparison"] == second["comparison"]
     # Another forest is another key: measured, not read.
     other = tmp_path / "other"
-    aslexp("recognize", *FAST, "+simple_baseline_params.rf.n_estimators=21", f"simple_baseline_cache={cache}",
+    aslexp("recognize", *FAST, "++simple_baseline_params.rf.n_estimators=21", f"simple_baseline_cache={cache}",
            f"hydra.run.dir={other}")
     assert json.loads((other / "metrics.json").read_text())["simple_baselines"]["rf"]["splits_from_cache"] == 0
 

@@ -87,7 +87,9 @@ def _assert_one_story(sweep: Path, budget: int, adopted: int) -> optuna.Study:
 
 def test_a_job_that_finished_after_its_sweep_was_killed_is_adopted_on_resume(tmp_path):
     sweep = tmp_path / "sweep"
-    command = [*LOCAL, "hydra.sweeper.n_trials=2", "sleep=3"]
+    # 8 s: `sweep status` below must find the job still running (3 s was too short where the status
+    # command itself took seconds to start: a busy machine, the first job of a test process)
+    command = [*LOCAL, "hydra.sweeper.n_trials=2", "sleep=8"]
     proc = _start(sweep, *command)
     wait_for(lambda: _status_is(sweep / "0", "running"), 30, "trial 0's job running")
     proc.kill()  # SIGKILL, the sweep process only
