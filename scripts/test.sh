@@ -16,7 +16,8 @@ export MPLBACKEND=Agg
 # fifth of the CPU idle: 407 s against 338 s with 3). Tests sharing a service or a fixture's files
 # stay on one worker. `-n 0` runs in one process.
 # The 20 slowest tests and the suite's wall time are printed at the end (the suite's budget: 15 minutes).
-workers=${ASLEXP_TEST_WORKERS:-$(( $(nproc) + 1 ))}
+# (the cores this process may use, as `-n auto` counts them; nproc would read OMP_NUM_THREADS)
+workers=${ASLEXP_TEST_WORKERS:-$(.venv/bin/python -c 'import os; print(len(os.sched_getaffinity(0)) + 1)')}
 start=$(date +%s)
 status=0
 .venv/bin/python -m pytest -q -n "$workers" --maxprocesses 8 --dist loadgroup \
