@@ -32,6 +32,18 @@ def test_a_run_writes_its_timeline_and_the_script_reads_it(tmp_path):
     assert f"{len(tests)} tests, {busy:.0f} worker-seconds in tests on 1 workers" in report.stdout
     assert f"  main: busy {busy:.0f} s" in report.stdout and f"s  {TESTS[0]}" in report.stdout
 
+    # Under --dist loadgroup a grouped test's id ends in "@group" (a parameter's "@" is not a group).
+    line = lambda test, worker, start, stop: json.dumps(  # noqa: E731
+        {"worker": worker, "test": test, "phase": "call", "start": start, "stop": stop})
+    timeline.write_text("\n".join([line("tests/a.py::test_1@waiting", "gw1", 100.0, 130.0),
+                                   line("tests/b.py::test_2@waiting", "gw1", 140.0, 150.0),
+                                   line("tests/c.py::test_3[x@y]", "gw0", 100.0, 160.0)]) + "\n")
+    grouped = subprocess.run([sys.executable, "scripts/suite_timeline.py", str(timeline)], cwd=ROOT,
+                             capture_output=True, text=True, timeout=60)
+    assert grouped.returncode == 0, grouped.stderr
+    assert "     40.0 s  waiting: from 0 s to 50 s on gw1\n" in grouped.stdout
+    assert "y]" not in grouped.stdout.split("files by time")[0]
+
     timeline.write_text("not json\n")
     bad = subprocess.run([sys.executable, "scripts/suite_timeline.py", str(timeline)], cwd=ROOT,
                          capture_output=True, text=True, timeout=60)
