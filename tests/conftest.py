@@ -3,7 +3,7 @@
 * Waiting: the single-node loopback Slurm cluster has room for one test's jobs at a time (the tests
   count jobs in flight and wait on squeue), so every Slurm test joins one group and they run in turn.
   The sweep tests that mostly wait on processes they started (trials that sleep, signals, orphaned
-  jobs adopted, a disk that fills: a third of a core each, measured) join that lane: one worker
+  jobs adopted, a disk that fills: a third to two thirds of a core each, measured) join that lane: one worker
   waits through all of them while the others compute (scripts/test.sh starts one worker more than
   cores for it), instead of two workers waiting at once with a core idle.
 * Extraction: the MediaPipe extraction of the six videos (session fixtures ``extracted`` and
