@@ -9,9 +9,9 @@
 # gymnasium, farama-notifications, tensordict, torchrl, glfw, optuna, colorlog, pyvers), antlr4 (pure Python)
 # in outputs/gpu/pylib, ../shared/data/{motions,models} in outputs/gpu/data; carry outputs/gpu.
 # On the CPU (its test): OUT=/tmp/x DEV=cpu MIN=0.05 LETTERS=A SEEDS=0 BENCH=0 NOPIP=1 bash bench/gpu_letters_thesis.sh
-# All five letters x 3 seeds at 5 M steps each (issue 25's ask), one command on a 16-core H200 machine:
+# All five letters x 3 seeds at 5 M steps each, one command on a 16-core H200 machine:
 #   OUT=... BENCH=0 MIN=60 KILL=3900 EXTRA="ppo.total_steps=5000000" bash bench/gpu_letters_thesis.sh
-# Estimate (BENCHMARKS.md, session 19's 15 runs at once: 1,800-2,600 steps/s per run with evaluations):
+# Estimate (BENCHMARKS.md, 15 runs at once: 1,800-2,600 steps/s per run with evaluations):
 # 32-46 minutes per run, the 15 at the same time, so about 50 minutes of machine time with start-up.
 # A lease of 15 minutes (10 per call) does not hold it: it needs a longer loan or a node of one's own.
 set -u

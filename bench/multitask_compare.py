@@ -1,4 +1,4 @@
-"""Multi-task vs per-property models (issue 40 item 1): over K seeded phoneme and K seeded gloss
+"""Multi-task vs per-property models: over K seeded phoneme and K seeded gloss
 splits, the multi-task network (:mod:`aslexp.recognition.models.multitask`, one head per property), the
 same encoder trained once per property (one head), and rf per property; test MCC per property, the
 paired difference with its 95% t interval, and each multi-task head's ECE before/after temperature

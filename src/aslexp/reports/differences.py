@@ -140,7 +140,7 @@ def run_facts(metrics: list[dict[str, Any]]) -> dict[str, Any]:
             # no report.baselines: the columns are the run's own `baselines`, measured by the job under
             # its evaluation protocol (every run that records eval_protocol)
             baselines = (learned[0], None)
-        else:  # report.baselines measured by the report from phase 0 (runs before session 19)
+        else:  # report.baselines measured by the report from phase 0 (runs older than metrics.json's report_baselines)
             baselines = None
         protocols.add((learned, baselines))
     return {"steps": [m["steps"] for m in trained], "seeds_per_motion": sorted(set(per_motion.values())),
@@ -154,7 +154,7 @@ def _names_report_baselines(metrics: dict[str, Any]) -> bool:
     try:
         return bool(((run_config(Path(metrics["run_dir"])) or {}).get("report") or {}).get("baselines"))
     except (KeyError, FileNotFoundError):
-        return True  # unknown: as the runs before session 19 were read
+        return True  # unknown: as runs older than report_baselines were read
 
 
 def _phases(count: int) -> str:
@@ -192,7 +192,7 @@ def imitation_differences(run_configs: list[dict[str, Any]], reference: dict[str
         episodes = f"{_phases(count)} x {eval_steps} control steps"
         if baselines is None:
             out.append(f"evaluation: {scored} from {episodes}; the no-learning baselines from phase 0 only, 10 s "
-                       f"(measured at report time: runs before session 19)")
+                       f"(measured at report time: runs older than report_baselines)")
         elif baselines[0] != count:
             out.append(f"evaluation: {scored} from {episodes}, the baselines from {_phases(baselines[0])} x {baselines[1]:g} s")
         else:

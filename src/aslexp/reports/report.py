@@ -116,7 +116,7 @@ def first_above(progress: list[dict[str, Any]], value: float) -> tuple[int, floa
     return None
 
 
-# The hand's time-to-imitate goal (issue 3): every letter above 0.95 within 30 minutes and 2M steps.
+# The hand's time-to-imitate goal: every letter above 0.95 within 30 minutes and 2M steps.
 LETTERS_TARGET = 0.95
 
 

@@ -44,14 +44,14 @@ from aslexp.reports.thesis_report import GLOSSES
 
 
 def measured_rows(motion: str, items: list[dict[str, Any]], cache: Path) -> dict[str, Any]:
-    """The comparison rows the runs measured (metrics.json ``residual_baselines``, since session 21),
+    """The comparison rows the runs measured (metrics.json ``residual_baselines``),
     else those this report measured for older runs (``cache``); never simulated here."""
     rows = next((m["residual_baselines"] for m in items if m.get("residual_baselines")), None)
     if rows is None and cache.is_file():
         rows = json.loads(cache.read_text()).get("rows")
     if rows is None:
         raise ValueError(f"the runs of {motion} ({Path(items[0]['run_dir']).parent}) measured no residual baselines "
-                         f"(metrics.json residual_baselines: runs before session 21); re-evaluate them, which "
+                         f"(metrics.json residual_baselines: runs older than that record); re-evaluate them, which "
                          f"measures them: aslexp imitate -m <the sweep's overrides> 'resume=SWEEP/${{hydra:job.num}}'")
     return rows
 

@@ -45,8 +45,8 @@ def thesis_number(kind: str, motion: str) -> tuple[str, float | None]:
 
 def motion_baselines(cfg: dict[str, Any], cache: Path, items: list[dict[str, Any]] = ()) -> list[dict[str, Any]]:
     """The no-learning rows of ``cfg["report"]`` for the run config's motion, as the runs (``items``:
-    their metrics.json) measured them under their own evaluation protocol (``report_baselines``,
-    since session 19), else as this report measured them for older runs (``cache``, the same
+    their metrics.json) measured them under their own evaluation protocol (``report_baselines``),
+    else as this report measured them for older runs (``cache``, the same
     config); never simulated here."""
     measured = next((m["report_baselines"] for m in items if m.get("report_baselines")), None)
     if measured is not None:
@@ -57,7 +57,7 @@ def motion_baselines(cfg: dict[str, Any], cache: Path, items: list[dict[str, Any
         return json.loads(cache.read_text())["rows"]
     where = Path(items[0]["run_dir"]).parent if items else cache.parent.parent
     raise ValueError(f"the runs of {cfg['motion']['name']} ({where}) measured no report.baselines (metrics.json "
-                     f"report_baselines: runs before session 19); re-evaluate them, which measures them: "
+                     f"report_baselines: runs older than that record); re-evaluate them, which measures them: "
                      f"aslexp imitate -m <the sweep's overrides> 'resume=SWEEP/${{hydra:job.num}}'")
 
 
@@ -121,7 +121,7 @@ def plot_panels(runs: dict[str, list[dict[str, Any]]], lines: dict[str, dict[str
     return path
 
 
-SATURATED = 0.005  # a ceiling this close to the controller it plans on leaves nothing to learn (issue 37)
+SATURATED = 0.005  # a ceiling this close to the controller it plans on leaves nothing to learn
 
 
 def ceiling(planned: list[dict[str, Any]]) -> dict[str, Any]:

@@ -328,7 +328,7 @@ def mean_joint_speed(motion: Motion, columns: slice | np.ndarray = slice(ROOT_CO
 def generated_motions(examples: Sequence[Motion], lower: Sequence[float], upper: Sequence[float], count: int,
                       seed: int = 0, keyframes: tuple[int, int] = (2, 4), margin: float = 0.05,
                       close_loop: bool = False) -> list[Motion]:
-    """``count`` smooth random joint trajectories like ``examples`` (issue 38's training motions).
+    """``count`` smooth random joint trajectories like ``examples`` (a pool's generated training motions).
 
     Each takes one example's duration, frame step and root, and its mean joint speed: between 2 and
     4 (``keyframes``) poses drawn uniformly inside ``[lower, upper]`` (``margin`` of each range kept

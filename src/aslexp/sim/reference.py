@@ -100,7 +100,7 @@ class ReferenceMotion:
 
 
 class ReferencePool:
-    """Several references of one body, one per row of a batch (issue 38: one policy, many motions).
+    """Several references of one body, one per row of a batch (one policy, many motions).
 
     ``select(clips)`` is what a batch's rows read: an object with :class:`ReferenceMotion`'s
     ``*_many`` methods, whose ``i``-th time is read from the reference ``clips[i]`` names. A pool of

@@ -1,4 +1,4 @@
-"""The seen-gloss plot (issue 40 item 3): top-k accuracy per method (mean over splits, 95% t
+"""The seen-gloss plot: top-k accuracy per method (mean over splits, 95% t
 interval) and the paired per-split top-1 of the gloss network without and with the auxiliary
 phonology heads (matplotlib, Agg)."""
 
