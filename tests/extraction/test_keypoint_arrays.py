@@ -97,8 +97,9 @@ def test_a_folder_of_hands_arrays_gives_hand_motions(letters, data_root, tmp_pat
     assert "skipped inputs: {'.txt file (not keypoints)': 1}" in printed
     assert "hand ok: 5" in printed and "upper_body skipped: 5" in printed
     assert "upper_body not made for 5 input(s): a MediaPipe Hands array (T, 126) holds no body" in printed
-    refused = next(line for line in printed.splitlines() if "FAILED" in line)
-    assert "body_only.npy: array of shape (" in refused and "(MediaPipe Pose: a body without hand landmarks)" in refused
+    # The MediaPipe Pose array beside them is a body: its upper body (tests/extraction/test_pose_arrays.py)
+    assert "upper_body ok: 1" in printed and "hand not made for 1 input(s): a MediaPipe Pose array" in printed
+    assert "FAILED" not in printed
     assert "WARNING" not in printed  # the thesis' own letters are plausible
     for name in LETTERS:  # the letters come back: the same route as a video's hands after MediaPipe
         motion = load_motion(out / "motions" / "hand" / f"{name}.txt", expected_columns=R.HAND_FILE_VALUES)
@@ -147,8 +148,9 @@ def test_a_folder_of_other_files_says_what_it_skipped(tmp_path, capsys):
 
 def test_implausible_motions_are_warned_on_the_terminal(data_root, tmp_path, capsys):
     """Real sequences made implausible (their depth scaled by 5), and a real foreign file (the
-    shared MediaPipe Pose clip lifted from its image depth): a WARNING line per motion naming the
-    joints or the proportions and the frames; their normal versions: none."""
+    shared MediaPipe Pose clip lifted from its image depth): WARNING lines naming the joints or the
+    proportions and the frames, one per kind (two inputs of one kind: one counted line, each input's
+    own line in its report); their normal versions: none."""
     folder = tmp_path / "in"
     folder.mkdir()
     normal = sign_pose(data_root, "00433", folder / "00433.pose")
@@ -164,11 +166,13 @@ def test_implausible_motions_are_warned_on_the_terminal(data_root, tmp_path, cap
     deep_line = next(line for line in warnings if "00433_deep upper_body" in line)
     assert "implausible proportions: the arms are 4.1 shoulder widths deep" in deep_line
     assert "in 79 of 79 frames (frames 0-78)" in deep_line
-    foreign_line = next(line for line in warnings if f"{clip.stem} upper_body" in line)
+    assert deep_line.split("WARNING ", 1)[1].startswith(f"x2 (00433_deep upper_body, {clip.stem} upper_body), e.g. ")
+    foreign = json.loads((tmp_path / "out" / "motions" / "reports" / f"{clip.stem}.json").read_text())
+    foreign_line = foreign["upper_body"]["warnings"][0]  # its own line, in its report
     assert "shoulder widths deep" in foreign_line and "(frames " in foreign_line
     assert printed.rstrip().endswith("done with 1 problem(s) in 3 input(s), listed above (FAILED lines); the "
                                      "rest is written")  # the foreign clip has no hand: its hand FAILED
-    assert f"{len(warnings)} warning(s) above" in printed
+    assert len(warnings) == 1 and "2 warning(s) of 1 kind(s) above" in printed
     report = json.loads((tmp_path / "out" / "motions" / "reports" / "00433_deep.json").read_text())
     assert report["upper_body"]["warnings"] == [deep_line.split("upper_body: ", 1)[1]]
     assert report["upper_body"]["depth_to_width"] > 2 > json.loads(

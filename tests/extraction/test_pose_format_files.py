@@ -8,6 +8,7 @@ is needed."""
 from __future__ import annotations
 
 import io
+import json
 import logging
 import struct
 
@@ -215,11 +216,15 @@ def test_implausible_motions_are_warned_and_plausible_ones_are_not(whistle, extr
     printed = capsys.readouterr().out
     assert rc == 0 and "hand ok: 2" in printed and "upper_body ok: 2" in printed, printed
     warnings = [line for line in printed.splitlines() if "motion WARNING" in line]
+    # one line per kind on the terminal, counting the inputs; each input's own lines in its report
+    assert len([line for line in warnings if "implausible proportions" in line]) == 1
+    assert len([line for line in warnings if " hand: ring_inter held at its limit" in line]) == 1
     for name in (CLIP, f"{CLIP}_deep"):
-        depth = next(line for line in warnings if f"WARNING {name} upper_body: implausible proportions" in line)
+        report = json.loads((tmp_path / "out" / "motions" / "reports" / f"{name}.json").read_text())
+        depth = next(line for line in report["upper_body"]["warnings"] if line.startswith("implausible proportions"))
         assert "shoulder widths deep" in depth and "of 57 frames (frames 0-56)" in depth
-        assert any(f"WARNING {name} hand: ring_inter held at its limit" in line and "(frames " in line
-                   for line in warnings)  # fmt: skip
+        assert any(line.startswith("ring_inter held at its limit") and "(frames " in line
+                   for line in report["hand"]["warnings"])  # fmt: skip
 
 
 def test_components_and_points_are_found_by_name(whistle, tmp_path):
@@ -290,11 +295,11 @@ def test_an_openpose_file_reads_as_sl_gcns_27_points_and_says_why_it_gives_no_mo
     np.testing.assert_array_equal(np.isnan(got[..., 0]), np.isnan(expected[..., 0]))
     np.testing.assert_allclose(got[..., :2], expected[..., :2], atol=1e-5)  # x, y of the same 27 points
     assert np.isfinite(got[..., 0]).sum() == 57 * 17  # nose, arms, the right hand; the left never seen
-    # Motions: 2D hands and no MediaPipe part; one line, no recognition option in it; exit 1.
+    # Motions: 2D hands and no MediaPipe part; one line, no recognition option in it; bad input: exit 2.
     rc, printed = _motions(path, tmp_path / "out", capsys)
-    assert rc == 1, printed
+    assert rc == 2, printed
     line = next(line for line in printed.splitlines() if "FAILED" in line)
     assert "nothing to retarget" in line and "LEFT_HAND_LANDMARKS or RIGHT_HAND_LANDMARKS" in line
     assert "hand_left_keypoints_2d, hand_right_keypoints_2d are 2D (XYC)" in line
     assert "aslexp extract VIDEO --motions" in line and "pose.options" not in printed
-    assert "none of the 1 input(s) succeeded" in printed
+    assert f"aslexp extract: {path}: nothing to retarget" in printed  # the one line on stderr

@@ -152,11 +152,54 @@ def read_pose(path: str | Path):
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"pose file not found: {path}")
+    buffer = path.read_bytes()
     try:
-        return Pose.read(path.read_bytes())
+        pose = Pose.read(buffer)
     except Exception as error:  # noqa: BLE001 - any parse failure of a foreign file is bad input
+        short = _cut_short(path, buffer)  # a truncated body says so, not as a reader's TypeError
+        if short:
+            raise DataError(short) from None
         raise DataError(f"{path}: not a readable .pose file: pose-format's reader says "
                         f"{type(error).__name__}: {error}".rstrip(": ")) from None  # fmt: skip
+    short = _cut_short(path, buffer)
+    if short:
+        raise DataError(short)
+    return pose
+
+
+def _cut_short(path: Path, buffer: bytes) -> str | None:
+    """Why a ``.pose`` body is shorter than its header says (None when it is whole, or of format
+    0.0, whose frames differ in size and which pose-format's reader checks itself). Format 0.1
+    reads as many frames as the bytes hold: a cut file would read as a shorter clip, its
+    confidences taken from the coordinates; 0.2 stops with a TypeError."""
+    import struct
+
+    from pose_format.pose_header import PoseHeader
+    from pose_format.utils.reader import BufferReader
+
+    try:
+        reader = BufferReader(buffer)
+        header = PoseHeader.read(reader)
+        version = round(float(header.version), 3)
+        if version not in (0.1, 0.2):
+            return None
+        fmt = "<HHH" if version == 0.1 else "<fIH"  # fps, frames, people
+        fps, frames, people = struct.unpack_from(fmt, buffer, reader.read_offset)
+        points = sum(len(c.points) for c in header.components)
+        per_frame = people * points * (header.num_dims() + 1) * 4  # float32 coordinates + confidence
+        body = len(buffer) - reader.read_offset - struct.calcsize(fmt)
+    except Exception:  # noqa: BLE001 - not even a header: pose-format's own message says more
+        return None
+    if per_frame <= 0:
+        return None
+    whole, rest = divmod(body, per_frame)
+    # 0.1 stores the frame count in 16 bits (pose-format's reader ignores it for that reason)
+    cut = (rest or whole % 65536 != frames) if version == 0.1 else body < frames * per_frame
+    if not cut:
+        return None
+    return (f"{path}: cut short (truncated): its header says {frames} frames of {people} person(s) x {points} "
+            f"points, {frames * per_frame} bytes; the file holds {max(body, 0)} ({whole} whole frames): "
+            "copy or write it again")  # fmt: skip
 
 
 def _offsets(header) -> dict[str, tuple[int, Any]]:
@@ -397,6 +440,7 @@ def holistic_arrays(path: str | Path, person: int = 0) -> PoseFile:
     header = pose.header
     width, height = int(header.dimensions.width), int(header.dimensions.height)
     data, confidence = _person(pose, origin, person)
+    _check_retargetable(origin, float(pose.body.fps), len(data))
     found, reasons = _locate(header, [IMAGE_SOURCES[n] for n in H.NAMES])
     clip = _gather(data, confidence, found, width, height, with_confidence=True)
     world = None
@@ -425,6 +469,16 @@ def holistic_arrays(path: str | Path, person: int = 0) -> PoseFile:
                         "with x, y, z; make MediaPipe keypoints from the video with "
                         "`aslexp extract VIDEO --motions`")  # fmt: skip
     return result
+
+
+def _check_retargetable(origin: str, fps: float, frames: int) -> None:
+    """A motion needs frames and a frame rate: one line saying which the file lacks."""
+    if frames == 0:
+        raise DataError(f"{origin}: 0 frames: the file has a header and no keypoints; a motion needs at least one "
+                        "frame")  # fmt: skip
+    if not (np.isfinite(fps) and fps > 0):
+        raise DataError(f"{origin}: frame rate {fps:g} in the file: expected a positive fps (frames per second); "
+                        "write it again with its video's frame rate")  # fmt: skip
 
 
 class PoseFormatSource:

@@ -399,6 +399,24 @@ def _run_worker(command: str, spec: dict, log_path: Path, on_event, next_job=Non
         os.unlink(jobs_file)
 
 
+def remove_temporaries(out_dir: str | os.PathLike, video_ids: list[str]) -> list[Path]:
+    """Remove what a killed worker left of these videos' files (the worker's temporary names:
+    ``mediapipe_worker.temporary_path``); returns the paths removed. Only videos about to be
+    extracted: their temporaries belong to no running worker (shards share --out, not videos)."""
+    from aslexp.pose.mediapipe_worker import temporary_path
+
+    out = Path(out_dir)
+    removed = []
+    for vid in video_ids:
+        for final in (out / f"{vid}.npy", out / "world" / f"{vid}.npy", out / "face" / f"{vid}.npy",
+                      out / "status" / f"{vid}.json"):  # fmt: skip
+            tmp = temporary_path(final)
+            if tmp.is_file():
+                tmp.unlink(missing_ok=True)
+                removed.append(tmp)
+    return removed
+
+
 def write_layout_json(out_dir: str | os.PathLike) -> Path:
     return atomic_write_text(Path(out_dir) / "layout.json", json.dumps(holistic.layout_json(), indent=1))
 
@@ -467,6 +485,7 @@ def extract_videos(
             summary.failed[job.video_id] = {"reason": status.get("reason"), "error": status.get("error")}
     if not pending.empty():
         mediapipe_python()  # no worker environment: say so here, not in a worker thread
+        remove_temporaries(out, [job.video_id for job in list(pending.queue)])
     workers = max(1, min(int(workers), pending.qsize()))
     bar = Progress(pending.qsize(), enabled=progress and not pending.empty())
     lock = threading.Lock()

@@ -10,19 +10,25 @@ Examples::
     aslexp extract VIDEOS/ --out DIR --shard $SLURM_ARRAY_TASK_ID/$SLURM_ARRAY_TASK_COUNT
     aslexp extract clip.pose --motions --out DIR                     # keypoints already: retarget
     aslexp extract hands/ --motions --frame-size 640x480 --out DIR   # MediaPipe Hands arrays (T, 126)
+    aslexp extract ../shared/data/keypoints/wlasl-mediapipe-pose --motions --out DIR  # Pose arrays (T, 132)
 
 Exit code (as every aslexp command): 0 when the batch ran, also when some videos, overlays or
 motions failed (a video without hands, an unreadable file: each listed with its reason, and a
 last line counting them); 1 when nothing succeeded (every video failed, or no MediaPipe
 environment); 2 for bad input (bad arguments, no videos in the inputs, keypoints without
---motions, hand arrays without --frame-size). Motions that are written but implausible (a joint
-held at its limit, arms deeper than a body reaches) are WARNING lines, not failures.
+--motions, hand arrays without --frame-size), also when every input is bad (a .pose cut short,
+without frames or frame rate: its one line); 130 on Ctrl-C and 1 on a full disk, one line each
+(what is finished is kept; the same command resumes). Motions that are written but implausible (a
+joint held at its limit, arms deeper than a body reaches, tracking jumps, arms out of view) are
+WARNING lines, one per kind, not failures; the report marks them (``plausibility``).
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
 import json
+import math
 import sys
 from collections import Counter
 from pathlib import Path
@@ -54,7 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "name), .npy keypoint arrays (MediaPipe Hands (T, 126), ...), or folders of them")
     p.add_argument("--out", required=True, help="output folder (a 'directory' keypoint source)")
     p.add_argument("--wlasl", help="WLASL json: cut each video to its instance's frame range "
-                   "(the videos come from --videos DIR or a folder among the inputs)")
+                   "(the videos come from --videos DIR or a folder among the inputs); with keypoint "
+                   "arrays: each one's frame rate and gloss, by video id")
     p.add_argument("--videos", help="folder of <video_id>.mp4 for a WLASL json")
     p.add_argument("--ids", nargs="*", help="only these video ids")
     p.add_argument("--frames", action="append", default=[], metavar="[ID=]START:END",
@@ -85,8 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sigma", type=float, default=1.0, help="temporal smoothing of angles (frames)")
     p.add_argument("--frame-size", metavar="WIDTHxHEIGHT",
                    help="keypoint arrays: the video's frame size in pixels (normalised hand landmarks need it "
-                   "for the hand's proportions), e.g. 640x480")
-    p.add_argument("--fps", type=float, default=25.0,
+                   "for the hand's proportions; MediaPipe Pose arrays fit it per clip without), e.g. 640x480")
+    p.add_argument("--fps", type=float, default=None,
                    help="keypoint arrays: their frame rate (default 25, WLASL's; arrays hold none)")
     p.add_argument("--hand-order", choices=("left_right", "detection"), default="left_right",
                    help="two-hand arrays: the signer's left hand first (default), or MediaPipe's detection "
@@ -95,11 +102,38 @@ def build_parser() -> argparse.ArgumentParser:
                    help="two-hand arrays in detection order from a mirrored (selfie) video")
     p.add_argument("--data-root", help="data root with models/ (default: ../shared/data)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
+    p.add_argument("--debug", action="store_true", help="tracebacks on Ctrl-C and a full disk (else one line)")
     return p
 
 
 def extract_main(argv: list[str]) -> int:
-    """Entry point for `aslexp extract`; returns the exit code."""
+    """Entry point for `aslexp extract`; returns the exit code. Ctrl-C (130) and a full disk (1)
+    are one line each, not a traceback: what is finished stays (each file is written whole or not
+    at all), and the same command resumes (``--debug`` keeps the traceback)."""
+    debug = "--debug" in argv  # known before parsing: a Ctrl-C may come at any time
+    try:
+        return _extract(argv)
+    except KeyboardInterrupt:
+        if debug:
+            raise
+        print("aslexp extract: interrupted (Ctrl-C): the files finished so far are kept; the same command "
+              "resumes", file=sys.stderr)  # fmt: skip
+        return 130
+    except OSError as err:
+        from aslexp.files import describe_os_error
+
+        if debug or err.errno not in NO_SPACE:
+            raise
+        print(f"aslexp extract: {describe_os_error(err)}; the files finished so far are kept: free some space "
+              "and run the same command again", file=sys.stderr)  # fmt: skip
+        return 1
+
+
+NO_SPACE = (errno.ENOSPC, errno.EDQUOT)  # a full disk stops the batch: every next file would fail too
+
+
+def _extract(argv: list[str]) -> int:
+    """`aslexp extract` (the exit code)."""
     args = build_parser().parse_args(argv)
     keypoints, keypoint_skips = keypoint_inputs(args.inputs, read_handedness=args.hand_order == "detection")
     if keypoints:  # already keypoints: retarget them (no MediaPipe)
@@ -182,15 +216,25 @@ def extract_main(argv: list[str]) -> int:
 
 def _batch_end(total: int, succeeded: int, problems: list[str]) -> int:
     """The batch's last line and exit code: 0 when anything succeeded (the failures are listed
-    above, each with its reason), 1 when nothing did."""
+    above, each with its reason), 1 when nothing did, 2 when nothing did because every input is
+    bad (:class:`BadInput`)."""
     if problems and succeeded:
         print(f"done with {len(problems)} problem(s) in {total} input(s), listed above "
               "(FAILED lines); the rest is written")
     if total and not succeeded:
-        print(f"aslexp extract: none of the {total} input(s) succeeded"
-              + (" (FAILED lines above)" if problems else ""), file=sys.stderr)  # fmt: skip
-        return 1
+        bad_input = bool(problems) and all(isinstance(line, BadInput) for line in problems)
+        if bad_input and len(problems) == 1:  # one bad file: its own line is the report
+            print(f"aslexp extract: {problems[0].strip().removeprefix('motion FAILED ')}", file=sys.stderr)
+        else:
+            print(f"aslexp extract: none of the {total} input(s) succeeded"
+                  + (" (FAILED lines above)" if problems else ""), file=sys.stderr)  # fmt: skip
+        return 2 if bad_input else 1
     return 0
+
+
+class BadInput(str):
+    """A FAILED line whose input is bad (unreadable, cut short, without frames or frame rate): when
+    every input of a batch is one, the exit code is 2, as for bad arguments."""
 
 
 KEYPOINT_SUFFIXES = (".pose", ".npy")
@@ -247,8 +291,10 @@ def _write_motions(video_ids: list[str], args, from_files: bool = False) -> tupl
     proportions, an input's own) and, once per reason, the parts an input kind never holds;
     returns the FAILED lines and how many inputs gave at least one motion."""
     from aslexp.errors import DataError
-    from aslexp.pose.landmarks import NeedsOption, landmarks_from_array, parse_frame_size
+    from aslexp.pose.body_arrays import landmarks_from_keypoint_array
+    from aslexp.pose.landmarks import NeedsOption, parse_frame_size
     from aslexp.pose.retarget import retarget_landmarks, retarget_video
+    from aslexp.pose.source_frame import record_source
 
     counts: Counter = Counter()
     problems: list[str] = []
@@ -257,6 +303,7 @@ def _write_motions(video_ids: list[str], args, from_files: bool = False) -> tupl
     written = 0
     out = Path(args.out) / "motions"
     options = dict(hand=args.hand, sigma=args.sigma, data_root=args.data_root, torso=args.torso)
+    clips = _wlasl_clips(args) if from_files else {}
     for vid in video_ids:
         name = Path(vid).stem if from_files else vid
         try:
@@ -265,20 +312,32 @@ def _write_motions(video_ids: list[str], args, from_files: bool = False) -> tupl
                     size = parse_frame_size(args.frame_size) if args.frame_size else None
                 except ValueError as err:
                     raise NeedsOption(f"--frame-size: {err}") from None
-                landmarks = landmarks_from_array(vid, size, args.fps, args.hand, args.hand_order, args.mirrored)
+                fps, fps_from, gloss = _array_fps(name, args, clips)
+                landmarks = landmarks_from_keypoint_array(vid, size, fps, fps_from, gloss, args.data_root,
+                                                          hand=args.hand, hand_order=args.hand_order,
+                                                          mirrored=args.mirrored)  # fmt: skip
                 result = retarget_landmarks(landmarks, out, **options)
+                if "pose_array" in result:  # a MediaPipe Pose array: its image keypoints are the source
+                    record_source(result, vid, out, args.data_root, size)
             else:
                 result = retarget_video(vid if from_files else args.out, None if from_files else vid, out, **options)
+                # the source keypoint file, the camera and the retargeting error: what scores a performance
+                record_source(result, vid if from_files else Path(args.out) / f"{vid}.npy", out, args.data_root)
         except NeedsOption:
             raise
         except (DataError, OSError, ValueError) as err:
+            if isinstance(err, OSError) and err.errno in NO_SPACE:
+                raise
             text = str(err)  # a keypoint file's message names it already
-            problems.append(f"  motion FAILED {text if text.startswith(str(vid)) else f'{vid}: {text}'}")
+            line = f"  motion FAILED {text if text.startswith(str(vid)) else f'{vid}: {text}'}"
+            problems.append(BadInput(line) if isinstance(err, (DataError, FileNotFoundError)) else line)
             continue
         warnings += [f"  motion WARNING {name}: {line}" for line in result.get("warnings", [])]
         for part in ("hand", "upper_body"):
             r = result[part]
             counts[f"{part} {r['status']}"] += 1
+            if not r.get("plausibility", {}).get("plausible", True):
+                counts[f"{part} implausible"] += 1
             if r["status"] == "failed":
                 problems.append(f"  motion FAILED {name} {part}: {r['error']}")
             elif r["status"] == "skipped":
@@ -288,11 +347,79 @@ def _write_motions(video_ids: list[str], args, from_files: bool = False) -> tupl
     print(f"motions in {out}: " + (", ".join(f"{k}: {v}" for k, v in sorted(counts.items())) or "none"))
     for (part, reason), n in sorted(not_made.items()):
         print(f"  {part} not made for {n} input(s): {reason}")
-    for line in problems + warnings:
+    for line in problems:
+        print(line)
+    counted = counted_warnings(warnings)
+    for line in counted:
         print(line)
     if warnings:
-        print(f"{len(warnings)} warning(s) above (WARNING lines): those motions are written, but check them")
+        print(f"{len(warnings)} warning(s) of {len(counted)} kind(s) above (WARNING lines; each motion's own in "
+              f"{out / 'reports'}/<id>.json): those motions are written, but check them")  # fmt: skip
+    implausible = counts.get("upper_body implausible", 0)
+    if implausible:
+        print(f"{implausible} upper-body motion(s) marked implausible in their reports (plausibility): a training "
+              "pool leaves them out")  # fmt: skip
     return problems, written
+
+
+DEFAULT_FPS = 25.0  # keypoint arrays hold no frame rate
+DEFAULT_FPS_FROM = "the default: WLASL's frame rate (WLASL_v0.3.json gives fps 25 for each of its 21083 clips)"
+
+
+def _wlasl_clips(args) -> dict[str, dict]:
+    """video id -> {'gloss', 'fps'} from --wlasl, for keypoint arrays ({} without it)."""
+    if not args.wlasl:
+        return {}
+    from aslexp.errors import DataError
+    from aslexp.pose.body_arrays import wlasl_instances
+    from aslexp.pose.landmarks import NeedsOption
+
+    try:
+        return wlasl_instances(args.wlasl)
+    except DataError as err:  # the same for the whole batch: one line, exit 2
+        raise NeedsOption(f"--wlasl {err}") from None
+
+
+def _array_fps(name: str, args, clips: dict[str, dict]) -> tuple[float, str, str | None]:
+    """A keypoint array's frame rate, where it comes from, and its gloss: from --wlasl's entry for
+    its video id when there is one, else --fps (said whether given or the default)."""
+    clip = clips.get(name)
+    if clip and clip.get("fps"):
+        return float(clip["fps"]), f"{args.wlasl}: the fps of video {name}", clip.get("gloss")
+    fps = DEFAULT_FPS if args.fps is None else args.fps
+    if not (math.isfinite(fps) and fps > 0):
+        from aslexp.pose.landmarks import NeedsOption
+
+        raise NeedsOption(f"--fps {fps:g}: expected a positive frame rate (frames per second), e.g. --fps 25")
+    source = f"--fps {fps:g}" if args.fps is not None else f"{DEFAULT_FPS:g} fps, {DEFAULT_FPS_FROM}"
+    if clips:
+        source += f" (video {name} is not in {args.wlasl})"
+    return fps, source, clip.get("gloss") if clip else None
+
+
+def counted_warnings(lines: list[str], examples: int = 3) -> list[str]:
+    """WARNING lines, one per kind (the same words once numbers and frame lists are set aside): a
+    kind met once is its own line; a kind met more often is one line counting the inputs, naming a
+    few, with its first line as the example."""
+    import re
+
+    kinds: dict[str, list[str]] = {}
+    for line in lines:
+        message = line.split(": ", 1)[1] if ": " in line else line
+        named = re.match(r"[a-z ]+: ", message)  # "jumps: ...", "out of view: ...": the kind says itself
+        key = named.group(0) if named else re.sub(r"\(frames [^)]*\)|\d+(\.\d+)?", "#", message)
+        head = line.split(": ", 1)[0].split()
+        part = head[-1] if head and head[-1] in ("hand", "upper_body") else ""
+        kinds.setdefault(f"{part}|{key}", []).append(line)
+    out = []
+    for same in kinds.values():
+        if len(same) == 1:
+            out.append(same[0])
+            continue
+        names = [line.split(": ", 1)[0].split("WARNING ", 1)[-1] for line in same]
+        shown = ", ".join(names[:examples]) + (f", ... ({len(names) - examples} more)" if len(names) > examples else "")
+        out.append(f"  motion WARNING x{len(same)} ({shown}), e.g. {same[0].split('WARNING ', 1)[-1]}")
+    return out
 
 
 if __name__ == "__main__":

@@ -51,6 +51,8 @@ class Landmarks:
     # Motions ('hand', 'upper_body') this kind of input can never give -> why: not made, not failed.
     skip: dict[str, str] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)  # about the input, said with its motions
+    # What the input says about itself (a Pose array's path, frame rate, lift): merged into the report.
+    record: dict = field(default_factory=dict)
 
 
 def world_from_pose_file(path: str | os.PathLike) -> tuple[np.ndarray, float]:
@@ -107,7 +109,8 @@ def load_world(source: str | os.PathLike, video_id: str | None = None) -> Landma
 
 ARRAY_KINDS = ("(T, 126) or (T, 42, 3) MediaPipe Hands (two hands x 21 landmarks x (x, y, z), the signer's "
                "left hand first, a hand not found all zeros); (T, 63) or (T, 21, 3) one hand, with --hand "
-               "right|left; (T, 75, 4) aslexp extract's arrays with world/<id>.npy beside")  # fmt: skip
+               "right|left; (T, 132) or (T, 33, 4) MediaPipe Pose (body only); (T, 75, 4) aslexp extract's arrays "
+               "with world/<id>.npy beside")  # fmt: skip
 
 
 class NeedsOption(DataError):
@@ -134,7 +137,8 @@ def landmarks_from_array(path: str | os.PathLike, frame_size: tuple[int, int] | 
     hand coordinates into the hand's own proportions (x / width and y / height differ by the
     aspect ratio); ``fps`` is the array's frame rate (arrays do not hold one); ``hand`` the side of
     a one-hand array; ``hand_order`` and ``mirrored`` as ``pose.options`` of ``pose=mediapipe_hands``
-    (:mod:`aslexp.keypoints.hands`)."""
+    (:mod:`aslexp.keypoints.hands`). MediaPipe Pose arrays ``(T, 132)`` are lifted by
+    :func:`aslexp.pose.body_arrays.landmarks_from_keypoint_array`, which reads every kind."""
     from aslexp.keypoints.hands import (
         HAND_ORDERS,
         assign_sides,

@@ -69,20 +69,33 @@ class VideoError(Exception):
         self.reason = reason
 
 
+def temporary_path(path: Path) -> Path:
+    """Where a file is written before its rename. The name must not end in .npy: readers list
+    <dir>/*.npy as finished videos. The parent removes a killed worker's (extract.remove_temporaries)."""
+    return path.with_name(f".{path.name}.tmp")
+
+
 def _atomic_save_npy(path: Path, array: np.ndarray) -> None:
-    # The temporary name must not end in .npy: readers list <dir>/*.npy as finished videos.
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as fh:
-        np.save(fh, array)
-    os.replace(tmp, path)
+    tmp = temporary_path(path)
+    try:
+        with open(tmp, "wb") as fh:
+            np.save(fh, array)
+        os.replace(tmp, path)
+    except BaseException:  # a full disk, SIGTERM, Ctrl-C: no half file left behind
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def _atomic_write_json(path: Path, data: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(data, indent=1))
-    os.replace(tmp, path)
+    tmp = temporary_path(path)
+    try:
+        tmp.write_text(json.dumps(data, indent=1))
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def _open_video(path: str):

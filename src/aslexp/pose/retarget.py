@@ -49,6 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aslexp.files import atomic_write_text
 from aslexp.keypoints import holistic as H
 from aslexp.quaternion import from_matrix as matrix_to_quat
 from aslexp.quaternion import to_matrix as quat_to_matrix
@@ -480,6 +481,65 @@ def depth_warning(body: dict[str, np.ndarray], ratio: float = DEPTH_RATIO_WARN,
                               "has no world component)"]  # fmt: skip
 
 
+# A motion is implausible (marked in its report; a training pool leaves it out and counts it) when
+# any of these holds; each is also a WARNING line. Jumps: an elbow or wrist moving faster than
+# JUMP_SPEED_WARN shoulder widths a second between two frames (about 11 m/s: no signer's hand moves
+# so, sign peak wrist speeds are 2-3 m/s = 6-8 widths/s; the thesis' own four signs reach 5.1-8.2,
+# and 26.8 in one frame of 69318; on the 291 WLASL Pose arrays the median clip's fastest frame is 8.3,
+# the 95th percentile 23). Out of view: the better seen arm seen (not guessed) in under SEEN_SHARE_MIN of
+# the frames (a one-handed sign's resting arm is often below the frame: that alone is no reason).
+JUMP_SPEED_WARN = 30.0  # shoulder widths per second
+SEEN_SHARE_MIN = 0.5
+JUMP_POINTS = ("left_elbow", "right_elbow", "left_wrist", "right_wrist")
+
+
+def jump_warning(body: dict[str, np.ndarray], fps: float,
+                 speed: float = JUMP_SPEED_WARN) -> tuple[float | None, list[str]]:  # fmt: skip
+    """The fastest elbow or wrist speed between consecutive frames, in shoulder widths per second,
+    and a warning naming the point and frames where it exceeds ``speed`` (a tracking jump)."""
+    width = np.nanmedian(np.linalg.norm(np.asarray(body["right_shoulder"]) - np.asarray(body["left_shoulder"]), axis=-1))
+    if not np.isfinite(width) or width <= 1e-9 or len(body["left_wrist"]) < 2:
+        return None, []
+    speeds = {n: np.linalg.norm(np.diff(np.asarray(body[n], dtype=float), axis=0), axis=-1) * fps / width
+              for n in JUMP_POINTS}  # fmt: skip
+    finite = [v[np.isfinite(v)] for v in speeds.values()]
+    fastest = max((float(v.max()) for v in finite if len(v)), default=None)
+    jumps = {n: np.flatnonzero(v > speed) for n, v in speeds.items() if np.any(v > speed)}
+    if not jumps:
+        return (round(fastest, 2) if fastest is not None else None), []
+    named = "; ".join(f"{n} at frames {frame_ranges(frames + 1)}" for n, frames in jumps.items())
+    return round(fastest, 2), [f"jumps: {named} move faster than {speed:g} shoulder widths a second (fastest "
+                               f"{fastest:.0f}; a hand moves at most about 8): a tracking error"]
+
+
+def motion_plausibility(report: dict, body: dict[str, np.ndarray], fps: float, seen_share: float | None = None) -> dict:
+    """Whether an upper-body motion is plausible, and if not why, by kind: ``joint_limits`` (a joint
+    held past its limit: the report's ``past_limits``, arms and fingers, over LIMIT_SHARE_WARN),
+    ``depth`` (:func:`depth_warning`), ``jumps`` (:func:`jump_warning`), ``out_of_view`` (``seen_share``,
+    the share of frames where the better seen arm is seen, under SEEN_SHARE_MIN); the measures
+    behind each in ``checks``."""
+    limits = dict(report.get("past_limits", {}))
+    for side in ("right", "left"):
+        limits.update(report.get(f"{side}_hand", {}).get("past_limits", {}))
+    held = sorted(name for name, share in limits.items() if share > LIMIT_SHARE_WARN)
+    depth, depth_lines = depth_warning(body)
+    fastest, jump_lines = jump_warning(body, fps)
+    reasons: dict[str, str] = {}
+    if held:
+        reasons["joint_limits"] = (f"held past their limits in over {LIMIT_SHARE_WARN:.0%} of the frames: "
+                                   f"{', '.join(held)}")  # fmt: skip
+    if depth_lines:
+        reasons["depth"] = f"the arms are {depth} shoulder widths deep (median; above {DEPTH_RATIO_WARN:g})"
+    if jump_lines:
+        reasons["jumps"] = jump_lines[0].removeprefix("jumps: ")
+    if seen_share is not None and seen_share < SEEN_SHARE_MIN:
+        reasons["out_of_view"] = (f"the better seen arm is seen in {seen_share:.0%} of the frames (under "
+                                  f"{SEEN_SHARE_MIN:.0%})")  # fmt: skip
+    checks = {"depth_to_width": depth, "fastest_shoulder_widths_per_s": fastest, "arm_seen_share": seen_share,
+              "joints_past_limits": limits}  # fmt: skip
+    return {"plausible": not reasons, "reasons": reasons, "checks": checks, "warnings": jump_lines}
+
+
 def finger_angles(
     kp: np.ndarray, model: HandModel, sigma: float = 1.0, min_coverage: float = 0.0
 ) -> tuple[np.ndarray, dict]:
@@ -765,7 +825,8 @@ def retarget_upper_body(
             fingers, hand_report = finger_angles(hands[side], hand_model, sigma)
         except ValueError as err:
             fingers = np.zeros((T, 15))
-            hand_report = {"frames_observed": 0, "coverage": 0.0, "note": f"{err}: fingers left open (0)"}
+            hand_report = {"frames_observed": 0, "coverage": 0.0, "observed": False,
+                           "note": f"{err}: fingers left open (0)"}  # fmt: skip
         report[f"{side}_hand"] = hand_report
         warnings += hand_report.get("warnings", [])
         elbow_lim = model.kinematics.limits([f"{side}_elbow"])
@@ -840,11 +901,14 @@ def retarget_landmarks(landmarks, out_dir: str | os.PathLike, hand: str = "domin
         result["unavailable"] = dict(missing)  # parts the input does not have, and why
     if landmarks.warnings:
         result["warnings"] = list(landmarks.warnings)
+    result.update(getattr(landmarks, "record", {}))  # e.g. a Pose array's path, frame rate and lift
     side = dominant_side(world) if hand == "dominant" else hand
     offset = H.LEFT_HAND_OFFSET if side == "left" else H.RIGHT_HAND_OFFSET
     no_hand = hand == "dominant" and {"left_hand", "right_hand"} <= set(missing)  # else the dominant one is there
     which = "hand" if no_hand else f"{side} hand"
     try:
+        if "hand" in landmarks.skip:
+            raise _NotInInput(landmarks.skip["hand"])
         if no_hand:
             raise ValueError(f"{missing['left_hand']}; {missing['right_hand'].removeprefix('not in the file: ')} "
                              "(the hand motion needs one)")  # fmt: skip
@@ -854,6 +918,9 @@ def retarget_landmarks(landmarks, out_dir: str | os.PathLike, hand: str = "domin
         motion = hand_motion_from_landmarks(hand_kp, fps, side, sigma, data_root)
         path = motion.save(out / "hand" / f"{video_id}.txt")
         result["hand"] = {"status": "ok", "path": str(path), **motion.report}
+    except _NotInInput as err:
+        result["hand"] = {"status": "skipped", "reason": "not_in_input", "detail": str(err),
+                          "error": f"{video_id}: hand: {err}"}  # fmt: skip
     except ValueError as err:
         result["hand"] = {"status": "failed", "reason": "no_hand", "error": f"{video_id}: {which}: {err}"}
     try:
@@ -867,9 +934,27 @@ def retarget_landmarks(landmarks, out_dir: str | os.PathLike, hand: str = "domin
             motion = retarget_upper_body(body, hands, fps, sigma, data_root, torso)
             path = motion.save(out / "upper_body" / f"{video_id}.txt")
             result["upper_body"] = {"status": "ok", "path": str(path), **motion.report}
+            _mark_plausibility(result["upper_body"], body, fps, landmarks)
     except ValueError as err:
         result["upper_body"] = {"status": "failed", "reason": "no_body", "error": f"{video_id}: upper body: {err}"}
     report_path = out / "reports" / f"{video_id}.json"
     report_path.parent.mkdir(parents=True, exist_ok=True)
-    report_path.write_text(json.dumps(result, indent=1))
+    atomic_write_text(report_path, json.dumps(result, indent=1))  # whole or not at all (a full disk, Ctrl-C)
     return result
+
+
+class _NotInInput(Exception):
+    """A part the input's kind never holds (a Pose array's hands): not made, not failed."""
+
+
+def _mark_plausibility(report: dict, body: dict[str, np.ndarray], fps: float, landmarks) -> None:
+    """The upper body's ``plausibility`` (:func:`motion_plausibility`), its jump warnings with the
+    others; the arms' seen share from a Pose array's visibility, else the frames with both arms."""
+    record = getattr(landmarks, "record", {}).get("pose_array", {})
+    shares = record.get("arm_seen_share")
+    seen = max(shares.values()) if shares else report["body_frames"] / max(report["frames"], 1)
+    check = motion_plausibility(report, body, fps, seen)
+    report["warnings"] = report.get("warnings", []) + check.pop("warnings")
+    if "out_of_view" in check["reasons"]:
+        report["warnings"].append(f"out of view: {check['reasons']['out_of_view']}: the rest is MediaPipe's guess")
+    report["plausibility"] = check

@@ -1,0 +1,206 @@
+"""A performance in its source's keypoints, scored against the person (aslexp.signing), on a real
+WLASL clip: 63185 ("whistle": the right hand at the mouth, the left out of view), the session's
+one MediaPipe extraction (conftest ``extracted``), retargeted by `aslexp extract --motions` from
+its cache, then imitated by the upper body for one pass of the sign (2.3 s)."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import logging
+import shutil
+
+import numpy as np
+import pytest
+
+import aslexp  # noqa: F401  (registers the environments)
+from aslexp.envs.upper_body import UpperBodyImitationEnv
+from aslexp.pose.extract_cli import extract_main
+from aslexp.pose.source_frame import PARTS, frame_errors
+from aslexp.rl.evaluate import evaluate
+from aslexp.signing.keypoints import SigningSource, performance_points
+from aslexp.signing.performance import REFERENCE_STAGE, SIGNING_POSE, signing_metrics, stage_keypoints
+from aslexp.signing.scores import dtw_scores
+
+from .conftest import CLIP
+
+
+@pytest.fixture(scope="module")
+def extraction(extracted, videos, tmp_path_factory):
+    """(keypoint folder, the motion's report): `aslexp extract CLIP --motions --format pose` on a copy of
+    the session's extraction (its cache: no MediaPipe run)."""
+    out = tmp_path_factory.mktemp("signing") / "keypoints"
+    shutil.copytree(extracted[0], out)
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        rc = extract_main([str(videos / f"{CLIP}.mp4"), "--out", str(out), "--motions", "--format", "pose", "--quiet"])
+    assert rc == 0 and "1 already done (cached)" in printed.getvalue(), printed.getvalue()
+    return out, json.loads((out / "motions" / "reports" / f"{CLIP}.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def env(extraction, data_root):
+    env = UpperBodyImitationEnv(extraction[0] / "motions" / "upper_body" / f"{CLIP}.txt", data_root=data_root)
+    yield env
+    env.close()
+
+
+@pytest.fixture(scope="module")
+def controller_run(env):
+    """The controller alone, driven by the reference one step ahead, recorded over one pass of the motion."""
+    steps = int(np.ceil(env.reference.duration * env.spec_env.control_hz))
+    return evaluate(env, lambda obs, env: env.reference_action(1), steps, record=True).trajectory
+
+
+def test_extraction_records_the_source_the_camera_and_the_retargeting_error(extraction, tmp_path):
+    out, report = extraction
+    assert report["source"]["keypoints"] == str((out / f"{CLIP}.npy").resolve())
+    assert (report["source"]["width"], report["source"]["height"], report["source"]["frames"]) == (480, 320, 57)
+    camera, error = report["upper_body"]["camera"], report["upper_body"]["retargeting_error"]
+    assert camera["kind"] == "orthographic" and camera["scale"] > 0 and len(camera["origin"]) == 2
+    # what retargeting keeps of the person, frame by frame, in their shoulder widths
+    assert 0 < error["body"]["mje"] < 0.2 and 0 < error["right_hand"]["mje"] < 0.6
+    assert error["left_hand"] == {"mje": None, "note": "not in the source"}  # out of view in this clip
+    # A .pose input names itself as the source, with the same camera and error (the same keypoints).
+    pose_out = tmp_path / "from_pose"
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert extract_main([str(out / f"{CLIP}.pose"), "--motions", "--out", str(pose_out), "--quiet"]) == 0
+    again = json.loads((pose_out / "motions" / "reports" / f"{CLIP}.json").read_text())
+    assert again["source"]["keypoints"] == str((out / f"{CLIP}.pose").resolve())
+    assert again["upper_body"]["camera"]["scale"] == pytest.approx(camera["scale"], rel=1e-3)
+    assert again["upper_body"]["retargeting_error"]["body"]["mje"] == pytest.approx(error["body"]["mje"], abs=1e-3)
+
+
+def test_the_reference_played_in_the_engine_reproduces_the_source_within_the_recorded_error(env, extraction):
+    source, why = SigningSource.for_motion(env.motion.source)
+    assert source is not None, why
+    times = env.motion.times.copy()
+    times[-1] -= 1e-9  # the last frame itself, not the loop's wrap to the first
+    keypoints = source.camera.project(performance_points(env, env.reference.joints_many(times)))
+    played = frame_errors(keypoints, source.image.keypoints, source.camera.width, source.camera.height)
+    recorded = extraction[1]["upper_body"]["retargeting_error"]
+    for part in PARTS:
+        if recorded[part]["mje"] is None:
+            assert played[part]["mje"] is None
+            continue
+        # the engine's body is the one extraction retargeted onto: the same error, not a new one
+        assert played[part]["mje"] <= recorded[part]["mje"] + 1e-4, part
+        assert played[part]["mje"] == pytest.approx(recorded[part]["mje"], abs=1e-4), part
+
+
+def test_an_exact_replay_of_the_reference_scores_zero_against_the_reference(env, controller_run):
+    source, _ = SigningSource.for_motion(env.motion.source)
+    q_ref = controller_run["q_ref"]
+    reference = stage_keypoints(env, source, q_ref)
+    replay = stage_keypoints(env, source, q_ref.copy())
+    scores = dtw_scores(replay, reference, source.camera.width, source.camera.height)
+    assert all(scores[part]["dtw_mje"] == 0.0 for part in PARTS), scores
+    assert scores["hands"]["dtwp"] == 0.0 and scores["hands"]["points"] == 42
+    # ... and the simulated body (a controller that tracks, not replays) does not
+    simulated = stage_keypoints(env, source, controller_run["q_sim"])
+    assert dtw_scores(simulated, reference, source.camera.width, source.camera.height)["right_hand"]["dtw_mje"] > 0
+
+
+def test_signing_metrics_score_each_stage_and_write_a_pose_file_the_field_reads(env, controller_run, extraction,
+                                                                                 tmp_path):  # fmt: skip
+    from pose_format import Pose
+    from pose_format.utils.generic import detect_known_pose_format
+
+    signing = signing_metrics(env, controller_run, tmp_path, stage="controller")
+    assert set(signing["stages"]) == {REFERENCE_STAGE, "controller"}
+    assert signing["source"] == extraction[1]["source"]["keypoints"]
+    for scores in signing["stages"].values():
+        assert scores["left_hand"]["dtw_mje"] is None  # not in the source: nothing to score
+        assert scores["body"]["dtw_mje"] > 0 and scores["right_hand"]["dtw_mje"] > 0
+        assert scores["hands"]["points"] == 21  # the right hand's: the left is never in the source
+    json.dumps(signing)  # metrics.json takes it as it is
+    with open(tmp_path / SIGNING_POSE, "rb") as handle:
+        pose = Pose.read(handle.read())
+    steps = signing["stages"]["controller"]["steps"]
+    assert [c.name for c in pose.header.components] == ["POSE_LANDMARKS", "LEFT_HAND_LANDMARKS", "RIGHT_HAND_LANDMARKS"]
+    assert pose.body.data.shape == (steps, 1, 75, 3) and pose.body.fps == env.spec_env.control_hz
+    assert (pose.header.dimensions.width, pose.header.dimensions.height) == (480, 320)
+    assert detect_known_pose_format(pose) == "holistic"
+    # pose-evaluation's DTWp measure, from the two files as that toolkit reads them (pose-format's
+    # shoulder normalisation, the hand's points, dtaidistance per point), gives the recorded number
+    from dtaidistance import dtw_ndim
+
+    with open(extraction[0] / f"{CLIP}.pose", "rb") as handle:
+        person = Pose.read(handle.read())
+    hands = [p.normalize().get_components(["RIGHT_HAND_LANDMARKS"]).body.data.filled(0)[:, 0, :, :2]
+             for p in (pose, person)]  # fmt: skip
+    toolkit = np.mean([dtw_ndim.distance_fast(np.ascontiguousarray(hands[0][:, k], dtype=np.float64),
+                                              np.ascontiguousarray(hands[1][:, k], dtype=np.float64))
+                       for k in range(21)])  # fmt: skip
+    assert signing["stages"]["controller"]["hands"]["dtwp"] == pytest.approx(toolkit, rel=1e-3)
+
+
+def test_scores_drop_the_frames_a_part_is_missing_from(env, controller_run):
+    source, _ = SigningSource.for_motion(env.motion.source)
+    person = source.image.keypoints
+    agent = stage_keypoints(env, source, controller_run["q_sim"])
+    width, height = source.camera.width, source.camera.height
+    lost = person.copy()
+    lost[5:12, PARTS["right_hand"]] = np.nan  # MediaPipe loses the hand for a while
+    dropped = np.delete(person, np.arange(5, 12), axis=0)
+    masked, cut = dtw_scores(agent, lost, width, height), dtw_scores(agent, dropped, width, height)
+    assert masked["right_hand"]["frames"][1] == len(person) - 7
+    assert masked["right_hand"]["dtw_mje"] == pytest.approx(cut["right_hand"]["dtw_mje"], rel=0.01)
+    assert masked["body"]["frames"][1] == len(person)  # the body is still compared on every frame
+
+
+def test_a_motion_without_source_keypoints_says_so_in_one_line(data_root, tmp_path, caplog):
+    env = UpperBodyImitationEnv(data_root / "motions" / "upper_body" / "00433.txt", data_root=data_root)
+    try:
+        trajectory = evaluate(env, lambda obs, env: env.reference_action(1), 3, record=True).trajectory
+        with caplog.at_level(logging.INFO, logger="aslexp.signing"):
+            assert signing_metrics(env, trajectory, tmp_path) is None
+    finally:
+        env.close()
+    lines = [r.getMessage() for r in caplog.records if r.name.startswith("aslexp.signing")]
+    assert len(lines) == 1 and "not scored" in lines[0] and "00433" in lines[0] and "aslexp extract" in lines[0]
+    assert not (tmp_path / SIGNING_POSE).exists()
+
+
+def test_a_report_from_before_extraction_recorded_the_source_says_so(extraction, tmp_path):
+    motions = tmp_path / "motions"
+    shutil.copytree(extraction[0] / "motions", motions)
+    report = motions / "reports" / f"{CLIP}.json"
+    old = json.loads(report.read_text())
+    old.pop("source")
+    old["upper_body"].pop("camera")
+    report.write_text(json.dumps(old))
+    source, why = SigningSource.for_motion(motions / "upper_body" / f"{CLIP}.txt")
+    assert source is None and str(report) in why and "names no source keypoint file" in why
+
+
+def test_a_stage_that_blew_up_is_said_and_the_others_are_still_scored(env, controller_run, tmp_path):
+    blown = {**controller_run, "q_sim": np.full_like(controller_run["q_sim"], np.nan)}
+    signing = signing_metrics(env, controller_run, tmp_path, stage="controller", others={"blown": blown},
+                              write_pose=False)  # fmt: skip
+    assert "nothing to normalise by" in signing["stages"]["blown"]["error"]
+    assert signing["stages"]["controller"]["body"]["dtw_mje"] > 0 and not (tmp_path / SIGNING_POSE).exists()
+
+
+def test_a_mediapipe_pose_array_is_its_motions_source_at_its_fitted_aspect(data_root, tmp_path):
+    from aslexp.pose.retarget import upper_body_kinematics
+    from aslexp.pose.source_frame import motion_points
+    from aslexp.sim.motion import load_motion
+
+    array = sorted((data_root / "keypoints" / "wlasl-mediapipe-pose").glob("*.npy"))[0]
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert extract_main([str(array), "--motions", "--out", str(tmp_path), "--quiet"]) == 0
+    report = json.loads((tmp_path / "motions" / "reports" / f"{array.stem}.json").read_text())
+    aspect = report["pose_array"]["lift"]["aspect"]
+    assert report["source"]["keypoints"] == str(array.resolve()) and "fitted aspect" in report["source"]["size_from"]
+    assert report["source"]["height"] == round(report["source"]["width"] * aspect)
+    error = report["upper_body"]["retargeting_error"]
+    assert error["body"]["mje"] > 0 and error["left_hand"]["mje"] is None and error["right_hand"]["mje"] is None
+    # what a run reads back: the same keypoints and camera, which reproduce the recorded error
+    source, why = SigningSource.for_motion(tmp_path / "motions" / "upper_body" / f"{array.stem}.txt")
+    assert source is not None, why
+    points = motion_points(load_motion(source.motion).frames, upper_body_kinematics(data_root))
+    again = frame_errors(source.camera.project(points), source.image.keypoints, source.camera.width,
+                         source.camera.height)  # fmt: skip
+    assert again["body"]["mje"] == pytest.approx(error["body"]["mje"], abs=1e-5)
