@@ -46,8 +46,11 @@ def test_experiment_without_plus_composes_for_both_jobs(aslexp, job, experiment,
 
 
 def test_docs_pick_experiments_with_experiment_not_plus_experiment():
+    history = PROJECT_ROOT / "docs" / "archive" / "changelog_by_session.md"  # the old commands, as they were
     for doc in [PROJECT_ROOT / "README.md", *(PROJECT_ROOT / "docs").rglob("*.md"),
                 *(PROJECT_ROOT / "conf" / "experiment").glob("*.yaml")]:
+        if doc == history:
+            continue
         assert "+experiment=" not in doc.read_text(encoding="utf-8"), doc
 
 
