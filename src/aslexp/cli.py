@@ -116,14 +116,36 @@ def _referenced(config: dict, group: str = "experiment", _seen: frozenset = froz
     return keys
 
 
+def _job_config(job: str, _seen: frozenset = frozenset()) -> tuple[dict, dict[str, str | None]]:
+    """A job's config file as Hydra composes its top level: the keys (those of another job's config
+    its defaults include first, ``- imitate``) and its groups with their defaults (an ``override
+    GROUP: OPTION`` of its own replacing the included one's)."""
+    config = _yaml(_CONF / f"{job}.yaml")
+    keys: dict = {}
+    groups: dict[str, str | None] = {}
+    for entry in config.get("defaults") or []:
+        if (isinstance(entry, str) and "/" not in entry and entry not in ("_self_", *_seen)
+                and (_CONF / f"{entry}.yaml").is_file()):
+            included, their_groups = _job_config(entry, _seen | {job})
+            keys.update(included)
+            groups.update(their_groups)
+        elif isinstance(entry, dict):
+            for key, value in entry.items():
+                name = str(key)
+                if name.startswith("override "):
+                    name = name[len("override "):].strip()
+                    if name in groups:
+                        groups[name] = None if value is None else str(value)
+                elif not name.startswith("hydra"):
+                    groups[name] = None if value is None else str(value)
+    keys.update({k: v for k, v in config.items() if k not in ("defaults", "hydra")})
+    return keys, groups
+
+
 def _job_keys(job: str) -> set[str]:
     """A job's config groups and top-level keys."""
-    config = _yaml(_CONF / f"{job}.yaml")
-    keys = {k for k in config if k not in ("defaults", "hydra")}
-    for entry in config.get("defaults") or []:
-        if isinstance(entry, dict):
-            keys |= {str(k) for k in entry if not str(k).startswith(("override", "hydra"))}
-    return keys
+    keys, groups = _job_config(job)
+    return set(keys) | set(groups)
 
 
 ARCHIVE = "archive"  # conf/experiment/archive/: the probes behind the catalogue, experiment=archive/NAME
@@ -194,14 +216,8 @@ def _sweeps_of(job: str, job_keys: set[str]) -> list[str]:
 
 def job_help(job: str) -> str:
     """The help of one job, from its config files: groups, options, experiments, sweeps."""
-    config = _yaml(_CONF / f"{job}.yaml")
-    groups: dict[str, str | None] = {}
-    for entry in config.get("defaults") or []:
-        if isinstance(entry, dict):
-            for key, value in entry.items():
-                if not str(key).startswith("override") and not str(key).startswith("hydra"):
-                    groups[str(key)] = None if value is None else str(value)
-    keys = set(groups) | {k for k in config if k not in ("defaults", "hydra")}
+    config, groups = _job_config(job)
+    keys = set(groups) | set(config)
     doc = _docstring(job).strip()
     title = doc.split("\n\n")[0].replace("`", "") if doc else f"aslexp {job}"
     lines = [title, "",
@@ -221,8 +237,7 @@ def job_help(job: str) -> str:
     lines.append(f"  {'hydra/...':<{width}}  hydra/launcher=local|slurm, hydra/sweeper=optuna "
                  "(docs/sweeps.md)")
     lines += _catalogue(job)
-    scalars = [f"{k}={_short(v)}" for k, v in config.items()
-               if k not in ("defaults", "hydra") and not isinstance(v, (dict, list))]
+    scalars = [f"{k}={_short(v)}" for k, v in config.items() if not isinstance(v, (dict, list))]
     if scalars:
         lines += ["", "keys: " + "  ".join(scalars)]
     lines += ["", f"`aslexp {job} [overrides] --cfg job` prints the composed config; "

@@ -204,3 +204,40 @@ def test_a_mediapipe_pose_array_is_its_motions_source_at_its_fitted_aspect(data_
     again = frame_errors(source.camera.project(points), source.image.keypoints, source.camera.width,
                          source.camera.height)  # fmt: skip
     assert again["body"]["mje"] == pytest.approx(error["body"]["mje"], abs=1e-5)
+
+
+def test_a_run_on_a_real_sign_scores_its_stages_and_one_without_a_source_says_so(data_root, tmp_path):
+    """`aslexp evaluate` (nothing trained) on one of the 291 clips' motions: metrics.json's `signing` holds
+    the retargeted reference and the controller against the person, signing.pose is written; the thesis'
+    hand letter, which has no source keypoints, says so in one line and scores nothing."""
+    import os
+    import subprocess
+    import sys
+
+    import job_process
+
+    array = sorted((data_root / "keypoints" / "wlasl-mediapipe-pose").glob("*.npy"))[0]
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert extract_main([str(array), "--motions", "--out", str(tmp_path / "kp"), "--quiet"]) == 0
+    motion = tmp_path / "kp" / "motions" / "upper_body" / f"{array.stem}.txt"
+    env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "MPLBACKEND": "Agg"}
+    tiny = ["ppo.eval_steps=30", "ppo.eval_episodes=1", "plots=false", "render.gif=false", "render.mp4=false"]
+
+    def evaluate_job(run: str, *overrides: str) -> subprocess.CompletedProcess:
+        proc = job_process.run([sys.executable, "-m", "aslexp.cli", "evaluate", *overrides, *tiny,
+                                f"hydra.run.dir={tmp_path / run}"], cwd=tmp_path, env=env, capture_output=True,
+                               text=True, timeout=600)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        return proc
+
+    evaluate_job("sign", f"motion.file={motion}", "body=upper_body")
+    signing = json.loads((tmp_path / "sign" / "metrics.json").read_text())["signing"]
+    assert set(signing["stages"]) == {REFERENCE_STAGE, "controller"}
+    for stage in signing["stages"].values():
+        assert stage["body"]["dtw_mje"] > 0 and stage["steps"] == 30
+    assert (tmp_path / "sign" / SIGNING_POSE).is_file()
+
+    proc = evaluate_job("letter", "motion=A")
+    assert "signing" not in json.loads((tmp_path / "letter" / "metrics.json").read_text())
+    said = [line for line in (proc.stdout + proc.stderr).splitlines() if "signing: not scored" in line]
+    assert len(said) == 1 and not (tmp_path / "letter" / SIGNING_POSE).exists()

@@ -17,7 +17,7 @@ from aslexp.envs.imitation import ImitationEnv
 def test_the_env_of_a_setup_is_the_env_of_its_groups(motion_a):
     setup = ImitationSetup.from_groups(motion_a, "hand15", "thesis", "hand_thesis", "default")
     assert setup.body.name == "hand15" and setup.env.control_hz == 30 and setup.engine.name == "pybullet"
-    a, b = ImitationEnv.from_setup(setup), ImitationEnv(motion_a, reward="hand_thesis")
+    a, b = ImitationEnv.from_setup(setup), ImitationEnv(motion_a, reward="hand_thesis", env="default")
     for env in (a, b):
         env.reset(options={"time": 0.2})
     for _ in range(5):

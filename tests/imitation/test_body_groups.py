@@ -19,14 +19,14 @@ GROUPS = ("body", "controller", "reward", "env")
 
 
 def choices(*overrides: str, job: str = "imitate") -> dict[str, str]:
-    with initialize_config_dir(config_dir=str(paths.CONF_DIR), version_base=None):
+    with initialize_config_dir(config_dir=str(paths.CONF_DIR), version_base="1.3"):
         cfg = compose(job, overrides=list(overrides), return_hydra_config=True)
     return {group: cfg.hydra.runtime.choices[group] for group in GROUPS}
 
 
 @pytest.mark.parametrize("overrides, expected", [
-    ([], ("hand15", "thesis", "deepmimic", "default")),
-    (["body=final_hand"], ("final_hand", "thesis", "deepmimic", "default")),
+    ([], ("hand15", "thesis", "deepmimic", "residual")),
+    (["body=final_hand"], ("final_hand", "thesis", "deepmimic", "residual")),
     (["body=upper_body"], ("upper_body", "upper_body", "upper_body_thesis", "upper_body")),
     (["body=upper_body_thesis"], ("upper_body_thesis", "upper_body", "upper_body_thesis", "upper_body")),
     (["body=upper_body", "env=upper_body_thesis"], ("upper_body", "upper_body", "upper_body_thesis", "upper_body_thesis")),

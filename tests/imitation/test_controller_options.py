@@ -46,7 +46,7 @@ def test_reference_velocity_pd_beats_the_thesis_baselines_which_stay_unchanged(m
 
 
 def test_reference_velocities_in_the_observation(motion_a):
-    base = {"observe_future": [1, 2], "episode_steps": 10}
+    base = {"observe_future": [1, 2], "episode_steps": 10, "observe_joints": False}  # the velocities come last
     env = ImitationEnv(motion_a, env={**base, "observe_future_velocities": True})
     plain = ImitationEnv(motion_a, env=base)
     assert env.observation_space.shape[0] == plain.observation_space.shape[0] + 2 * 15

@@ -17,7 +17,8 @@ from aslexp.sim.motion import MotionFormatError
 def test_registered_and_made_with_only_a_motion(motion_a):
     env = gym.make("aslexp/HandImitation-v0", motion=str(motion_a))
     obs, _ = env.reset(seed=0)
-    assert obs.shape == env.observation_space.shape == (1 + 13 * 16,)
+    # the hand's default env (residual): phase, 16 links x 13, the next two reference frames, joint state
+    assert obs.shape == env.observation_space.shape == (1 + 13 * 16 + 2 * 15 + 2 * 15,)
     assert env.action_space.shape == (15,)
     assert 0.0 <= obs[0] < 1.0  # phase
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())

@@ -303,7 +303,7 @@ def test_imitate_composes_quick_by_default_and_builds_a_factory_workers_can_unpi
     assert config.num_envs == 2 and config.learning_rate == 3e-6 and config.eval_episodes == 4
     make_train_env, eval_env = build_envs(cfg, data_root)
     env = pickle.loads(pickle.dumps(make_train_env))()  # as a worker process receives it
-    assert env.observation_space == eval_env.observation_space and env.spec_env.episode_steps == 300
+    assert env.observation_space == eval_env.observation_space and env.spec_env.episode_steps == cfg["env"]["episode_steps"]
     env.close()
     eval_env.close()
 

@@ -1,4 +1,4 @@
-"""From-scratch learning's environment options (issue 14 item 3) on real PyBullet: normalised
+"""From-scratch learning's environment options on real PyBullet: normalised
 actions, the motion's action box, early termination with patience, observations without link
 states, their validation, and the letters_scratch overlay as Hydra composes it."""
 
@@ -14,7 +14,10 @@ FIXED = {"reference_state_init": False, "early_termination": {"min_reward": None
 
 
 def hand(motion, **env) -> ImitationEnv:
-    return ImitationEnv(motion, reward="hand_thesis", env={**FIXED, **env})
+    """The hand on env=default's absolute targets (the body's own env is a residual), with ``env`` over it."""
+    from aslexp.compose import resolve_group
+
+    return ImitationEnv(motion, reward="hand_thesis", env={**resolve_group("env", "default"), **FIXED, **env})
 
 
 def test_normalized_actions_map_the_unit_box_exactly_onto_the_joint_range(motion_a):

@@ -38,6 +38,7 @@ LEVELS: dict[str, int] = {
     "envs": 5,
     "rl": 5,             # imports no environment: evaluation takes any env with ImitationEnv's interface
     "tuning": 5,         # a sweep reads run.json through runfile, not through runs
+    "signing": 5,        # a performance in its source's keypoints, scored (pose, keypoints); takes any env
     "runs": 6,           # run records and tools; the sweep tools read studies (tuning)
     "reports": 6,        # reports read run folders: nothing of envs, sim or rl (recognition's metrics and resplits)
     "measure": 7,        # what simulates and learns nothing (baselines, engine agreement): envs, rl; run configs via reports
@@ -200,14 +201,14 @@ def test_the_checks_catch_the_seams_they_were_written_for():
     graph = {"aslexp.keypoints.registry": {"aslexp.keypoints.source": 30},
              "aslexp.keypoints.source": {"aslexp.keypoints.registry": 16},
              "aslexp.rl.evaluate": {"aslexp.envs.imitation": 19},
-             "aslexp.envs.multi_clip": {"aslexp.rl.evaluate": 118},
+             "aslexp.envs.batched": {"aslexp.rl.evaluate": 118},
              "aslexp.tuning.worker": {"aslexp.runs.record": 59},
              "aslexp.runs.sweep_report": {"aslexp.tuning.study": 18},
              "aslexp.envs.imitation": {}, "aslexp.runs.record": {}, "aslexp.tuning.study": {}}
     assert cycles(graph) == [["aslexp.keypoints.registry", "aslexp.keypoints.source"]]
     assert sorted(cycles(room_graph(graph))) == [["envs", "rl"], ["runs", "tuning"]]
     assert [line.split(" imports ")[0] for line in upward_imports(graph)] == [
-        "aslexp.envs.multi_clip:118", "aslexp.rl.evaluate:19", "aslexp.tuning.worker:59"]
+        "aslexp.envs.batched:118", "aslexp.rl.evaluate:19", "aslexp.tuning.worker:59"]
 
 
 def test_reports_only_read_run_folders():

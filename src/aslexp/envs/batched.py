@@ -4,22 +4,24 @@
 :class:`~aslexp.envs.imitation.ImitationEnv` on an engine that batches
 (its :class:`~aslexp.sim.engine.BatchedBody`) would be, with
 no Python per environment in a step: the physics of all N advances in one call (C threads), the
-link states of the N bodies and of their N references come back from one more, and the reference, the targets, the observation
-(:func:`~aslexp.envs.imitation.observe`) and the reward (``ImitationReward.many``) are computed on
-arrays of N by the same functions the single environment calls with a batch of one. Same seeds
-and actions give the same transitions as N single environments (tested step for step).
+link states of the N bodies and of their N references come back from one more, and the MDP (PD
+targets and the residual base, divergence, episode ends, drift shaping, the observation:
+:mod:`aslexp.envs.mdp`) and the reward (``ImitationReward.many``) are computed on arrays of N by the
+same functions the single environment calls with a batch of one. Same seeds and actions give the
+same transitions as N single environments (tested step for step).
 
 Vector-environment conventions as :mod:`aslexp.rl.vector`'s: same-step autoreset (an episode's
 last observation in ``info["final_obs"]``, the returned one starts the next), reset seeds per
 environment, and the running statistics PPO reads (``call("term_means")``,
-``call("counter_values")``). The tracking PD's options run here as in the single environment
-(physics-rate targets, velocity-target corrections: tested step for step), and so does a fall of a
-free-base body (``early_termination.fall``: the engine's ground contacts read row by row, the row's
-episode ended early and counted in ``falls``; ``info["fall"]`` says which rows fell). The training
-options of the upper body's free-base residual work (``residual_base_smoothing``, drift shaping) are
-the single environment's: they are refused here with the key that needs them.
+``call("counter_values")``). Every option of the single environment runs here: the tracking PD's
+(physics-rate targets, velocity-target corrections), a fall of a free-base body
+(``early_termination.fall``: the engine's ground contacts read row by row, the row's episode ended
+early and counted in ``falls``; ``info["fall"]`` says which rows fell), and the training options of
+the upper body's free-base residual work (``residual_base_smoothing``, a filter state per row
+restarted with each row's episode; drift shaping with ``shape_reward``). The single environment's
+``thesis_pd()`` (its baselines) has no batched form: a batch drives its own controller.
 
-Many motions (``motions=[...]``, issue 38): each row imitates one motion of the pool, drawn from
+Many motions (``motions=[...]``): each row imitates one motion of the pool, drawn from
 the row's random stream at every episode start (or named: ``options={"clip": k}``); its targets,
 reward, reference root and observation (the reference frames ahead it sees, ``env.observe_future``)
 are that motion's (:class:`~aslexp.sim.reference.ReferencePool`). The motion the setup names gives
@@ -37,8 +39,9 @@ import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from aslexp.envs import mdp
 from aslexp.envs.assembly import ImitationSetup
-from aslexp.envs.imitation import ImitationEnv, observe
+from aslexp.envs.imitation import ImitationEnv
 from aslexp.envs.reward import PoseSnapshot
 from aslexp.sim.engine import batching_engines
 from aslexp.sim.motion import Motion
@@ -86,7 +89,6 @@ class BatchedImitationEnv(VectorEnv):
             raise ValueError(f"ppo config: vector_env batched needs an engine that steps many environments at "
                              f"once; the engine is {t.engine_spec.name!r} (one that batches: "
                              f"{batching_engines()}; or vector_env auto/sync/async/workers)")
-        _refuse_unbatched(t, shape_reward)
         self.num_envs = int(num_envs)
         self.spec_env, self.reference, self.layout = t.spec_env, t.reference, t.layout
         self.pool = ReferencePool([t.reference] if not motions else
@@ -103,12 +105,15 @@ class BatchedImitationEnv(VectorEnv):
         self.control_dt = t.control_dt
         self.substeps = self.spec_env.substeps
         self.observed = t.observed_links
+        self.target_rule = t.target_rule()  # the env's own controller: a batch has no thesis_pd()
+        self.termination, self.shapes_drift = t.termination, t.shapes_drift
         n = self.num_envs
         self.states = self.body.new_states(n)
         self.ref_states = self.body.new_states(n)
         self.time = np.zeros(n)
         self.steps = np.zeros(n, dtype=np.int64)
         self._below = np.zeros(n, dtype=np.int64)
+        self._filter_state: np.ndarray | None = None  # residual_base_smoothing: each row's filtered base
         self._rngs = [np.random.default_rng() for _ in range(n)]
         self.clip = np.zeros(n, dtype=np.int64)
         self.clip_episodes = np.zeros(len(self.pool), dtype=np.int64)  # episodes started per pool motion
@@ -116,12 +121,11 @@ class BatchedImitationEnv(VectorEnv):
         # kinematic reference stands: each row's motion's first root pose.
         self._clip_roots = [r.root(0.0)[:2] for r in self.pool.references]
         self._ref_root = tuple(np.array(np.broadcast_to(v, (n, len(v)))) for v in self._clip_roots[0])
-        self.counters: dict[str, int] = defaultdict(int)
+        self.counters: dict[str, int] = defaultdict(int, {name: 0 for name in mdp.END_COUNTERS})
         self._term_sums: dict[str, float] = defaultdict(float)
         # A fall (early_termination.fall, free base): a link other than the body's ground_contacts
         # touching the ground, read per row from the engine's contacts (as the single environment).
-        ending = self.spec_env.early_termination or {}
-        self._fall_check = bool(ending.get("fall")) and t.body_spec.base == "free" and t.ground is not None
+        self._fall_check = self.termination.fall and t.body_spec.base == "free" and t.ground is not None
         self._allowed_contacts = set(t._allowed_contacts)
 
     # -- episodes -------------------------------------------------------------------------------------
@@ -188,67 +192,56 @@ class BatchedImitationEnv(VectorEnv):
         if actions.shape[1] != size:
             raise ValueError(f"actions have {actions.shape[1]} values per environment, expected {size}")
         n, all_rows = self.num_envs, np.arange(self.num_envs)
-        finite = np.all(np.isfinite(actions), axis=1)
+        finite = mdp.finite_actions(actions)
         nan_rows = np.flatnonzero(~finite)
         nan_obs = self._observe(nan_rows, self._read(nan_rows)[0]) if len(nan_rows) else None
+        # a NaN row steps with a zero action (the physics never sees the NaN); its episode ends below
         physical = self.template.physical_action(actions if len(nan_rows) == 0 else np.where(finite[:, None], actions, 0.0))
-        spec = self.template.controller_spec
-        if spec.target_rate == "physics" and not spec.is_thesis_pd:
-            # the reference part of the targets re-sampled at the end of every physics substep, the
-            # correction held (ImitationEnv._drive): one physics step per call, the fastest joint kept
-            peak = np.zeros(n)
-            for i in range(self.substeps):
-                targets, velocities = self._targets(physical, (i + 1) / self.substeps)
-                self.body.step(self.states, self.body.controls(targets, velocities), 1)
-                peak = np.maximum(peak, self.body.peak_speeds)
-        else:
-            targets, velocities = self._targets(physical)
-            self.body.step(self.states, self.body.controls(targets, velocities), self.substeps)
-            peak = self.body.peak_speeds
+        rule, reference = self.target_rule, self._rows(all_rows)
+        base = None
+        if rule.residual and not rule.physics_rate:
+            self._filter_state, base = mdp.residual_base(
+                reference.joints_many(rule.base_times(self.time)), self._filter_state, self.steps == 0,
+                self.template.base_smoothing)  # a row's filter restarts with its episode
+        peak = np.zeros(n)  # the fastest joint over the step's physics, before the engine's speed clamp
+        for targets, velocities, steps in mdp.pd_targets(rule, physical, self.time, reference, base):
+            self.body.step(self.states, self.body.controls(targets, velocities), steps)
+            peak = np.maximum(peak, self.body.peak_speeds)
         self.time += self.control_dt
         self.steps += 1
 
-        ref_q, ref_qd, *ref_root = self._rows(all_rows).state_many(self.time)
+        ref_q, ref_qd, *ref_root = reference.state_many(self.time)
         sim_frames, sim_tips, ref_tips = self._read(slice(None), reference=ref_q)
         q, qd = self.body.joints(self.states)
-        # not finite, or a joint faster than max_joint_velocity (NaN compares False: caught by the first,
-        # or by the ~(<=) of the speed)
-        diverged = ~np.isfinite(sim_frames.reshape(n, -1).sum(axis=1) + qd.sum(axis=1))
-        # the speed before the joint-speed clamp (BatchedBody.peak_speeds), so the clamp hides no blow-up
-        diverged |= ~(np.maximum(np.max(np.abs(qd), axis=1), peak) <= self.spec_env.max_joint_velocity)
-        diverged &= finite
+        diverged = mdp.diverged(sim_frames, qd, mdp.joint_speeds(qd, peak), self.spec_env.max_joint_velocity)
         root = sim_frames[:, 0]
         sim = PoseSnapshot(q, qd, sim_tips, root[:, 0:3], root[:, 3:7], root[:, 7:10], root[:, 10:13])
         ref = PoseSnapshot(ref_q, ref_qd, ref_tips, *ref_root)
         reward, terms, _ = self.reward_fn.many(sim, ref)
         scored = finite & ~diverged
-        for name, values in terms.items():
-            self._term_sums[name] += float(values[scored].sum())
-        self._term_sums["reward"] += float(reward[scored].sum())
-        self._term_sums["steps"] += int(scored.sum())
-        ending = self.spec_env.early_termination or {}
-        min_reward = ending.get("min_reward")
-        low = (reward < float(min_reward)) if min_reward is not None else np.zeros(n, bool)
-        self._below = np.where(low, self._below + 1, 0)
         fell = np.zeros(n, dtype=bool)
         if self._fall_check:
             for row in np.flatnonzero(scored):
                 fell[row] = bool(self.body.contacts(self.states[row]) - self._allowed_contacts)
-        early = scored & ((self._below >= int(ending.get("patience", 1))) | fell)
-        reward = np.where(scored, reward, 0.0)
-        terminated = early | ~finite | diverged
-        truncated = scored & ~early & (self.steps >= self.spec_env.episode_steps)
-        self.counters["nan_actions"] += int((~finite).sum())
-        self.counters["diverged"] += int(diverged.sum())
-        self.counters["early_terminations"] += int(early.sum())
-        self.counters["falls"] += int(fell.sum())
+        ends = mdp.episode_ends(self.termination, finite, diverged, reward, self._below, fell, self.steps)
+        self._below = ends.below
+        mdp.count_ends(self.counters, ends)
+        factor = None
+        if self.shapes_drift:
+            factor = mdp.drift(sim.root_pos, sim.root_rot, ref.root_pos, ref.root_rot,
+                               self.spec_env.heading_shaping, self.spec_env.offset_shaping)
+        mdp.add_term_sums(self._term_sums, ends.scored, reward, terms, factor)
+        if factor is not None:
+            reward = reward * factor  # the training reward; train_reward (the sums) stays unshaped
+        reward = np.where(ends.scored, reward, 0.0)
+        terminated, truncated = ends.terminated, ends.truncated
 
         obs = self._observe(slice(None), sim_frames, q, qd)
         if len(nan_rows):
             obs[nan_rows] = nan_obs
-        if diverged.any():
-            obs[diverged] = np.nan_to_num(obs[diverged], nan=0.0, posinf=0.0, neginf=0.0)
-        info: dict[str, Any] = {"fall": fell, "_fall": fell.copy()} if self._fall_check else {}
+        if ends.diverged.any():
+            obs[ends.diverged] = np.nan_to_num(obs[ends.diverged], nan=0.0, posinf=0.0, neginf=0.0)
+        info: dict[str, Any] = {"fall": ends.fell, "_fall": ends.fell.copy()} if self._fall_check else {}
         ended = np.flatnonzero(terminated | truncated)
         if len(ended):  # same-step autoreset
             final = np.zeros_like(obs)
@@ -257,26 +250,6 @@ class BatchedImitationEnv(VectorEnv):
             self._start(ended, {})
             obs[ended] = self._observe(ended, self._read(ended)[0])
         return obs, reward.astype(np.float64), terminated, truncated, info
-
-    def _targets(self, physical: np.ndarray, substep: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-        """PD targets (N, layout) and target velocities (None: zero) of the physical actions; with
-        ``substep`` (a fraction of the control step: target_rate physics) the reference there."""
-        t, spec = self.template, self.template.controller_spec
-        ahead = substep if substep is not None else self.spec_env.reference_lookahead
-        target_time = self.time + ahead * self.control_dt
-        reference = self._rows(slice(None))
-        if self.spec_env.action_mode == "residual":
-            targets = reference.joints_many(target_time) + physical[:, :self.layout.action_size]
-        else:
-            targets = physical[:, :self.layout.action_size]
-        targets = np.clip(targets, t.joint_lower, t.joint_upper)
-        velocities = None
-        if spec.target_velocity == "reference" and not spec.is_thesis_pd:
-            velocities = spec.velocity_scale * reference.joint_velocities_many(target_time)
-        corrections = physical[:, self.layout.action_size:]  # env.residual_velocity_range > 0
-        if corrections.shape[1]:
-            velocities = corrections if velocities is None else velocities + corrections
-        return targets, velocities
 
     def _read(self, rows: np.ndarray, reference: np.ndarray | None = None):
         """Frames (root, links) and end-effector tips of the environments ``rows``; given the
@@ -296,8 +269,8 @@ class BatchedImitationEnv(VectorEnv):
             if q is None:
                 q, qd = self.body.joints(self.states[rows])
             joints = (q, qd)
-        return observe(self.spec_env, self._rows(rows), self.time[rows], links, frames[:, 0, 0:3],
-                       frames[:, 0, 3:7], joints)
+        return mdp.observe(self.spec_env, self._rows(rows), self.time[rows], links, frames[:, 0, 0:3],
+                           frames[:, 0, 3:7], joints)
 
     # -- what PPO reads ---------------------------------------------------------------------------------
     # Mean reward and per-term rewards over every environment's steps since the last call.
@@ -316,15 +289,3 @@ class BatchedImitationEnv(VectorEnv):
     def close_extras(self, **kwargs) -> None:
         self.template.close()
 
-
-def _refuse_unbatched(env: ImitationEnv, shape_reward: bool) -> None:
-    """One line naming the first option only the single environment has."""
-    spec = env.spec_env
-    checks = [
-        (spec.residual_base_smoothing > 0, "env.residual_base_smoothing"),
-        (shape_reward and (spec.heading_shaping > 0 or spec.offset_shaping > 0), "env.heading_shaping/offset_shaping"),
-    ]
-    for refused, key in checks:
-        if refused:
-            raise ValueError(f"ppo config: vector_env batched does not support {key} (the single environment "
-                             f"does: vector_env sync, async or workers)")

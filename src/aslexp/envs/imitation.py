@@ -26,6 +26,9 @@ loses, such as a looping motion's jump back to its first frame) or a fall
 touching the ground, as the authors' "forbidden ground contact"). Every such end is flagged in
 ``info`` and counted in :attr:`ImitationEnv.counters`.
 
+The steps above are written once for N rows in :mod:`aslexp.envs.mdp`; this environment calls them
+with rows of one, :class:`~aslexp.envs.batched.BatchedImitationEnv` with one row per environment.
+
 Actions are in the controller's units (the joint range for absolute targets, +-``residual_range``
 for corrections) or, with ``normalize_actions``, in [-1, 1] per value mapped affinely onto that
 box (DeepMimic's parametrisation: any learner sees a unit box; :meth:`ImitationEnv.physical_action`).
@@ -41,14 +44,14 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from aslexp.envs import mdp
 from aslexp.envs.assembly import ImitationSetup, warn_travelling_root
+from aslexp.envs.mdp import heading_rotation, observe  # noqa: F401 (importers of the env's module find them)
 from aslexp.envs.reward import PoseSnapshot
-from aslexp.envs.spec import UP_AXIS, EnvSpec  # the env's keys (conf/env) live there
+from aslexp.envs.spec import EnvSpec  # noqa: F401 (the env's keys, conf/env, live there)
 from aslexp.sim.engine import DEFAULT_CAMERA
 from aslexp.sim.motion import Motion
 from aslexp.sim.pd import PDController
-from aslexp.sim.reference import ReferenceMotion
-from aslexp import quaternion
 
 
 class ImitationEnv(gym.Env):
@@ -132,11 +135,7 @@ class ImitationEnv(gym.Env):
                              f"reference itself every physics step; env residual_base_smoothing needs "
                              f"target_rate control")
         self._thesis_pd = False  # set by thesis_pd(): the baselines use the thesis' controller
-        # The residual's filtered base: the joint values filtered, and the last base (None: restart).
-        self._smoothed_values = (self.joint_value_indices(self.spec_env.residual_base_smoothing_groups,
-                                                          "env residual_base_smoothing_groups")
-                                 if self.spec_env.residual_base_smoothing > 0 else None)
-        self._filter_state: np.ndarray | None = None
+        self._filter_state: np.ndarray | None = None  # the residual's filtered base, (1, size); None: restart
         self._plain_base = False  # set by thesis_pd(): the base is the reference itself
         self._default_controller: PDController | None = None
         self.reward_fn = setup.reward_function()
@@ -180,6 +179,13 @@ class ImitationEnv(gym.Env):
                 raise ValueError(f"env config: normalize_actions needs a non-empty range per action; "
                                  f"joints {empty} of body {self.body_spec.name} have lower == upper")
             self.action_space = gym.spaces.Box(-1.0, 1.0, shape=self.physical_action_space.shape, dtype=np.float32)
+        size = self.layout.action_size
+        alpha = self.spec_env.residual_base_smoothing
+        self.base_smoothing = (mdp.BaseSmoothing(alpha, self.joint_value_indices(
+            self.spec_env.residual_base_smoothing_groups, "env residual_base_smoothing_groups"),
+            self.physical_action_space.low[:size], self.physical_action_space.high[:size]) if alpha > 0 else None)
+        self.termination = mdp.Termination.of(self.spec_env)
+        self._target_rules: dict[bool, mdp.TargetRule] = {}  # by plain (thesis_pd) or not
         self.observed_links = self._select_links(self.spec_env.observe_links)
         # Links read from the engine each step: the observed ones and the end effectors (None: all).
         self._state_links = (None if self.spec_env.observe_links is None else
@@ -249,22 +255,13 @@ class ImitationEnv(gym.Env):
         """The targets a residual correction is added to at the next control step: the reference
         ``reference_lookahead`` steps ahead, or with ``residual_base_smoothing`` its low-pass filter
         (the filter's state advances in step(), not here)."""
-        return self._residual_base()[1]
+        return self._residual_base()[1][0]
 
     def _residual_base(self) -> tuple[np.ndarray | None, np.ndarray]:
-        """(the filter's new state, the base). The base is the filtered reference held within the
-        action box of the reference, as smoothed_reference_policy's clipped action holds it: a zero
-        correction then drives exactly that baseline."""
-        reference = self.reference_targets(self.spec_env.reference_lookahead)
-        if self._smoothed_values is None or self._plain_base:
-            return None, reference
-        filtered = reference.copy()
-        if self.steps > 0 and self._filter_state is not None:
-            alpha, index = self.spec_env.residual_base_smoothing, self._smoothed_values
-            filtered[index] = alpha * self._filter_state[index] + (1.0 - alpha) * reference[index]
-        size = self.layout.action_size
-        box = self.physical_action_space
-        return filtered, reference + np.clip(filtered - reference, box.low[:size], box.high[:size])
+        """(the filter's new state, the base), rows of one (:func:`aslexp.envs.mdp.residual_base`)."""
+        reference = self.reference_targets(self.spec_env.reference_lookahead)[None]
+        smoothing = None if self._plain_base else self.base_smoothing
+        return mdp.residual_base(reference, self._filter_state, np.array([self.steps == 0]), smoothing)
 
     def reference_action(self, lookahead: int = 0) -> np.ndarray:
         """The action that drives the PD targets with the reference (the no-learning baseline)."""
@@ -323,34 +320,23 @@ class ImitationEnv(gym.Env):
         finally:
             self._thesis_pd, self.controller = previous
 
+    def target_rule(self) -> mdp.TargetRule:
+        """How this env's physical actions become PD targets now (within thesis_pd(): the plain controller's)."""
+        plain = self._thesis_pd
+        if plain not in self._target_rules:
+            self._target_rules[plain] = mdp.TargetRule.of(self.spec_env, self.controller_spec, self.joint_lower,
+                                                          self.joint_upper, self.layout.action_size, plain)
+        return self._target_rules[plain]
+
     def _drive(self, action: np.ndarray) -> None:
         """Set the motors from the action and step the physics through one control step."""
-        spec, n = self.controller_spec, self.spec_env.substeps
-        plain = self._thesis_pd or spec.is_thesis_pd
-        feed_velocity = spec.target_velocity == "reference" and not plain
-        action, velocity_correction = action[:self.layout.action_size], action[self.layout.action_size:]
-
-        def velocity_targets(t: float) -> np.ndarray | None:
-            velocity = spec.velocity_scale * self.reference.joint_velocities(t) if feed_velocity else None
-            if len(velocity_correction):
-                velocity = velocity_correction if velocity is None else velocity + velocity_correction
-            return velocity
-
-        if spec.target_rate == "physics" and not plain:
-            substep = self.control_dt / n
-            for i in range(n):
-                t = self.time + (i + 1) * substep
-                targets = np.clip(self.reference.joints(t) + action, self.joint_lower, self.joint_upper)
-                self.controller.drive(self.sim, targets, velocity_targets(t), 1)
-            return
-        target_time = self.time + self.spec_env.reference_lookahead * self.control_dt
-        if self.spec_env.action_mode == "residual":
+        rule = self.target_rule()
+        base = None
+        if rule.residual and not rule.physics_rate:
             self._filter_state, base = self._residual_base()
-            targets = base + action
-        else:
-            targets = action
-        targets = np.clip(targets, self.joint_lower, self.joint_upper)
-        self.controller.drive(self.sim, targets, velocity_targets(target_time), n)
+        for targets, velocities, steps in mdp.pd_targets(rule, action[None], np.array([self.time]), self.reference,
+                                                         base):
+            self.controller.drive(self.sim, targets[0], None if velocities is None else velocities[0], steps)
 
     def _reference_snapshot(self, t: float) -> PoseSnapshot:
         q = self.reference.joints(t)
@@ -400,11 +386,11 @@ class ImitationEnv(gym.Env):
     def step(self, action):
         action = np.asarray(action, dtype=np.float64).reshape(-1)
         size = self.action_space.shape[0]
-        if action.shape[0] != size or not np.all(np.isfinite(action)):
-            if action.shape[0] != size:
-                raise ValueError(f"action has {action.shape[0]} values, expected {size}")
-            # A NaN action ends the episode (flagged, counted); the physics is never fed it.
-            self.counters["nan_actions"] += 1
+        if action.shape[0] != size:
+            raise ValueError(f"action has {action.shape[0]} values, expected {size}")
+        finite = mdp.finite_actions(action[None])
+        if not finite[0]:  # a NaN action ends the episode (flagged, counted); the physics is never fed it
+            mdp.count_ends(self.counters, self._ends(finite, [False], 0.0, False))
             links = self.sim.link_states(links=self._state_links)
             return self._observation(links), 0.0, True, False, {"nan_action": True, "diverged": False}
 
@@ -416,44 +402,44 @@ class ImitationEnv(gym.Env):
         sim_state = self._sim_snapshot(links)
         # An engine that clamps joint speeds after each step reports the speed before its clamp
         # (peak_speed), which a simulation that blew up sends far past max_joint_velocity (or to NaN).
-        speed = np.max([np.max(np.abs(sim_state.qd)), getattr(self.sim, "peak_speed", 0.0)])  # NaN stays NaN
-        if (not np.all(np.isfinite(links)) or not np.all(np.isfinite(sim_state.qd))
-                or not speed <= self.spec_env.max_joint_velocity):
-            self.counters["diverged"] += 1
+        speed = mdp.joint_speeds(sim_state.qd[None], getattr(self.sim, "peak_speed", 0.0))
+        if mdp.diverged(links[None], sim_state.qd[None], speed, self.spec_env.max_joint_velocity)[0]:
+            mdp.count_ends(self.counters, self._ends(finite, [True], 0.0, False))
             obs = np.nan_to_num(self._observation(links), nan=0.0, posinf=0.0, neginf=0.0)
             return obs, 0.0, True, False, {"nan_action": False, "diverged": True,
-                                           "divergence": self._divergence(sim_state.qd, speed)}
+                                           "divergence": self._divergence(sim_state.qd, float(speed[0]))}
 
         ref_state = self._reference_snapshot(self.time)
         self.last_sim_state, self.last_reference_state = sim_state, ref_state  # what the reward compared
         reward, terms, errors = self.reward_fn(sim_state, ref_state)
-        for name, value in terms.items():
-            self._term_sums[name] += value
-        self._term_sums["reward"] += reward
-        self._term_sums["steps"] += 1
-
-        ending = self.spec_env.early_termination or {}
-        min_reward = ending.get("min_reward")
-        fell = bool(ending.get("fall")) and self.fallen()
-        low = min_reward is not None and reward < float(min_reward)
-        self._steps_below = self._steps_below + 1 if low else 0
-        early = fell or self._steps_below >= int(ending.get("patience", 1))
-        if early:
-            self.counters["early_terminations"] += 1
-            self.counters["falls"] += fell
-        truncated = self.steps >= self.spec_env.episode_steps and not early
+        fell = self.termination.fall and self.fallen()
+        ends = self._ends(finite, [False], reward, fell)
+        self._steps_below = int(ends.below[0])
+        mdp.count_ends(self.counters, ends)
+        early, truncated = bool(ends.early[0]), bool(ends.truncated[0])
         info = {"nan_action": False, "diverged": False, "early_termination": early, "fall": fell,
                 **{f"r_{k}": v for k, v in terms.items()}, **{f"e_{k}": v for k, v in errors.items()},
                 **{f"score_{name}": fn(sim_state, ref_state)[0] for name, fn in self.score_fns.items()}}
-        yaw_scale, position_scale = self.spec_env.heading_shaping, self.spec_env.offset_shaping
-        if self.shape_reward and (yaw_scale > 0 or position_scale > 0):
-            yaw = quaternion.twist_angle(ref_state.root_rot, sim_state.root_rot, UP_AXIS)
-            offset = np.delete(sim_state.root_pos - ref_state.root_pos, UP_AXIS)
-            drift = float(np.exp(-yaw_scale * yaw * yaw - position_scale * float(offset @ offset)))
-            self._term_sums["drift"] += drift  # logged as train_drift; train_reward stays unshaped
-            info["r_drift"] = drift
-            reward *= drift
+        factor = None
+        if self.shapes_drift:
+            factor = mdp.drift(sim_state.root_pos[None], sim_state.root_rot[None], ref_state.root_pos[None],
+                               ref_state.root_rot[None], self.spec_env.heading_shaping, self.spec_env.offset_shaping)
+            info["r_drift"] = float(factor[0])  # logged as train_drift; train_reward stays unshaped
+        mdp.add_term_sums(self._term_sums, ends.scored, np.array([reward]),
+                          {k: np.array([v]) for k, v in terms.items()}, factor)
+        if factor is not None:
+            reward *= info["r_drift"]
         return self._observation(links), reward, early, truncated, info
+
+    @property
+    def shapes_drift(self) -> bool:
+        """A training env whose reward carries the drift shaping (``heading_shaping``, ``offset_shaping``)."""
+        return self.shape_reward and (self.spec_env.heading_shaping > 0 or self.spec_env.offset_shaping > 0)
+
+    def _ends(self, finite: np.ndarray, diverged: list[bool], reward: float, fell: bool) -> mdp.Ends:
+        """How this step ended (:func:`aslexp.envs.mdp.episode_ends`, a row of one)."""
+        return mdp.episode_ends(self.termination, finite, np.asarray(diverged), np.array([reward]),
+                                np.array([self._steps_below]), np.array([fell]), np.array([self.steps]))
 
     def _divergence(self, qd: np.ndarray, speed: float) -> dict[str, Any]:
         """Where a blow-up showed: the fastest joint (before any engine's clamp; a NaN counts as the
@@ -497,55 +483,3 @@ class ImitationEnv(gym.Env):
 
     def close(self) -> None:
         self.simulation.close()
-
-
-def heading_rotation(root_rot: np.ndarray) -> np.ndarray:
-    """The root's rotation about the up axis alone (its heading), as DeepMimic's state frame: the
-    root's x axis projected on the ground plane gives the heading angle. (..., 4) -> (..., 4)."""
-    forward = quaternion.rotate(root_rot, np.array([1.0, 0.0, 0.0]))
-    heading = np.arctan2(-forward[..., 2], forward[..., 0])  # about +y (y up)
-    zero = np.zeros_like(heading)
-    return np.stack([np.cos(heading / 2), zero, np.sin(heading / 2), zero], axis=-1)
-
-
-def observe(spec: EnvSpec, reference: ReferenceMotion, times: np.ndarray, links: np.ndarray, root_pos: np.ndarray,
-            root_rot: np.ndarray, joints: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-    """The observations (N, size) of N bodies (module docstring): ``times`` (N,) on ``reference`` (or on
-    a :class:`~aslexp.sim.reference.ReferencePool`'s rows, a motion per body), the observed links'
-    world states (N, L, 13), the roots' positions (N, 3) and rotations (N, 4), with
-    ``observe_joints`` the joint positions and velocities (N, ...). One implementation for the
-    single environment (a batch of one) and the batched one."""
-    n = len(times)
-    deepmimic = spec.observation == "deepmimic"
-    frame = heading_rotation(root_rot) if deepmimic else root_rot  # the frame links are seen in
-    inverse = quaternion.conjugate(frame)[:, None, :]
-    local = np.empty_like(links)
-    count = links.shape[1]
-    # positions (from the root), linear and angular velocities into the frame: one batched product
-    # of row vectors with each body's rotation matrix (v R = (R^T v)^T)
-    vectors = np.concatenate([links[..., 0:3] - root_pos[:, None, :], links[..., 7:10], links[..., 10:13]], axis=1)
-    turned = np.matmul(vectors, quaternion.matrices(frame))
-    local[..., 0:3], local[..., 7:10], local[..., 10:13] = (turned[:, :count], turned[:, count:2 * count],
-                                                              turned[:, 2 * count:])
-    rot = quaternion.multiply(inverse, links[..., 3:7])
-    local[..., 3:7] = np.where(rot[..., :1] < 0, -rot, rot)  # one sign per rotation
-    phase = reference.phase_many(times)[:, None]
-    if deepmimic:  # phase, root height, then all poses, then all velocities (DeepMimic's order)
-        parts = [phase, root_pos[:, UP_AXIS:UP_AXIS + 1], local[..., 0:7].reshape(n, -1),
-                 local[..., 7:13].reshape(n, -1)]
-    else:
-        parts = [phase, local.reshape(n, -1)]
-    control_dt = 1.0 / spec.control_hz
-    for k in spec.observe_future:
-        parts.append(reference.joints_many(times + k * control_dt))
-    if spec.observe_future_velocities:
-        for k in spec.observe_future:
-            parts.append(reference.joint_velocities_many(times + k * control_dt))
-    if spec.observe_joints:
-        parts.extend(joints)
-    if spec.observe_reference_root:
-        ref_pos, ref_rot, _, _ = reference.root_many(times)
-        ref_local = quaternion.multiply(quaternion.conjugate(frame), ref_rot)
-        parts += [quaternion.rotate(quaternion.conjugate(frame), ref_pos - root_pos),
-                  np.where(ref_local[:, :1] < 0, -ref_local, ref_local)]
-    return np.concatenate(parts, axis=1).astype(np.float32)

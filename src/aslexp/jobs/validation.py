@@ -26,6 +26,8 @@ from aslexp.config_schema import check_job
 from aslexp.errors import ConfigError
 
 _ABSENT = object()
+# Jobs composed on conf/imitate.yaml (their configs include it): checked as the imitate job is.
+IMITATION_JOBS = ("imitate", "evaluate", "plan")
 
 
 def _selector(cfg: DictConfig):
@@ -43,7 +45,7 @@ def _selector(cfg: DictConfig):
 def check_config(job: str, cfg: DictConfig) -> None:
     """Raise :class:`~aslexp.errors.ConfigError` (exit 2) if a key of ``job`` has a value of the
     wrong type or out of range."""
-    check_job(job, _selector(cfg))
+    check_job("imitate" if job in IMITATION_JOBS else job, _selector(cfg))
 
 
 def name_motion_after_its_file(cfg: DictConfig, overrides: list[str]) -> None:
@@ -98,7 +100,7 @@ class ConfigCheck(Callback):
         ~10 ms): a motion of the wrong width or a bad group value is refused before the run folder."""
         from aslexp.jobs._common import JobAbort, one_line
 
-        if OmegaConf.select(config, "hydra.job.config_name", default=None) != "imitate":
+        if OmegaConf.select(config, "hydra.job.config_name", default=None) not in IMITATION_JOBS:
             return
         try:
             check_imitation_setup(config)

@@ -255,16 +255,3 @@ def baselines(env: EvaluatedEnv, steps: int | None = None, phases: tuple[float, 
         out["reference_velocity_pd"] = evaluate_phases(env, reference_policy(lookahead), steps, phases).mean_reward
     return out
 
-
-def evaluate_clips(env: Any, policy: Policy, steps: int | None = None) -> dict[str, float]:
-    """Deterministic evaluation of ``policy(obs, env)`` on every clip of a multi-clip env
-    (:class:`aslexp.envs.multi_clip.MultiClipImitationEnv`: its ``names`` and ``forced_clip``)
-    from phase 0: reward per clip."""
-    out = {}
-    try:
-        for k, name in enumerate(env.names):
-            env.forced_clip = k
-            out[name] = evaluate(env, policy, steps).mean_reward
-    finally:
-        env.forced_clip = None
-    return out
