@@ -2,7 +2,7 @@
 heavy libraries (torch, scikit-learn, SciPy, Matplotlib, Hydra, Optuna, MuJoCo, Gymnasium).
 
 Two thirds of the suite's time is spent in job processes the tests start, and about half of a tiny
-job's time is importing those libraries (issue 36: the suite under 15 minutes on 2 cores). A fork of
+job's time is importing those libraries (the suite's budget: 15 minutes on 2 cores). A fork of
 a process that imported them and did nothing else starts a job in milliseconds. The job is the same
 code in a real process of its own: its own pid, folder, environment, stdin, stdout, stderr, exit code
 and the interpreter's normal exit (atexit handlers, log flushing); aslexp itself is imported afresh

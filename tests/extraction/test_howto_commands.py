@@ -1,4 +1,4 @@
-"""Every command of the how-to pages and the README runs, as written, on tiny budgets (issue 28.3).
+"""Every command of the how-to pages and the README runs, as written, on tiny budgets.
 
 docs/howto_keypoints.md, docs/howto_imitate.md and README.md are read from their ```bash blocks, so
 a command that stops working, or a new one, is caught here. The commands run in one folder, in page

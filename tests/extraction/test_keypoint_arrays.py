@@ -1,4 +1,4 @@
-"""Keypoint arrays to motions, and implausible motions said on the terminal (issue 39 items 4, 5).
+"""Keypoint arrays to motions, and implausible motions said on the terminal.
 
 No MediaPipe needed: the arrays are the thesis' own motions (letters A-E, signs 00433 ...) through the
 models' forward kinematics, laid out as the other project's files are (MediaPipe Hands (T, 126) in

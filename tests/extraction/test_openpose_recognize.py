@@ -1,4 +1,4 @@
-"""OpenPose `.pose` files through recognition (issue 39 item 3), no MediaPipe needed.
+"""OpenPose `.pose` files through recognition, no MediaPipe needed.
 
 A folder written by pose-format's own OpenPose reader (``load_openpose``) from the shared data's real
 MediaPipe Pose clips of another project (their body points under OpenPose's BODY_25 names, in pixels,

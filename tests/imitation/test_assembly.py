@@ -1,4 +1,4 @@
-"""One place assembles an imitation experiment (issue 36 item 2): the environment, the batch, the
+"""One place assembles an imitation experiment: the environment, the batch, the
 baselines and the job all build from an :class:`~aslexp.envs.assembly.ImitationSetup`."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""A body brings its own controller, reward and env (issue 39 item 1): ``body=upper_body`` alone runs
+"""A body brings its own controller, reward and env: ``body=upper_body`` alone runs
 the upper body's groups, not the hand's; a group named on the command line or by an overlay wins."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The engine seam (issue 36 item 1): an engine is one module plus one YAML, registered from outside
+"""The engine seam: an engine is one module plus one YAML, registered from outside
 aslexp; the environment, PD control, batching and the imitate job talk to the seam alone.
 
 The engine registered here is ``replay_engine.py`` beside this file (test only): it moves the body to

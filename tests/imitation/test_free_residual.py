@@ -1,4 +1,4 @@
-"""Learning where tracking fails (issue 14 item 4): the smoothed-reference baseline on real PyBullet,
+"""Learning where tracking fails: the smoothed-reference baseline on real PyBullet,
 and experiment=signs_free_residual end to end on a tiny budget (real runs, the residual table with the
 controller, the pinned base, the smoothed baselines and the verdict, all under the policy's protocol)."""
 

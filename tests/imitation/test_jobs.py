@@ -173,7 +173,7 @@ def test_tune_pd_thesis_objective_is_eq_5_14(tmp_path, motion_a, data_root):
 
 
 def test_a_run_that_trains_nothing_measures_baselines_only_in_a_folder_named_by_engine(tmp_path):
-    """Issue 39 item 8: ppo.total_steps=0 starts no worker processes, keeps the untrained policy's
+    """Ppo.total_steps=0 starts no worker processes, keeps the untrained policy's
     level as such (never the run's result or main metric), and the folder name says the engine."""
     env = {**os.environ, "ASLEXP_DATA_ROOT": str(ROOT.parent / "shared" / "data")}
     proc = job_process.run([sys.executable, "-m", "aslexp.jobs.imitate", "motion=B", "ppo.total_steps=0",

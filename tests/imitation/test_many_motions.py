@@ -1,4 +1,4 @@
-"""One policy, many motions (issue 38): generated training motions like the letters, and a batch whose
+"""One policy, many motions: generated training motions like the letters, and a batch whose
 rows each imitate a motion of a pool, step for step as single environments of those motions."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Sampling-based MPC (issue 37 item 1): it plans from the simulator's own state, improves on its
+"""Sampling-based MPC: it plans from the simulator's own state, improves on its
 nominal (the controller alone), and what it plans scores the same in the environment."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""A motion from elsewhere, given by file (issue 27.5): named after the file unless named."""
+"""A motion from elsewhere, given by file: named after the file unless named."""
 
 from __future__ import annotations
 

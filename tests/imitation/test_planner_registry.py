@@ -1,5 +1,5 @@
 """A planner update is a module plus a YAML (the registry shaped like the reward errors'), and a
-planned episode whose body falls ends there, counted as a fall (issue 37)."""
+planned episode whose body falls ends there, counted as a fall."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""A new kind of reward error is a module plus a YAML (issue 36 item 5): registered from the tests,
+"""A new kind of reward error is a module plus a YAML: registered from the tests,
 it scores the single and the batched environment with no edit to aslexp."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Numbers that mean what they say (issue 35): both engines share PyBullet's joint-speed clamp, so a
+"""Numbers that mean what they say: both engines share PyBullet's joint-speed clamp, so a
 stable episode never ends as "diverged"; a simulation that really blows up does, and is counted in
 the evaluation, the counters and the run's metrics; a looping reference's seam gives no velocity
 spike; the thesis' PPO settings map actions as SB3 does; baselines run under the learned policy's
@@ -173,7 +173,7 @@ def test_the_thesis_overlay_writes_its_baselines_untrained_level_and_code_scale_
 
 
 def test_a_run_whose_last_evaluation_blew_up_exits_1_with_where_and_when_and_keeps_its_metrics(tmp_path):
-    # Issue 39 item 2's case: the upper body on MuJoCo under the position-motor stand-in with an
+    # the upper body on MuJoCo under the position-motor stand-in with an
     # untrained policy's absolute targets. It used to end "last eval 0.0000", exit 0.
     run_dir = tmp_path / "run"
     proc = run_job("imitate", "motion='00433'", "body=upper_body", "engine=mujoco", "ppo.total_steps=0",

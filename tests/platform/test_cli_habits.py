@@ -1,4 +1,4 @@
-"""The command line a newcomer lives in (issue 15.8): fast per-job help, one way to pick an
+"""The command line a newcomer lives in: fast per-job help, one way to pick an
 experiment, no test objective in the job list, no import banners."""
 
 from __future__ import annotations
@@ -90,7 +90,7 @@ def test_a_report_module_on_a_folder_without_its_runs_is_one_line_and_exit_2(mod
 
 
 def test_cfg_with_multirun_shows_the_first_job(aslexp):
-    # Hydra refuses -m with --cfg; aslexp shows the multirun's first job and says so (issue 39 item 8)
+    # Hydra refuses -m with --cfg; aslexp shows the multirun's first job and says so
     done = aslexp("imitate", "-m", "motion=A,B", "seed=0,1", "+sweeps=mpc_hand", "--cfg", "job")
     assert "the config of the multirun's first job (motion=A, seed=0)" in done.stderr
     assert "\nseed: 0\n" in done.stdout and "study_name" not in done.stdout and "planner:" in done.stdout
@@ -103,7 +103,7 @@ def test_cfg_with_multirun_shows_the_first_job(aslexp):
     ("recognize", "classifier=stgnc", "did you mean classifier=stgcn?"),
 ])
 def test_a_typo_gets_a_did_you_mean(aslexp, job, typo, hint):
-    # issue 39 item 8: one line, exit 2, the closest key or option of the job's own config
+    # one line, exit 2, the closest key or option of the job's own config
     done = aslexp(job, typo, check=False)
     line = done.stderr.strip().splitlines()[-1]
     assert done.returncode == 2 and hint in line and "Config search path" not in line

@@ -1,5 +1,5 @@
-"""The WLASL-Lex cache is never silently stale (issue 11.4), and a keypoint folder whose every
-file is rejected says so (issue 11.7). Real ASL-LEX, WLASL and keypoint files, copied into a
+"""The WLASL-Lex cache is never silently stale, and a keypoint folder whose every
+file is rejected says so. Real ASL-LEX, WLASL and keypoint files, copied into a
 data root of the test's own so that they can be damaged."""
 
 from __future__ import annotations
@@ -98,7 +98,7 @@ def test_an_empty_or_truncated_keypoint_file_is_skipped_counted_and_named(data_r
 
 
 def test_a_rewrite_that_keeps_size_and_mtime_rebuilds_the_cache(data_root, tmp_path, caplog):
-    """Issue 26.9: the cache compares the inputs' content (SHA-256), not their size and mtime."""
+    """The cache compares the inputs' content (SHA-256), not their size and mtime."""
     cache = tmp_path / "cache"
     built, folder = build_or_load(cache, PARAMS, root=data_root)
     path = next(f for f in sorted((data_root / MEDIAPIPE_POSE_DIR).glob("*.npy")) if f.stem == built.video_ids[0])
@@ -136,7 +136,7 @@ print(json.dumps({"folder": str(folder), "clips": len(dataset.y),
 
 
 def test_two_processes_rebuilding_one_stale_cache_at_once_both_succeed(data_root, tmp_path, caplog):
-    """Issue 26.8: the rebuild of a stale build goes to a folder beside it, renamed into place in
+    """The rebuild of a stale build goes to a folder beside it, renamed into place in
     one step (a build that appeared meanwhile wins): no process ever reads half a build. Five
     rounds of two real processes started at the same instant on a stale build."""
     cache = tmp_path / "cache"

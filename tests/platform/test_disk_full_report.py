@@ -1,4 +1,4 @@
-"""A full disk during a job is one line naming the file and saying "disk full" (issue 26.8); exit 1,
+"""A full disk during a job is one line naming the file and saying "disk full"; exit 1,
 the run recorded as failed. A real small tmpfs (root can mount one here and in CI; the test is
 skipped where mounting is not permitted) and, everywhere, the kernel's own ENOSPC from /dev/full."""
 

@@ -1,6 +1,6 @@
 """Every relative Markdown link of the README and docs/**/*.md points at a file that exists and, where
 it names an anchor in a Markdown file, at a heading (GitHub's anchor of it) or an `<a id>` there
-(issue 28 item 3: the wing pages moved their diaries to docs/archive/, and the links must follow)."""
+(the wing pages keep their diaries in docs/archive/, and the links must follow)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""No engine is named above the engine seam (issue 36): outside ``src/aslexp/sim/`` the code speaks of
+"""No engine is named above the engine seam: outside ``src/aslexp/sim/`` the code speaks of
 "an engine", "the engine that batches", and what differs between engines is data (``conf/engine``:
 each engine's own keys and ``report:``, what a results row says about it; ``conf/engine_agreement.yaml``:
 the engine configurations the agreement table compares). Read from the source, nothing imported.

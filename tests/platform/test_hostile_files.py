@@ -1,4 +1,4 @@
-"""Files from elsewhere never run code (issue 26.5): a PPO checkpoint is read with
+"""Files from elsewhere never run code: a PPO checkpoint is read with
 ``torch.load(weights_only=True)`` and an ids file of published keypoints is never unpickled.
 
 Each hostile file is a real pickle whose ``__reduce__`` creates a marker file when unpickled; a

@@ -1,6 +1,6 @@
-"""`aslexp <job> --help` lists exactly the experiment overlays that compose for the job (issue 27.4):
+"""`aslexp <job> --help` lists exactly the experiment overlays that compose for the job:
 the catalogue of conf/experiment/ one per line with its description, and a count of the archived
-probes of conf/experiment/archive/, which compose too (issue 28.2)."""
+probes of conf/experiment/archive/, which compose too."""
 
 from __future__ import annotations
 
@@ -31,10 +31,10 @@ def test_every_overlay_is_listed_for_exactly_one_job():
 
 
 def test_the_catalogue_stays_small():
-    """Issue 28: the thesis' tables and aslexp's headline settings, about 12; probes go to archive/."""
-    # 14: the letters' ceiling (letters_mpc, session 20); 15: the signs' (signs_mpc, 21); 16: standing (23);
-    # 17: one policy for unseen letters (letters_unseen, 24); 18: a residual policy that learns on the
-    # standing signs (signs_standing_residual_quiet, 26)
+    """The thesis' tables and aslexp's headline settings, about 12; probes go to archive/."""
+    # beside the thesis' tables: the letters' and the signs' ceilings (letters_mpc, signs_mpc, standing),
+    # one policy for unseen letters (letters_unseen), a residual policy that learns on the standing signs
+    # (signs_standing_residual_quiet)
     assert len(_overlays(CONF / "experiment")) <= 18
 
 

@@ -196,7 +196,7 @@ def test_imports_point_down():
 
 
 def test_the_checks_catch_the_seams_they_were_written_for():
-    # On a made-up graph of the three seams mended in session 16: a circle inside keypoints,
+    # On a made-up graph of the three seams once mended: a circle inside keypoints,
     # rl and envs importing each other, tuning importing runs.
     graph = {"aslexp.keypoints.registry": {"aslexp.keypoints.source": 30},
              "aslexp.keypoints.source": {"aslexp.keypoints.registry": 16},
@@ -212,7 +212,7 @@ def test_the_checks_catch_the_seams_they_were_written_for():
 
 
 def test_reports_only_read_run_folders():
-    """Issue 36 item 4: a report reads what its runs measured; nothing under reports/ builds an
+    """A report reads what its runs measured; nothing under reports/ builds an
     environment, an engine or a learner (what simulates lives in measure/ and runs with the job)."""
     simulating = ("envs", "sim", "rl", "measure", "control")
     found = [f"{module}:{line} imports {target}" for module, targets in import_graph().items()
@@ -234,7 +234,7 @@ def _third_party_imports(name: str) -> list[str]:
 
 
 def test_hydra_composes_at_the_edge_and_in_one_composer():
-    """Issue 36 item 3: Hydra composes the jobs' configs (aslexp.jobs) and every group named below
+    """Hydra composes the jobs' configs (aslexp.jobs) and every group named below
     the edge (aslexp.compose, the one composer: no second reader of the YAML tree); the rest of the
     house takes plain dicts and reads them with aslexp.config_schema.read."""
     allowed = ("aslexp.jobs", "aslexp.compose")

@@ -44,7 +44,7 @@ def test_single_run_writes_its_whole_directory(aslexp, tmp_path):
 
 
 def test_a_refused_rerun_leaves_the_finished_run_byte_identical(aslexp, tmp_path):
-    """Issue 11.1: the refusal comes before Hydra writes .hydra/*.yaml or the log."""
+    """The refusal comes before Hydra writes .hydra/*.yaml or the log."""
     run_dir = tmp_path / "run"
     aslexp("recognize", *FAST, f"hydra.run.dir={run_dir}")
     before = folder_hashes(run_dir)
@@ -116,7 +116,7 @@ def test_optuna_sweep_keeps_its_study_and_trial_directories(aslexp, tmp_path):
     assert {"classifier.params.C", "classifier.params.pooling"} <= set(finished[0].params)
     assert {t.params["classifier.params.pooling"] for t in finished} <= {"mean_std", "summary"}
 
-    # `aslexp report` on the sweep folder (issue 26.7): one table row per model, property and
+    # `aslexp report` on the sweep folder: one table row per model, property and
     # split, the trial with the best validation objective, named in a log line.
     best = max(finished, key=lambda t: t.value)
     out = aslexp("report", str(sweep_dir), "--out", str(tmp_path / "report"))

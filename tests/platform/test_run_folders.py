@@ -1,4 +1,4 @@
-"""Runs never share a folder (issue 26.2, 26.3): claimed atomically, locked while they run.
+"""Runs never share a folder: claimed atomically, locked while they run.
 
 Real jobs started at the same instant as separate processes."""
 

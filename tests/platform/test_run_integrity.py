@@ -1,5 +1,5 @@
 """A finished run is never rewritten; errors and signals end a job with one line and the right
-exit code; the run folder tells what happened (issue 11.1, 11.6, 11.7; issue 15.8)."""
+exit code; the run folder tells what happened."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""A wheel built from the clone runs on its own (issue 27.8): configs travel as package data."""
+"""A wheel built from the clone runs on its own: configs travel as package data."""
 
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ def test_an_installed_wheel_runs_recognize_and_gym_make(installed, tmp_path):
     assert env.stdout.split()[0] == "(209,)" and env.stdout.strip().endswith("motions/hand/A.txt")
     sweeps = _run(installed, tmp_path, "-m", "aslexp.cli", "recognize", "--help")
     assert "classifier_mlp" in sweeps.stdout
-    # The archived overlays and the README the help names travel too (issue 28.2).
+    # The archived overlays and the README the help names travel too.
     archive = installed / "aslexp" / "_conf" / "experiment" / "archive"
     assert (archive / "README.md").is_file() and (archive / "chapter3_cv5.yaml").is_file()
     assert "thesis_ch3_protocol" in sweeps.stdout and "and 1 archived probe" in sweeps.stdout

@@ -131,7 +131,7 @@ class ImitationSetup:
 
     def load_motion(self, motion: str | os.PathLike | Motion) -> Motion:
         """Another motion for this body (a name in ``conf/motion``, a file, or a :class:`Motion`),
-        checked against its layout: a pool's motions (issue 38), a motion to perform."""
+        checked against its layout: a pool's motions, a motion to perform."""
         return _load_motion(motion, self.layout, self.data_root)
 
     # -- what the consumers build ---------------------------------------------------------------------------

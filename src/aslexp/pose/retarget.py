@@ -392,7 +392,7 @@ def _quaternion_offsets() -> list[int]:
 
 # ----------------------------------------------------------------------------- plausibility
 
-# What the terminal warns about (issue 39.5), measured on the six WLASL clips' MediaPipe world
+# What the terminal warns about, measured on the six WLASL clips' MediaPipe world
 # landmarks (normal), the same clips as .pose files without a world component (lifted from the
 # image, as pose-format's video_to_pose writes them) and with their depth scaled by 5:
 # - A joint held at its URDF limit while the keypoints ask for more than LIMIT_MARGIN beyond it, in
