@@ -8,10 +8,11 @@ the strongest simple baseline (``simple_baseline``, run on the same splits) and 
 
 from __future__ import annotations
 
+import copy
 import logging
 from pathlib import Path
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from aslexp.data.wlasl_lex import WlaslLexParams, build_or_load, params_from_config
 from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
@@ -92,11 +93,42 @@ def recognize(cfg: DictConfig, run) -> float:
         cfg.classifier.name, cfg.property.name, cfg.split.name, objective["name"], objective["value"],
         test.get("mcc"), test.get("balanced_accuracy"),
     )
+    caution = seed_cannot_change(cfg, bool(result.get("seed_changes_result", True)))
+    if caution:
+        log.warning("%s", caution)
     comparison = result.get("comparison")
     if comparison:
         log.info("%s vs the baselines on the same split(s):\n%s", cfg.classifier.name,
                  comparison_text(comparison, cfg.property.name, cfg.split.name))  # fmt: skip
     return float(objective["value"])
+
+
+def seed_cannot_change(cfg: DictConfig, seed_changes_result: bool) -> str | None:
+    """The warning for a run whose ``seed`` was chosen (on the command line or by a sweep, as in
+    ``-m seed=0,1``) although it cannot change the result: the model draws no random number
+    (``seed_changes_result`` false) and the data and split do not follow ``seed`` (the split has
+    its own ``split.seed``; a config that sets ``split.seed: ${seed}`` is not such a case)."""
+    if seed_changes_result or not _seed_chosen():
+        return None
+    probe = copy.deepcopy(cfg)
+    with open_dict(probe):
+        probe.seed = int(cfg.seed) + 1
+    groups = ("data", "pose", "property", "split")
+    if any(to_dict(probe[group]) != to_dict(cfg[group]) for group in groups if group in cfg):
+        return None  # another seed is another split
+    name = cfg.classifier.name
+    return (f"seed={cfg.seed} cannot change {name}'s result: {name} draws no random number with these settings "
+            f"and split.seed={cfg.split.seed} fixes the split, so seed=0,1,... give identical runs of {name}; vary "
+            "split.seed or split.repeats instead (a seeded model, such as rf or stgcn, does use seed)")
+
+
+def _seed_chosen() -> bool:
+    """``seed`` is among this job's overrides (the command line's, or the sweep's for this trial)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    if not HydraConfig.initialized():
+        return False
+    return any(str(o).split("=", 1)[0].lstrip("+~") == "seed" for o in HydraConfig.get().overrides.task)
 
 
 def simple_baseline(cfg: DictConfig) -> str | list[str] | None:

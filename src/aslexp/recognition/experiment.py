@@ -19,6 +19,12 @@ std and a 95% t interval of the mean, and the paired difference to the baseline 
 The objective a sweep maximises is ``result["objective"]["value"]`` = the mean validation score
 (``trainer.selection_metric``; ``val_mcc`` is always there too); ``on_epoch_end`` receives the
 first split's first seed's (first fold's) epochs, for pruning.
+
+Reading order: :func:`run_recognition` plans the run (``_plan``), then per split trains the model
+(``_validate``, ``_final_model``), evaluates it (``_record_test``) and runs the baselines beside it;
+one tail (``_summarise``, ``_write_outputs``, ``_result_record``) turns what was measured into
+statistics, files and metrics.json. The verdict sentence and its cautions are
+:mod:`aslexp.recognition.comparison`.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ import logging
 import math
 import time
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +44,7 @@ from aslexp.data.dataset import RecognitionDataset
 from aslexp.data.splits import SplitOptions, resplit
 from aslexp.errors import ConfigError
 from aslexp.recognition import baseline_cache
+from aslexp.recognition.comparison import cautions, comparison_block
 from aslexp.recognition.device import check_precision, device_info, resolve_device
 from aslexp.recognition.metrics import (
     aggregate_over_seeds,
@@ -45,7 +53,7 @@ from aslexp.recognition.metrics import (
     paired_comparison,
     scalar_metrics,
 )
-from aslexp.recognition.models import BASELINE_NAMES, TorchClassifier, build_classifier, resolve_params
+from aslexp.recognition.models import BASELINE_NAMES, Classifier, TorchClassifier, build_classifier, resolve_params
 from aslexp.recognition.train import (
     ArraySplit,
     EpochCallback,
@@ -157,6 +165,79 @@ def _baseline_runs(view: RecognitionDataset, folds, train_val: ArraySplit, test:
     return runs
 
 
+@dataclass(frozen=True)
+class _Plan:
+    """What a run fixes before it trains: the model, the trainer, the seeds, the simple baselines
+    and where its files go."""
+
+    name: str
+    params: dict[str, Any]
+    config: TrainerConfig
+    seeds: list[int]
+    out_dir: Path
+    simple_params: dict[str, dict[str, Any]]
+    simple_same: dict[str, bool]  # the simple baseline that is the model itself: not run twice
+    simple_cache: str | Path | None = None
+    on_epoch_end: EpochCallback | None = None
+    on_epoch_record: RecordCallback | None = None
+
+    @property
+    def metric(self) -> str:
+        return self.config.selection_metric
+
+
+@dataclass
+class _Runs:
+    """What the runs measured, split by split: the input of the statistics and of the files."""
+
+    simple_names: Sequence[str]
+    val_records: list[dict[str, Any]] = field(default_factory=list)
+    histories: dict[str, list[dict[str, float]]] = field(default_factory=dict)
+    final_histories: dict[str, list[dict[str, float]]] = field(default_factory=dict)
+    test_runs: list[dict[str, Any]] = field(default_factory=list)  # full metrics per (split, seed)
+    per_split: list[dict[str, float]] = field(default_factory=list)  # scalar metrics per split, mean over seeds
+    split_records: list[dict[str, Any]] = field(default_factory=list)
+    prediction_rows: list[dict[str, Any]] = field(default_factory=list)
+    baselines: dict[str, dict[str, list]] = field(default_factory=dict)
+    simple: dict[str, dict[str, Any]] = field(default_factory=dict)
+    checkpoint_name: str | None = None
+    num_parameters: int | None = None
+    learning_curve: list = field(default_factory=list)
+    is_cv: bool = False
+    uses_seed: bool = True  # False: the model draws no random number, so its seeds give one result
+
+    def __post_init__(self) -> None:
+        self.baselines = {n: {"val_accuracy": [], "test": [], "test_per_split": []} for n in BASELINE_NAMES}
+        self.simple = {b: {"val_score": [], "val_mcc": [], "test": [], "test_per_split": [], "from_cache": 0}
+                       for b in self.simple_names}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class _SplitData:
+    """One split's arrays: the validation folds, train+val and test."""
+
+    index: int
+    seed: int
+    view: RecognitionDataset
+    folds: list[tuple[np.ndarray, np.ndarray]]
+    train_val: ArraySplit
+    test_idx: np.ndarray
+    test: ArraySplit
+
+    @classmethod
+    def of(cls, index: int, seed: int, view: RecognitionDataset) -> _SplitData:
+        test_idx = np.asarray(view.splits["test"], dtype=np.int64)
+        if len(test_idx) == 0:
+            raise ValueError(f"dataset '{view.property}': the 'test' split of split seed {seed} is empty")
+        return cls(index, seed, view, validation_folds(view), ArraySplit.from_dataset(view, view.splits["train+val"]),
+                   test_idx, ArraySplit.from_dataset(view, test_idx))  # fmt: skip
+
+    @property
+    def sizes(self) -> dict[str, int]:
+        train, val = self.folds[0]
+        return {"train": int(len(train)), "val": int(len(val)), "train+val": len(self.train_val), "test": len(self.test)}
+
+
 def run_recognition(
     dataset: RecognitionDataset,
     classifier: Mapping[str, Any],
@@ -173,9 +254,11 @@ def run_recognition(
     """Validate, retrain and test ``classifier`` = {"name": ..., "params": {...}} on ``dataset``.
 
     ``split`` (the ``split`` config group, see :class:`SplitOptions`) asks for repeated splits;
-    without it the dataset's own split is the one split. Writes per_class.csv, predictions.csv,
-    confusion_matrix.png, learning_curves.png and model.pt / model.joblib (the first run's final
-    model) into ``out_dir``, and returns a JSON-ready dict (the job writes it as metrics.json):
+    without it the dataset's own split is the one split. ``params`` are the run's parameters as the
+    config gives them (a key left out takes ``conf/classifier/NAME.yaml``'s). Writes per_class.csv,
+    predictions.csv, confusion_matrix.png, learning_curves.png and model.pt / model.joblib (the
+    first run's final model) into ``out_dir``, and returns a JSON-ready dict (the job writes it as
+    metrics.json):
 
     objective              {"name": "val_<selection metric>", "value": mean over runs}
     val_mcc, val_mcc_std   mean (std) over runs of the validation MCC; val: one record per run
@@ -188,12 +271,14 @@ def run_recognition(
     baselines              both baselines (test, test_std, test_per_split, val_accuracy)
     paired_vs_baseline     per KEY_METRIC: model minus baseline on the same splits (units)
     below_baseline         per KEY_METRIC: the model's mean is below the baseline's
-    simple_baselines       per ``simple_baseline`` name (none: {}): params, val_score, val_mcc, test,
-                           test_std, test_interval, test_per_split, same_as_model (the model itself:
-                           its own numbers, not run again)
-    comparison             model, strongest simple baseline (by validation score) and chance
-                           baseline side by side (:func:`comparison_block`), the paired differences
-                           and one sentence; what the job prints at its end
+    simple_baselines       per ``simple_baseline`` name (none: {}): params, val_score, val_per_unit,
+                           val_mcc, test, test_std, test_interval, test_per_split, same_as_model (the
+                           model itself: its own numbers, not run again)
+    comparison             model, strongest simple baseline (by validation score; a tie is named
+                           as one) and chance baseline side by side (:func:`comparison_block`), the
+                           paired differences, one sentence and the cautions; what the job prints
+    seed_changes_result    false when the model draws no random number (logreg with lbfgs, svm,
+                           hgb): its seeds give one result on a split
     splits                 per split: index, seed, sizes; statistics_unit: 'split' | 'seed'
     history, final_history per-epoch records of the validation and final runs, by 'seed S'
                            (one split) or 'split K seed S'
@@ -202,6 +287,41 @@ def run_recognition(
     property, classifier, params, trainer, seeds, validation ('holdout'|'cv5'), num_folds,
     split_sizes, label_names, num_parameters, test_confusion_matrix_total, files, time_s
     """
+    plan, options = _plan(dataset, classifier, trainer, seeds, out_dir, split, simple_baseline,
+                          simple_baseline_overrides, simple_baseline_cache, on_epoch_end, on_epoch_record)  # fmt: skip
+    device = resolve_device(plan.config.device)
+    device_record = device_info(device, check_precision(plan.config.precision, device))
+    views = split_views(dataset, options)
+    runs = _Runs([b for b, same in plan.simple_same.items() if not same])
+    start = time.perf_counter()
+    for split_index, (split_seed, view) in enumerate(views):
+        data = _SplitData.of(split_index, split_seed, view)
+        runs.is_cv = "folds" in view.splits
+        runs.split_records.append({"index": split_index, "seed": split_seed, "sizes": data.sizes, "clips": len(view.y)})
+        _log_split(plan, data, len(views))
+        _train_and_test_model(plan, runs, data, num_splits=len(views), start=start)
+        _run_chance_baselines(plan, runs, data)
+        _run_simple_baselines(plan, runs, data)
+
+    summary = _summarise(plan, runs, unit="split" if len(views) > 1 else "seed")
+    label_names = list(views[0][1].label_names)
+    _write_outputs(plan, runs, dataset.property, label_names, summary["total_matrix"])
+    elapsed = time.perf_counter() - start
+    log.info(
+        "%s on %s: val %s %.3f +- %.3f, test MCC %.3f +- %.3f over %d %s(s) (baseline %s %.3f), %.1fs",
+        plan.name, dataset.property, plan.metric, summary["objective"], _std(summary["val_scores"]),
+        summary["test"]["mcc"], summary["test_std"]["mcc"], len(summary["units"]), summary["unit"], summary["chosen"],
+        summary["baselines"][summary["chosen"]]["test"]["mcc"], elapsed,
+    )
+    return _result_record(plan, options, dataset, views, runs, summary, device_record, elapsed)
+
+
+def _plan(dataset: RecognitionDataset, classifier: Mapping[str, Any], trainer: Mapping[str, Any] | None,
+          seeds: Sequence[int], out_dir: str | Path, split: Mapping[str, Any] | SplitOptions | None,
+          simple_baseline: str | Sequence[str] | None, simple_overrides: Mapping[str, Mapping[str, Any]] | None,
+          simple_cache: str | Path | None, on_epoch_end: EpochCallback | None,
+          on_epoch_record: RecordCallback | None) -> tuple[_Plan, SplitOptions]:  # fmt: skip
+    """The run's inputs read and checked, before anything trains or is written (but ``out_dir``)."""
     if "name" not in classifier:
         raise ValueError(f"classifier config needs a 'name' (got keys {sorted(classifier)})")
     name = str(classifier["name"])
@@ -211,243 +331,272 @@ def run_recognition(
     seeds = [int(seed) for seed in seeds]
     if not seeds:
         raise ValueError("run_recognition needs at least one seed")
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     if dataset.num_classes < 2:
         raise ValueError(f"dataset '{dataset.property}' has {dataset.num_classes} class(es); need >= 2")
-    device = resolve_device(config.device)
-    device_record = device_info(device, check_precision(config.precision, device))
-    metric = config.selection_metric
+    simple_params = simple_baseline_params(simple_baseline, simple_overrides)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    plan = _Plan(name, params, config, seeds, out_dir, simple_params,
+                 {b: b == name and p == params for b, p in simple_params.items()}, simple_cache, on_epoch_end,
+                 on_epoch_record)  # fmt: skip
+    return plan, options
 
-    simple_params = simple_baseline_params(simple_baseline, simple_baseline_overrides)
-    simple_same = {b: b == name and p == params for b, p in simple_params.items()}  # the model itself: not run twice
 
-    views = split_views(dataset, options)
-    label_names = list(views[0][1].label_names)
-    start = time.perf_counter()
-    val_records: list[dict[str, Any]] = []
-    histories: dict[str, list[dict[str, float]]] = {}
-    final_histories: dict[str, list[dict[str, float]]] = {}
-    test_runs: list[dict[str, Any]] = []
-    per_split: list[dict[str, float]] = []
-    split_records: list[dict[str, Any]] = []
-    baseline_runs: dict[str, dict[str, list]] = {n: {"val_accuracy": [], "test": [], "test_per_split": []} for n in BASELINE_NAMES}
-    simple_runs: dict[str, dict[str, list]] = {b: {"val_score": [], "val_mcc": [], "test": [], "test_per_split": []}
-                                               for b, same in simple_same.items() if not same}  # fmt: skip
-    prediction_rows: list[dict[str, Any]] = []
-    checkpoint_name, num_parameters, learning_curve = None, None, []
-    is_cv = False
-    total_runs = len(views) * len(seeds)
-    for split_index, (split_seed, view) in enumerate(views):
-        folds = validation_folds(view)
-        is_cv = "folds" in view.splits
-        train_val = ArraySplit.from_dataset(view, view.splits["train+val"])
-        test_idx = np.asarray(view.splits["test"], dtype=np.int64)
-        test = ArraySplit.from_dataset(view, test_idx)
-        if len(test) == 0:
-            raise ValueError(f"dataset '{view.property}': the 'test' split of split seed {split_seed} is empty")
-        sizes = {"train": int(len(folds[0][0])), "val": int(len(folds[0][1])), "train+val": len(train_val), "test": len(test)}
-        split_records.append({"index": split_index, "seed": split_seed, "sizes": sizes, "clips": len(view.y)})
-        log.info(
-            "recognition '%s' on %s, split %d/%d (seed %d): %d classes, X %s, train+val %d, test %d, %s, seeds %s",
-            name, view.property, split_index + 1, len(views), split_seed, view.num_classes, tuple(view.X.shape),
-            len(train_val), len(test), f"{len(folds)}-fold cv" if is_cv else f"hold-out (train {sizes['train']}, val {sizes['val']})",
-            seeds,
+def _log_split(plan: _Plan, data: _SplitData, num_splits: int) -> None:
+    view, sizes = data.view, data.sizes
+    validation = (f"{len(data.folds)}-fold cv" if "folds" in view.splits
+                  else f"hold-out (train {sizes['train']}, val {sizes['val']})")  # fmt: skip
+    log.info("recognition '%s' on %s, split %d/%d (seed %d): %d classes, X %s, train+val %d, test %d, %s, seeds %s",
+             plan.name, view.property, data.index + 1, num_splits, data.seed, view.num_classes, tuple(view.X.shape),
+             sizes["train+val"], sizes["test"], validation, plan.seeds)  # fmt: skip
+
+
+# -- training: validate on the folds, retrain on train+val ---------------------------------------------
+def _validate(plan: _Plan, runs: _Runs, data: _SplitData, seed_index: int, seed: int,
+              run_key: str) -> tuple[list[FitResult], Classifier]:  # fmt: skip
+    """Fit on every fold's train and score on its val (the same initial weights on every fold);
+    the first run's first fold feeds the epoch callbacks, the learning curve and the history."""
+    results, model = [], None
+    for fold_index, (train_idx, val_idx) in enumerate(data.folds):
+        seed_everything(seed, plan.config.deterministic)
+        model = _build(data.view, plan.name, plan.params)
+        first = data.index == 0 and seed_index == 0 and fold_index == 0
+        result = fit(
+            model, ArraySplit.from_dataset(data.view, train_idx), ArraySplit.from_dataset(data.view, val_idx),
+            plan.config, seed=seed, on_epoch_end=plan.on_epoch_end if first else None, learning_curve=first,
+            on_epoch_record=plan.on_epoch_record if first else None,
         )
-        split_tests = []
-        for seed_index, seed in enumerate(seeds):
-            run_key = f"seed {seed}" if len(views) == 1 else f"split {split_index} seed {seed}"
-            fold_results = []
-            last_model = None
-            for fold_index, (train_idx, val_idx) in enumerate(folds):
-                seed_everything(seed, config.deterministic)  # the same initial weights on every fold
-                model = _build(view, name, params)
-                first = split_index == 0 and seed_index == 0 and fold_index == 0
-                result = fit(
-                    model, ArraySplit.from_dataset(view, train_idx), ArraySplit.from_dataset(view, val_idx),
-                    config, seed=seed, on_epoch_end=on_epoch_end if first else None, learning_curve=first,
-                    on_epoch_record=on_epoch_record if first else None,
-                )
-                fold_results.append(result)
-                last_model = model
-                if first:
-                    learning_curve = result.curve
-                if fold_index == 0:
-                    histories[run_key] = result.history
-            epochs, fold_epochs = _retrain_budget(fold_results, config)
-            val_records.append(
-                {
-                    "split": split_index, "seed": seed, "metric": metric,
-                    "score": float(np.mean([r.best_val_score for r in fold_results])),
-                    "mcc": float(np.mean([r.best_val_mcc for r in fold_results])),
-                    "accuracy": float(np.mean([r.history[r.best_epoch - 1]["val_accuracy"] for r in fold_results])),
-                    "best_epoch": epochs,
-                    "fold_best_epochs": [r.best_epoch for r in fold_results],
-                    "fold_budget_epochs": fold_epochs,
-                    "fold_score": [r.best_val_score for r in fold_results],
-                    "fold_mcc": [r.best_val_mcc for r in fold_results],
-                    "epochs_run": [r.epochs_run for r in fold_results],
-                    "stopped_early": [r.stopped_early for r in fold_results],
-                }
-            )
+        results.append(result)
+        if first:
+            runs.learning_curve = result.curve
+            runs.uses_seed = model.uses_seed  # asked after the fit: hgb's answer depends on the data's size
+        if fold_index == 0:
+            runs.histories[run_key] = result.history
+    return results, model
 
-            if config.final_retrain or last_model is None:
-                seed_everything(seed, config.deterministic)  # same initial weights as the validation run
-                final_model = _build(view, name, params)
-                final = fit_final(final_model, train_val, test, config, epochs=epochs, seed=seed)
-                y_pred = final.y_pred
-                final_histories[run_key] = final.fit.history
-            else:
-                if is_cv:
-                    raise ValueError("trainer.final_retrain=false needs a hold-out split (cv5 has no single model to test)")
-                final_model = last_model
-                y_pred = final_model.predict(test.X, test.mask)
-            metrics = classification_metrics(test.y, y_pred, view.label_names)
-            metrics.update(split=split_index, seed=seed)
-            test_runs.append(metrics)
-            split_tests.append(metrics)
-            log.info(
-                "run %d/%d (split %d, seed %d): val %s %.3f (epochs %d) -> test acc %.3f, balanced %.3f, MCC %.3f  [%.0fs]",
-                len(test_runs), total_runs, split_index, seed, metric, val_records[-1]["score"], epochs,
-                metrics["accuracy"], metrics["balanced_accuracy"], metrics["mcc"], time.perf_counter() - start,
-            )
-            for row_index, predicted in zip(test_idx, y_pred):
-                true = int(view.y[row_index])
-                prediction_rows.append(
-                    {
-                        "video_id": view.video_ids[row_index], "true": view.label_names[true],
-                        "predicted": view.label_names[int(predicted)], "split": split_index, "seed": seed,
-                        "correct": int(true == int(predicted)),
-                    }
-                )
-            if checkpoint_name is None:
-                checkpoint_name = "model" + final_model.checkpoint_suffix
-                save_checkpoint(
-                    final_model, out_dir / checkpoint_name,
-                    extra={"seed": seed, "split": split_index, "split_seed": split_seed, "epochs": epochs,
-                           "label_names": list(view.label_names), "property": view.property},  # fmt: skip
-                )
-                if isinstance(final_model, TorchClassifier):
-                    num_parameters = final_model.num_parameters()
-        per_split.append(aggregate_over_seeds(split_tests)[0])
-        for baseline, runs in _baseline_runs(view, folds, train_val, test, config, seeds).items():
-            baseline_runs[baseline]["val_accuracy"] += runs["val_accuracy"]
-            baseline_runs[baseline]["test"] += runs["test"]
-            baseline_runs[baseline]["test_per_split"].append(aggregate_over_seeds(runs["test"])[0])
-        data = baseline_cache.data_digest(
-            [view.X, view.mask, view.y, train_val.X, train_val.mask, train_val.y, test.X, test.mask, test.y,
-             *(np.asarray(i) for fold in folds for i in fold)]) if simple_runs and simple_baseline_cache else ""
-        for baseline, runs in simple_runs.items():
-            key = baseline_cache.cache_key(baseline, simple_params[baseline], config, seeds, view.label_names, data)
-            val, tests, reused = baseline_cache.cached(
-                simple_baseline_cache, key, baseline,
-                lambda: _simple_baseline_runs(view, baseline, simple_params[baseline], folds, train_val, test, config,
-                                              seeds))  # fmt: skip
-            runs["from_cache"] = runs.get("from_cache", 0) + int(reused)
-            runs["val_score"] += [v["score"] for v in val]
-            runs["val_mcc"] += [v["mcc"] for v in val]
-            runs["test"] += tests
-            runs["test_per_split"].append(aggregate_over_seeds(tests)[0])
-            log.info("simple baseline %s (split %d): val %s %.3f -> test MCC %.3f, balanced %.3f%s", baseline,
-                     split_index, metric, float(np.mean([v["score"] for v in val])), runs["test_per_split"][-1]["mcc"],
-                     runs["test_per_split"][-1]["balanced_accuracy"],
-                     " (measured by an earlier run: simple_baseline_cache)" if reused else "")  # fmt: skip
 
-    unit = "split" if len(views) > 1 else "seed"
-    units = per_split if unit == "split" else [scalar_metrics(m) for m in test_runs]
+def _validation_record(plan: _Plan, data: _SplitData, seed: int, results: Sequence[FitResult], epochs: int,
+                       fold_epochs: list[int]) -> dict[str, Any]:  # fmt: skip
+    return {
+        "split": data.index, "seed": seed, "metric": plan.metric,
+        "score": float(np.mean([r.best_val_score for r in results])),
+        "mcc": float(np.mean([r.best_val_mcc for r in results])),
+        "accuracy": float(np.mean([r.history[r.best_epoch - 1]["val_accuracy"] for r in results])),
+        "best_epoch": epochs,
+        "fold_best_epochs": [r.best_epoch for r in results],
+        "fold_budget_epochs": fold_epochs,
+        "fold_score": [r.best_val_score for r in results],
+        "fold_mcc": [r.best_val_mcc for r in results],
+        "epochs_run": [r.epochs_run for r in results],
+        "stopped_early": [r.stopped_early for r in results],
+    }
+
+
+def _final_model(plan: _Plan, runs: _Runs, data: _SplitData, validated: Classifier, epochs: int, seed: int,
+                 run_key: str) -> tuple[Classifier, np.ndarray]:  # fmt: skip
+    """The model that is tested: retrained on train+val for ``epochs`` from the validation run's
+    initial weights (``final_retrain``), else the validated hold-out model; with its test predictions."""
+    if plan.config.final_retrain:
+        seed_everything(seed, plan.config.deterministic)
+        model = _build(data.view, plan.name, plan.params)
+        final = fit_final(model, data.train_val, data.test, plan.config, epochs=epochs, seed=seed)
+        runs.final_histories[run_key] = final.fit.history
+        return model, final.y_pred
+    if runs.is_cv:
+        raise ValueError("trainer.final_retrain=false needs a hold-out split (cv5 has no single model to test)")
+    return validated, validated.predict(data.test.X, data.test.mask)
+
+
+# -- evaluation: the test, once per run ----------------------------------------------------------------
+def _record_test(plan: _Plan, runs: _Runs, data: _SplitData, model: Classifier, y_pred: np.ndarray, seed: int,
+                 epochs: int) -> dict[str, Any]:  # fmt: skip
+    """The run's test metrics and predictions; the first run's model is the run folder's checkpoint."""
+    view = data.view
+    metrics = classification_metrics(data.test.y, y_pred, view.label_names)
+    metrics.update(split=data.index, seed=seed)
+    runs.test_runs.append(metrics)
+    for row_index, predicted in zip(data.test_idx, y_pred):
+        true = int(view.y[row_index])
+        runs.prediction_rows.append({"video_id": view.video_ids[row_index], "true": view.label_names[true],
+                                     "predicted": view.label_names[int(predicted)], "split": data.index,
+                                     "seed": seed, "correct": int(true == int(predicted))})  # fmt: skip
+    if runs.checkpoint_name is None:
+        runs.checkpoint_name = "model" + model.checkpoint_suffix
+        save_checkpoint(model, plan.out_dir / runs.checkpoint_name,
+                        extra={"seed": seed, "split": data.index, "split_seed": data.seed, "epochs": epochs,
+                               "label_names": list(view.label_names), "property": view.property})  # fmt: skip
+        if isinstance(model, TorchClassifier):
+            runs.num_parameters = model.num_parameters()
+    return metrics
+
+
+def _train_and_test_model(plan: _Plan, runs: _Runs, data: _SplitData, num_splits: int, start: float) -> None:
+    """The model on one split, for every seed: validate, retrain, test once."""
+    split_tests, total_runs = [], num_splits * len(plan.seeds)
+    for seed_index, seed in enumerate(plan.seeds):
+        run_key = f"seed {seed}" if num_splits == 1 else f"split {data.index} seed {seed}"
+        results, validated = _validate(plan, runs, data, seed_index, seed, run_key)
+        epochs, fold_epochs = _retrain_budget(results, plan.config)
+        runs.val_records.append(_validation_record(plan, data, seed, results, epochs, fold_epochs))
+        model, y_pred = _final_model(plan, runs, data, validated, epochs, seed, run_key)
+        metrics = _record_test(plan, runs, data, model, y_pred, seed, epochs)
+        split_tests.append(metrics)
+        log.info("run %d/%d (split %d, seed %d): val %s %.3f (epochs %d) -> test acc %.3f, balanced %.3f, MCC %.3f  "
+                 "[%.0fs]", len(runs.test_runs), total_runs, data.index, seed, plan.metric,
+                 runs.val_records[-1]["score"], epochs, metrics["accuracy"], metrics["balanced_accuracy"],
+                 metrics["mcc"], time.perf_counter() - start)  # fmt: skip
+    runs.per_split.append(aggregate_over_seeds(split_tests)[0])
+
+
+# -- the baselines, on the same split ----------------------------------------------------------------
+def _run_chance_baselines(plan: _Plan, runs: _Runs, data: _SplitData) -> None:
+    for baseline, measured in _baseline_runs(data.view, data.folds, data.train_val, data.test, plan.config,
+                                             plan.seeds).items():  # fmt: skip
+        runs.baselines[baseline]["val_accuracy"] += measured["val_accuracy"]
+        runs.baselines[baseline]["test"] += measured["test"]
+        runs.baselines[baseline]["test_per_split"].append(aggregate_over_seeds(measured["test"])[0])
+
+
+def _run_simple_baselines(plan: _Plan, runs: _Runs, data: _SplitData) -> None:
+    """Each simple baseline that is not the model, run as the model is (or read from the cache)."""
+    if not runs.simple:
+        return
+    view, folds, train_val, test = data.view, data.folds, data.train_val, data.test
+    arrays = [view.X, view.mask, view.y, train_val.X, train_val.mask, train_val.y, test.X, test.mask, test.y,
+              *(np.asarray(i) for fold in folds for i in fold)]  # fmt: skip
+    digest = baseline_cache.data_digest(arrays) if plan.simple_cache else ""
+    for baseline, measured in runs.simple.items():
+        params = plan.simple_params[baseline]
+        key = baseline_cache.cache_key(baseline, params, plan.config, plan.seeds, view.label_names, digest)
+        val, tests, reused = baseline_cache.cached(
+            plan.simple_cache, key, baseline,
+            lambda: _simple_baseline_runs(view, baseline, params, folds, train_val, test, plan.config, plan.seeds))
+        measured["from_cache"] += int(reused)
+        measured["val_score"] += [v["score"] for v in val]
+        measured["val_mcc"] += [v["mcc"] for v in val]
+        measured["test"] += tests
+        measured["test_per_split"].append(aggregate_over_seeds(tests)[0])
+        log.info("simple baseline %s (split %d): val %s %.3f -> test MCC %.3f, balanced %.3f%s", baseline, data.index,
+                 plan.metric, float(np.mean([v["score"] for v in val])), measured["test_per_split"][-1]["mcc"],
+                 measured["test_per_split"][-1]["balanced_accuracy"],
+                 " (measured by an earlier run: simple_baseline_cache)" if reused else "")  # fmt: skip
+
+
+# -- the shared tail: statistics over units, files, the record -------------------------------------------
+def _units(unit: str, per_split: list[dict[str, float]], runs: Sequence[Mapping[str, Any]]) -> list[dict[str, float]]:
+    """The statistics' units: one per split (means over seeds), or one per model seed of the one split."""
+    return per_split if unit == "split" else [scalar_metrics(m) for m in runs]
+
+
+def _val_units(unit: str, scores: Sequence[float], num_splits: int) -> list[float]:
+    """Per-run validation scores (split-major) as units: per split the mean over seeds, or per seed."""
+    values = np.asarray(scores, dtype=np.float64)
+    return values.reshape(num_splits, -1).mean(axis=1).tolist() if unit == "split" else values.tolist()
+
+
+def _summary_of(base_units: list[dict[str, float]]) -> dict[str, Any]:
+    mean, std = aggregate_over_seeds(base_units)
+    return {"test": mean, "test_std": std, "test_per_split": base_units,
+            "test_interval": {key: mean_interval([u[key] for u in base_units]) for key in KEY_METRICS}}  # fmt: skip
+
+
+def _summarise(plan: _Plan, runs: _Runs, unit: str) -> dict[str, Any]:
+    """Every statistic of the record: the model over units, both chance baselines (the better by
+    validation accuracy is *the* baseline), the simple baselines and the comparison."""
+    units = _units(unit, runs.per_split, runs.test_runs)
     test_mean, test_std = aggregate_over_seeds(units)
-    test_interval = {key: mean_interval([u[key] for u in units]) for key in KEY_METRICS}
-
-    baselines: dict[str, Any] = {}
-    for baseline, runs in baseline_runs.items():
-        base_units = runs["test_per_split"] if unit == "split" else [scalar_metrics(m) for m in runs["test"]]
-        mean, std = aggregate_over_seeds(base_units)
-        baselines[baseline] = {
-            "val_accuracy": float(np.mean(runs["val_accuracy"])), "test": mean, "test_std": std,
-            "test_interval": {key: mean_interval([u[key] for u in base_units]) for key in KEY_METRICS},
-            "test_per_split": base_units,
-        }
+    baselines = {b: {"val_accuracy": float(np.mean(measured["val_accuracy"])),
+                     **_summary_of(_units(unit, measured["test_per_split"], measured["test"]))}
+                 for b, measured in runs.baselines.items()}  # fmt: skip
     chosen = max(BASELINE_NAMES, key=lambda b: baselines[b]["val_accuracy"])  # ties: majority
-    paired = {key: paired_comparison([u[key] for u in units], [u[key] for u in baselines[chosen]["test_per_split"]])
-              for key in KEY_METRICS}  # fmt: skip
-    below = {key: bool(test_mean[key] < baselines[chosen]["test"][key]) for key in KEY_METRICS}
-
-    val_scores = [record["score"] for record in val_records]
-    val_mcc = [record["mcc"] for record in val_records]
+    chance_units = baselines[chosen]["test_per_split"]
+    val_scores = [record["score"] for record in runs.val_records]
+    val_mcc = [record["mcc"] for record in runs.val_records]
+    num_splits = len(runs.split_records)
     simple: dict[str, Any] = {}
-    for baseline, base_params in simple_params.items():
-        if simple_same[baseline]:
-            base_units, scores, mccs = units, val_scores, val_mcc
-        else:
-            runs = simple_runs[baseline]
-            base_units = runs["test_per_split"] if unit == "split" else [scalar_metrics(m) for m in runs["test"]]
-            scores, mccs = runs["val_score"], runs["val_mcc"]
-        mean, std = aggregate_over_seeds(base_units)
+    for baseline, base_params in plan.simple_params.items():
+        same = plan.simple_same[baseline]
+        measured = None if same else runs.simple[baseline]
+        scores = val_scores if same else measured["val_score"]
         simple[baseline] = {
-            "params": base_params, "same_as_model": simple_same[baseline], "val_score": float(np.mean(scores)),
-            "val_mcc": float(np.mean(mccs)), "test": mean, "test_std": std,
-            "test_interval": {key: mean_interval([u[key] for u in base_units]) for key in KEY_METRICS},
-            "test_per_split": base_units,
+            "params": base_params, "same_as_model": same, "val_score": float(np.mean(scores)),
+            "val_per_unit": _val_units(unit, scores, num_splits),
+            "val_mcc": float(np.mean(val_mcc if same else measured["val_mcc"])),
+            **_summary_of(units if same else _units(unit, measured["test_per_split"], measured["test"])),
             # splits whose baseline numbers another run measured (simple_baseline_cache): the same numbers
-            **({} if simple_same[baseline] else {"splits_from_cache": simple_runs[baseline].get("from_cache", 0)}),
+            **({} if same else {"splits_from_cache": measured["from_cache"]}),
         }
-    comparison = comparison_block(
-        name, metric, unit, units, float(np.mean(val_scores)), simple, chosen, baselines[chosen]["test_per_split"],
-    )
-    comparison.update(split_seeds=[r["seed"] for r in split_records], test_clips=[r["sizes"]["test"] for r in split_records],
-                      model_seeds=seeds)  # fmt: skip
-    total_matrix = np.sum([m["confusion_matrix"] for m in test_runs], axis=0)
+    comparison = comparison_block(plan.name, plan.metric, unit, units, float(np.mean(val_scores)), simple, chosen,
+                                  chance_units)  # fmt: skip
+    test_clips = [r["sizes"]["test"] for r in runs.split_records]
+    comparison.update(split_seeds=[r["seed"] for r in runs.split_records], test_clips=test_clips,
+                      model_seeds=plan.seeds)  # fmt: skip
+    comparison["cautions"] = cautions(plan.name, plan.seeds, runs.uses_seed, test_clips)
+    for caution in comparison["cautions"]:
+        log.warning("%s", caution)
+    return {
+        "unit": unit, "units": units, "test": test_mean, "test_std": test_std,
+        "test_interval": {key: mean_interval([u[key] for u in units]) for key in KEY_METRICS},
+        "baselines": baselines, "chosen": chosen,
+        "paired": {key: paired_comparison([u[key] for u in units], [u[key] for u in chance_units]) for key in KEY_METRICS},
+        "below": {key: bool(test_mean[key] < baselines[chosen]["test"][key]) for key in KEY_METRICS},
+        "val_scores": val_scores, "val_mcc": val_mcc, "objective": float(np.mean(val_scores)),
+        "simple": simple, "comparison": comparison,
+        "total_matrix": np.sum([m["confusion_matrix"] for m in runs.test_runs], axis=0),
+    }
 
-    _write_per_class(out_dir / PER_CLASS_FILE, test_runs)
-    _write_predictions(out_dir / PREDICTIONS_FILE, prediction_rows)
-    _plots(out_dir, name, dataset.property, label_names, total_matrix, len(test_runs), histories, learning_curve, metric)
 
-    elapsed = time.perf_counter() - start
-    log.info(
-        "%s on %s: val %s %.3f +- %.3f, test MCC %.3f +- %.3f over %d %s(s) (baseline %s %.3f), %.1fs",
-        name, dataset.property, metric, float(np.mean(val_scores)), _std(val_scores), test_mean["mcc"],
-        test_std["mcc"], len(units), unit, chosen, baselines[chosen]["test"]["mcc"], elapsed,
-    )
-    first_sizes = split_records[0]["sizes"]
+def _write_outputs(plan: _Plan, runs: _Runs, prop: str, label_names: list[str], total_matrix: np.ndarray) -> None:
+    _write_per_class(plan.out_dir / PER_CLASS_FILE, runs.test_runs)
+    _write_predictions(plan.out_dir / PREDICTIONS_FILE, runs.prediction_rows)
+    _plots(plan.out_dir, plan.name, prop, label_names, total_matrix, len(runs.test_runs), runs.histories,
+           runs.learning_curve, plan.metric)  # fmt: skip
+
+
+def _result_record(plan: _Plan, options: SplitOptions, dataset: RecognitionDataset, views, runs: _Runs,
+                   summary: Mapping[str, Any], device_record: Mapping[str, Any], elapsed: float) -> dict[str, Any]:  # fmt: skip
+    """metrics.json: the keys :func:`run_recognition` documents."""
+    chosen, baselines = summary["chosen"], summary["baselines"]
     return {
         "property": dataset.property,
-        "classifier": name,
-        "params": params,
-        "trainer": config.to_dict(),
+        "classifier": plan.name,
+        "params": plan.params,
+        "trainer": plan.config.to_dict(),
         "split_options": dict(options.__dict__),
-        "seeds": seeds,
-        "validation": "cv5" if is_cv else "holdout",
+        "seeds": plan.seeds,
+        "validation": "cv5" if runs.is_cv else "holdout",
         "num_folds": len(validation_folds(views[0][1])),
-        "split_sizes": first_sizes,
-        "splits": split_records,
-        "statistics_unit": unit,
-        "label_names": label_names,
+        "split_sizes": runs.split_records[0]["sizes"],
+        "splits": runs.split_records,
+        "statistics_unit": summary["unit"],
+        "label_names": list(views[0][1].label_names),
         "layout": {"name": dataset.layout.name, "nodes": list(dataset.layout.names), "channels": list(dataset.channels)},
-        "num_parameters": num_parameters,
-        "device": device_record,
-        "objective": {"name": f"val_{metric}", "value": float(np.mean(val_scores))},
-        "val_mcc": float(np.mean(val_mcc)),
-        "val_mcc_std": _std(val_mcc),
-        "val": val_records,
-        "test": test_mean,
-        "test_std": test_std,
-        "test_interval": test_interval,
-        "test_per_split": per_split,
-        "test_per_seed": test_runs,
-        "test_confusion_matrix_total": total_matrix.astype(int).tolist(),
+        "num_parameters": runs.num_parameters,
+        "device": dict(device_record),
+        "objective": {"name": f"val_{plan.metric}", "value": summary["objective"]},
+        "val_mcc": float(np.mean(summary["val_mcc"])),
+        "val_mcc_std": _std(summary["val_mcc"]),
+        "val": runs.val_records,
+        "test": summary["test"],
+        "test_std": summary["test_std"],
+        "test_interval": summary["test_interval"],
+        "test_per_split": runs.per_split,
+        "test_per_seed": runs.test_runs,
+        "test_confusion_matrix_total": summary["total_matrix"].astype(int).tolist(),
         "baseline": {**baselines[chosen], "name": chosen, "selected_by": "validation accuracy",
                      "val_accuracy": {b: baselines[b]["val_accuracy"] for b in BASELINE_NAMES}},  # fmt: skip
         "baselines": baselines,
-        "paired_vs_baseline": paired,
-        "below_baseline": below,
-        "simple_baselines": simple,
-        "comparison": comparison,
-        "history": histories,
-        "final_history": final_histories,
-        "learning_curve": learning_curve,
+        "paired_vs_baseline": summary["paired"],
+        "below_baseline": summary["below"],
+        "simple_baselines": summary["simple"],
+        "comparison": summary["comparison"],
+        "seed_changes_result": runs.uses_seed,
+        "history": runs.histories,
+        "final_history": runs.final_histories,
+        "learning_curve": runs.learning_curve,
         "files": {
             "per_class": PER_CLASS_FILE, "predictions": PREDICTIONS_FILE, "confusion_matrix": CONFUSION_FILE,
-            "learning_curves": CURVES_FILE, "checkpoint": checkpoint_name,
+            "learning_curves": CURVES_FILE, "checkpoint": runs.checkpoint_name,
         },
         "time_s": elapsed,
     }
@@ -505,96 +654,6 @@ def _simple_baseline_runs(view: RecognitionDataset, name: str, params: Mapping[s
             y_pred = last.predict(test.X, test.mask)
         tests.append(classification_metrics(test.y, y_pred, view.label_names))
     return val_records, tests
-
-
-COMPARED = ("mcc", "balanced_accuracy")  # the comparison's columns
-CHANCE_WORDS = {"majority": "majority class", "stratified": "stratified chance baseline"}
-
-
-def comparison_block(name: str, metric: str, unit: str, units: Sequence[Mapping[str, float]], val_score: float,
-                     simple: Mapping[str, Mapping[str, Any]], chance: str,
-                     chance_units: Sequence[Mapping[str, float]]) -> dict[str, Any]:  # fmt: skip
-    """The model beside the simple baselines ``simple`` and the chance baseline ``chance`` on the same
-    units (splits, or seeds of one split): test MCC and balanced accuracy (mean, std, n) per row, the
-    paired differences model minus the reference (the simple baseline with the best validation
-    score, never chosen by test) and model minus chance, a verdict on test MCC and one sentence
-    saying what the model adds. Rows: the model, each simple baseline that is not the model itself
-    (the reference first, ``reference: true``), the chance baseline."""
-
-    def row(role: str, row_name: str, per_unit: Sequence[Mapping[str, float]], **extra) -> dict[str, Any]:
-        test = {key: {k: v for k, v in mean_interval([u[key] for u in per_unit]).items() if k in ("mean", "std", "n")}
-                for key in COMPARED}  # fmt: skip
-        return {"role": role, "name": row_name, **extra, "test": test}
-
-    def paired(per_unit: Sequence[Mapping[str, float]]) -> dict[str, Any]:
-        return {key: paired_comparison([u[key] for u in units], [u[key] for u in per_unit]) for key in COMPARED}
-
-    order = sorted(simple, key=lambda b: -simple[b]["val_score"])  # stable: ties keep the order listed
-    reference = order[0] if order else None
-    selected_by = f"validation {metric}" if len(simple) > 1 else "the only one"
-    model_is_reference = reference is not None and bool(simple[reference]["same_as_model"])
-    rows = [row("model", name, units, val_score=val_score, reference=model_is_reference)]
-    for baseline in order:
-        if not simple[baseline]["same_as_model"]:
-            rows.append(row("simple_baseline", baseline, simple[baseline]["test_per_split"],
-                            val_score=simple[baseline]["val_score"], reference=baseline == reference,
-                            selected_by=selected_by))  # fmt: skip
-    rows.append(row("chance_baseline", chance, chance_units, selected_by="validation accuracy"))
-    vs_simple = paired(simple[reference]["test_per_split"]) if reference is not None else None
-    vs_chance = paired(chance_units)
-    if reference is None:
-        verdict = "no_simple_baseline"
-    elif model_is_reference:
-        verdict = "model_is_simple_baseline"
-    else:
-        difference = vs_simple["mcc"]["diff"]["mean"]
-        verdict = "above" if difference > 0 else "below" if difference < 0 else "equal"
-    block = {"metrics": list(COMPARED), "unit": unit, "n": len(units), "candidates": list(simple),
-             "simple_baseline": reference, "simple_baseline_selected_by": selected_by, "chance_baseline": chance,
-             "rows": rows, "model_minus_simple_baseline": vs_simple, "model_minus_chance_baseline": vs_chance,
-             "verdict": verdict}  # fmt: skip
-    block["sentence"] = _comparison_sentence(name, block)
-    return block
-
-
-def _signed(value: float) -> str:
-    return f"{value:+.3f}"
-
-
-def _comparison_sentence(name: str, block: Mapping[str, Any]) -> str:
-    vs_chance, vs_simple = block["model_minus_chance_baseline"], block["model_minus_simple_baseline"]
-    reference, verdict = block["simple_baseline"], block["verdict"]
-    chance = CHANCE_WORDS.get(block["chance_baseline"], f"chance baseline {block['chance_baseline']}")
-
-    def gains(paired: Mapping[str, Any]) -> str:
-        return (f"{_signed(paired['mcc']['diff']['mean'])} test MCC and "
-                f"{_signed(paired['balanced_accuracy']['diff']['mean'])} balanced accuracy")
-
-    def interval(paired: Mapping[str, Any]) -> str:
-        diff = paired["mcc"]["diff"]
-        if block["unit"] != "split":
-            return " on one split (split.repeats=10 gives an interval over splits)"
-        state = {1: "resolved above 0", -1: "resolved below 0", 0: "not resolved: it includes 0"}[paired["mcc"]["resolved"]]
-        return f" (MCC 95% interval [{diff['low']:+.3f}, {diff['high']:+.3f}] over {diff['n']} paired splits, {state})"
-
-    if verdict == "no_simple_baseline":
-        return f"{name} adds {gains(vs_chance)} over the {chance} (no simple baseline: simple_baseline=null)."
-    if verdict == "model_is_simple_baseline":
-        best = (f"the strongest simple baseline itself (the best of {'/'.join(block['candidates'])} by validation)"
-                if len(block["candidates"]) > 1 else "the simple baseline itself")  # fmt: skip
-        return (f"{name} is {best}; it adds {gains(vs_chance)} over the {chance}; "
-                f"classifier=stgcn (or another model) is compared with it.")  # fmt: skip
-    if reference == name:
-        reference = f"{reference} at its defaults"
-    strongest = (f"{reference} (the strongest simple baseline by validation)" if len(block["candidates"]) > 1
-                 else f"the simple baseline {reference}")  # fmt: skip
-    if verdict == "below":
-        text = f"{name} is below {strongest}: {gains(vs_simple)}{interval(vs_simple)}"
-    else:
-        text = f"{name} adds {gains(vs_simple)} over {strongest}{interval(vs_simple)}"
-    if vs_chance["mcc"]["diff"]["mean"] <= 0:
-        text += f"; it is not above the {chance}"
-    return text + "."
 
 
 def _plots(out_dir: Path, name: str, prop: str, label_names: list[str], matrix: np.ndarray, runs: int,

@@ -1,6 +1,7 @@
 """The classifier registry: a classifier is a registration, not a patch (as a keypoint format is).
 
-A classifier is a builder, its accepted parameters with their defaults, and a YAML::
+A classifier is a builder, its accepted parameters with their defaults, and a YAML. A plugin
+declares its parameters where it registers (the YAML it ships gives a run's values)::
 
     from aslexp.recognition.registry import register_classifier
 
@@ -21,16 +22,20 @@ builder returning a ``torch.nn.Module`` called as ``module(x, mask)`` (clips ``(
 :class:`~aslexp.recognition.models.base.Classifier` is used as it is.
 
 Names are known without importing torch: the built-ins are listed here, in the order reports show
-them; their builders register when :mod:`aslexp.recognition.models` is imported.
+them; their builders register when :mod:`aslexp.recognition.models` is imported. A built-in's
+parameters and their defaults live once, in ``conf/classifier/NAME.yaml`` (its ``params``, read
+through :mod:`aslexp.compose` as the job composes it): the builders declare none.
 """
 
 from __future__ import annotations
 
 import copy
+import os
 from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
+from aslexp import compose
 from aslexp.errors import ConfigError
 from aslexp.plugins import import_registering_module, load_entry_points
 
@@ -44,15 +49,30 @@ BUILT_IN = ("majority", "stratified", "logreg", "svm", "rf", "hgb", "mlp", "lstm
 
 @dataclass(frozen=True)
 class ClassifierEntry:
-    """A registered classifier: ``build(spec)`` returns a torch module or a Classifier; ``defaults``
-    every parameter it accepts; ``baseline``: a chance baseline that every run reports beside the
-    model (majority, stratified)."""
+    """A registered classifier: ``build(spec)`` returns a torch module or a Classifier;
+    ``declared``: every parameter it accepts with its default, as the registration gave them
+    (None: those of ``conf/classifier/NAME.yaml``, the built-ins' one place); ``baseline``: a
+    chance baseline that every run reports beside the model (majority, stratified)."""
 
     name: str
     build: Callable[[Any], Any]
-    defaults: Mapping[str, Any] = field(default_factory=dict)
+    declared: Mapping[str, Any] | None = None
     baseline: bool = False
     summary: str = ""
+
+    @property
+    def defaults(self) -> Mapping[str, Any]:
+        """Every parameter it accepts, with its default."""
+        return self.declared if self.declared is not None else conf_defaults(self.name)
+
+
+def conf_defaults(name: str, conf_dir: str | os.PathLike | None = None) -> dict[str, Any]:
+    """The ``params`` of ``conf/classifier/NAME.yaml`` as ``aslexp recognize classifier=NAME``
+    composes them (cached by :mod:`aslexp.compose`; ``conf_dir``: another config tree)."""
+    if conf_dir is None:
+        compose.check_choice("classifier", name)  # a missing file is one line naming it
+    classifier = compose.compose("recognize", [f"classifier={name}"], conf_dir=conf_dir)["classifier"]
+    return dict(classifier.get("params") or {})
 
 
 _CLASSIFIERS: dict[str, ClassifierEntry] = {}
@@ -60,14 +80,16 @@ _CLASSIFIERS: dict[str, ClassifierEntry] = {}
 
 def register_classifier(name: str, defaults: Mapping[str, Any] | None = None, *, baseline: bool = False,
                         summary: str = "", replace: bool = False):
-    """Decorator: make ``build(spec)`` the classifier ``name`` with these parameter defaults."""
+    """Decorator: make ``build(spec)`` the classifier ``name`` with these parameter defaults
+    (None: a built-in's are those of ``conf/classifier/NAME.yaml``; another's are none)."""
 
     def decorate(build: Callable[[Any], Any]):
         known = _CLASSIFIERS.get(name)
         if known is not None and known.build is not build and not replace:
             raise ConfigError(f"classifier {name!r} is already registered ({known.build.__module__}); "
                               "choose another name or pass replace=True")
-        _CLASSIFIERS[name] = ClassifierEntry(name, build, dict(defaults or {}), baseline, summary)
+        declared = dict(defaults) if defaults is not None else None if name in BUILT_IN else {}
+        _CLASSIFIERS[name] = ClassifierEntry(name, build, declared, baseline, summary)
         return build
 
     return decorate

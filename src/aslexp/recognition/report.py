@@ -257,7 +257,7 @@ def comparison_text(block: Mapping[str, Any], prop: str | None = None, split: st
     """A run's ``comparison`` (metrics.json) as the lines the job prints at its end: a header, one
     row per model (this run, the simple baselines, the best by validation first, the chance
     baseline) with test MCC and balanced accuracy (mean ± std over the splits when there are
-    several), and the sentence."""
+    several), the sentence, then its cautions (:func:`aslexp.recognition.comparison.cautions`)."""
     n, unit = int(block["n"]), str(block["unit"])
     seeds, clips = block.get("split_seeds") or [], block.get("test_clips") or []
     where = ", ".join(x for x in (prop, f"{split} split" if split else None) if x)
@@ -272,8 +272,12 @@ def comparison_text(block: Mapping[str, Any], prop: str | None = None, split: st
     rows = []
     for row in block["rows"]:
         words = ROLE_WORDS.get(row["role"], row["role"])
-        if row["role"] == "model" and row.get("reference"):
+        if row["role"] == "model" and row.get("tied"):
+            words = "this run, tied best simple model by validation"
+        elif row["role"] == "model" and row.get("reference"):
             words = "this run, best simple model by validation" if several else "this run = the simple baseline"
+        elif row["role"] == "simple_baseline" and row.get("tied"):
+            words = "simple baseline, tied best by validation"
         elif row["role"] == "simple_baseline" and several and row.get("reference"):
             words = "simple baseline, best by validation"
         label = f"{row['name']} ({words})"
@@ -292,6 +296,7 @@ def comparison_text(block: Mapping[str, Any], prop: str | None = None, split: st
     for r in [header, *rows]:
         lines.append("  " + r[0].ljust(widths[0]) + "".join("   " + c.rjust(w) for c, w in zip(r[1:], widths[1:])))
     lines.append(str(block["sentence"]))
+    lines += [str(caution) for caution in block.get("cautions") or []]  # a small test set, seeds that cannot differ
     return "\n".join(lines)
 
 

@@ -1,11 +1,12 @@
 """The built-in classifiers, registered by name (:mod:`aslexp.recognition.registry`):
 ``build_classifier(name, params, ...)`` builds any registered one.
 
-Each registration lists every key a classifier accepts and its default; ``params`` may override any
-of them and nothing else (an unknown key is an error, so a typo in a config or a sweep space cannot
-go unnoticed).
+A built-in's accepted keys and their defaults are its ``conf/classifier/NAME.yaml`` (``params``),
+the one place they live; a builder reads the keys it is given. ``params`` may override any of them
+and nothing else (an unknown key is an error, so a typo in a config or a sweep space cannot go
+unnoticed).
 
-Defaults fit a 2-core CPU and a few hundred clips: ST-GCN with 5 blocks of [32, 32, 64, 64, 128]
+The defaults there fit a 2-core CPU and a few hundred clips: ST-GCN with 5 blocks of [32, 32, 64, 64, 128]
 channels (0.32 M parameters with the 33-node pose, vs 1.2 M for [64, 64, 128, 128, 256] and 3.1 M
 for the classic 10-block ST-GCN: far too many for ~200 training clips, and ~4x / ~10x the
 compute per epoch), and ``frame_stride`` 2 for the sequence models (25 fps -> 12.5 fps halves
@@ -34,6 +35,7 @@ from aslexp.recognition.models.classical import (
 from aslexp.recognition.models.cnn3d import HeatmapCNN3D, HeatmapRenderer
 from aslexp.recognition.models.graph import PARTITIONS, spatial_partition_adjacency
 from aslexp.recognition.registry import (
+    BUILT_IN,
     DefaultParams,
     get_classifier,
     register_classifier,
@@ -42,62 +44,6 @@ from aslexp.recognition.registry import (
 from aslexp.recognition.models.sequence import MLP, RecurrentClassifier
 from aslexp.recognition.models.slgcn import SLGCN, spatial_graph
 from aslexp.recognition.models.stgcn import STGCN
-
-_RNN_DEFAULTS = {"hidden_size": 128, "num_layers": 2, "bidirectional": True, "dropout": 0.3, "frame_stride": 2,
-                 "head_layers": 0, "head_size": None, "head_dropout": None}  # fmt: skip
-
-_DEFAULTS: dict[str, dict[str, Any]] = {
-    "majority": {},
-    "stratified": {},
-    "logreg": {"C": 1.0, "max_iter": 2000, "pooling": "mean_std", "standardize": True, "solver": "lbfgs",
-               "multi_class": "multinomial"},
-    "svm": {"C": 1.0, "kernel": "rbf", "gamma": "scale", "pooling": "mean_std", "standardize": True, "degree": 3,
-            "decision_function_shape": "ovr", "max_iter": -1},
-    "rf": {"pooling": "summary", "n_estimators": 500, "max_depth": None, "min_samples_leaf": 1,
-           "max_features": "sqrt", "n_jobs": 2},
-    "hgb": {"pooling": "summary", "learning_rate": 0.05, "max_iter": 200, "max_leaf_nodes": 15,
-            "min_samples_leaf": 10, "l2_regularization": 0.0, "n_threads": 1},
-    # hidden_sizes, or num_layers x hidden_size when num_layers is set (search spaces use those)
-    "mlp": {"hidden_sizes": [256, 128], "num_layers": None, "hidden_size": 256, "dropout": 0.3},
-    "lstm": dict(_RNN_DEFAULTS),
-    "gru": dict(_RNN_DEFAULTS),
-    "stgcn": {
-        "channels": [32, 32, 64, 64, 128],
-        "temporal_kernel": 9,
-        "dropout": 0.3,
-        "residual": True,
-        "edge_importance": True,
-        "adaptive": False,
-        "mask_channel": True,
-        "frame_stride": 2,
-    },
-    # The authors' SL-GCN (THESIS.md 10.2; jackyjsy/CVPR21Chal-SLR SL-GCN/model/decouple_gcn_attn.py).
-    "slgcn": {
-        "channels": [64, 64, 64, 64, 128, 128, 128, 256, 256, 256],
-        "groups": 16,
-        "block_size": 41,
-        "keep_prob": 0.9,
-        "keep_prob_epochs": 100,
-        "drop_from_block": 7,
-        "freeze_graph_epochs": 1,
-        "attention": True,
-        "temporal_kernel": 9,
-        "normalize": True,
-        "mask_channel": False,
-        "frame_stride": 1,
-    },
-    "cnn3d": {
-        "channels": [16, 32, 64],
-        "dropout": 0.3,
-        "heatmap_size": 20,
-        "sigma": 0.08,
-        "sum_joints": False,
-        "xy_channels": [0, 1],
-        "frame_stride": 4,
-    },
-}
-
-
 
 def _stride(name: str, params: dict[str, Any]) -> int:
     stride = int(params["frame_stride"])
@@ -113,24 +59,24 @@ def _layout(spec: ClassifierSpec) -> KeypointLayout:
 
 
 # -- the chance baselines and the feature models (scikit-learn) -----------------------------------------
-@register_classifier("majority", _DEFAULTS["majority"], baseline=True, summary="the most frequent class")
+@register_classifier("majority", baseline=True, summary="the most frequent class")
 def _majority(spec: ClassifierSpec) -> Classifier:
     return DummyBaseline(spec, strategy="most_frequent")
 
 
-@register_classifier("stratified", _DEFAULTS["stratified"], baseline=True, summary="classes drawn at their rates")
+@register_classifier("stratified", baseline=True, summary="classes drawn at their rates")
 def _stratified(spec: ClassifierSpec) -> Classifier:
     return DummyBaseline(spec, strategy="stratified")
 
 
-@register_classifier("logreg", _DEFAULTS["logreg"], summary="logistic regression on pooled features")
+@register_classifier("logreg", summary="logistic regression on pooled features")
 def _logreg(spec: ClassifierSpec) -> Classifier:
     p = spec.params
     return LogisticRegressionClassifier(spec, C=p["C"], max_iter=p["max_iter"], pooling=p["pooling"],
                                         standardize=p["standardize"], solver=p["solver"], multi_class=p["multi_class"])
 
 
-@register_classifier("svm", _DEFAULTS["svm"], summary="support vector machine on pooled features")
+@register_classifier("svm", summary="support vector machine on pooled features")
 def _svm(spec: ClassifierSpec) -> Classifier:
     p = spec.params
     return SVMClassifier(spec, C=p["C"], kernel=p["kernel"], gamma=p["gamma"], pooling=p["pooling"],
@@ -138,7 +84,7 @@ def _svm(spec: ClassifierSpec) -> Classifier:
                          decision_function_shape=p["decision_function_shape"], max_iter=p["max_iter"])
 
 
-@register_classifier("rf", _DEFAULTS["rf"], summary="random forest on summary statistics")
+@register_classifier("rf", summary="random forest on summary statistics")
 def _rf(spec: ClassifierSpec) -> Classifier:
     p = spec.params
     return RandomForestFeatureClassifier(spec, pooling=p["pooling"], n_estimators=p["n_estimators"],
@@ -146,7 +92,7 @@ def _rf(spec: ClassifierSpec) -> Classifier:
                                          max_features=p["max_features"], n_jobs=p["n_jobs"])
 
 
-@register_classifier("hgb", _DEFAULTS["hgb"], summary="gradient-boosted trees on summary statistics")
+@register_classifier("hgb", summary="gradient-boosted trees on summary statistics")
 def _hgb(spec: ClassifierSpec) -> Classifier:
     p = spec.params
     return GradientBoostingFeatureClassifier(spec, pooling=p["pooling"], learning_rate=p["learning_rate"],
@@ -156,7 +102,7 @@ def _hgb(spec: ClassifierSpec) -> Classifier:
 
 
 # -- the networks (torch modules: aslexp's trainer trains them) -----------------------------------------
-@register_classifier("mlp", _DEFAULTS["mlp"], summary="multi-layer perceptron over the flattened clip")
+@register_classifier("mlp", summary="multi-layer perceptron over the flattened clip")
 def _mlp(spec: ClassifierSpec) -> torch.nn.Module:
     p = spec.params
     hidden = list(p["hidden_sizes"]) if p["num_layers"] is None else [int(p["hidden_size"])] * int(p["num_layers"])
@@ -175,11 +121,11 @@ def _recurrent(spec: ClassifierSpec) -> torch.nn.Module:
     )
 
 
-register_classifier("lstm", _DEFAULTS["lstm"], summary="LSTM over the frames")(_recurrent)
-register_classifier("gru", _DEFAULTS["gru"], summary="GRU over the frames")(_recurrent)
+register_classifier("lstm", summary="LSTM over the frames")(_recurrent)
+register_classifier("gru", summary="GRU over the frames")(_recurrent)
 
 
-@register_classifier("stgcn", _DEFAULTS["stgcn"], summary="spatial-temporal graph convolution (ST-GCN)")
+@register_classifier("stgcn", summary="spatial-temporal graph convolution (ST-GCN)")
 def _stgcn(spec: ClassifierSpec) -> torch.nn.Module:
     p = spec.params
     return STGCN(
@@ -190,7 +136,7 @@ def _stgcn(spec: ClassifierSpec) -> torch.nn.Module:
     )
 
 
-@register_classifier("slgcn", _DEFAULTS["slgcn"], summary="SL-GCN with the authors' sizes (a GPU model)")
+@register_classifier("slgcn", summary="SL-GCN with the authors' sizes (a GPU model)")
 def _slgcn(spec: ClassifierSpec) -> torch.nn.Module:
     p, layout = spec.params, _layout(spec)
     return SLGCN(
@@ -203,7 +149,7 @@ def _slgcn(spec: ClassifierSpec) -> torch.nn.Module:
     )
 
 
-@register_classifier("cnn3d", _DEFAULTS["cnn3d"], summary="3D CNN over rendered joint heatmaps")
+@register_classifier("cnn3d", summary="3D CNN over rendered joint heatmaps")
 def _cnn3d(spec: ClassifierSpec) -> torch.nn.Module:
     p = spec.params
     xy = tuple(int(c) for c in p["xy_channels"])
@@ -218,7 +164,7 @@ def _cnn3d(spec: ClassifierSpec) -> torch.nn.Module:
 
 
 DEFAULT_PARAMS = DefaultParams()  # every classifier's defaults by name, read from the registry
-CLASSIFIER_NAMES = tuple(_DEFAULTS)  # the built-in classifiers
+CLASSIFIER_NAMES = BUILT_IN  # the built-in classifiers, in table order
 BASELINE_NAMES = ("majority", "stratified")  # chance baselines: every run reports the better one
 FEATURE_MODELS = ("logreg", "svm", "rf", "hgb")  # fitted once on pooled features: no epochs
 

@@ -104,6 +104,12 @@ class Classifier(ABC):
     def name(self) -> str:
         return self.spec.name
 
+    @property
+    def uses_seed(self) -> bool:
+        """Whether the seed can change what it learns from fixed data (random initial weights,
+        shuffled batches, sampled trees); False where fitting draws no random number at all."""
+        return True
+
     @abstractmethod
     def predict_proba(self, X: np.ndarray, mask: np.ndarray) -> np.ndarray:
         """Class probabilities, (N, num_classes)."""

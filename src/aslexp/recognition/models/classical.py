@@ -138,6 +138,15 @@ class DummyBaseline(SklearnClassifier):
     def make_estimator(self, seed: int, class_weight: str | None) -> Any:
         return DummyClassifier(strategy=self.strategy, random_state=seed)
 
+    @property
+    def uses_seed(self) -> bool:
+        return self.strategy == "stratified"  # the majority class is drawn from nothing
+
+
+# LogisticRegression's random_state shuffles the data for these solvers only; lbfgs, newton-cg and
+# newton-cholesky are deterministic (scikit-learn's documentation of ``random_state``).
+SHUFFLING_SOLVERS = ("sag", "saga", "liblinear")
+
 
 class LogisticRegressionClassifier(SklearnClassifier):
     """Logistic regression; ``multi_class`` = multinomial (one softmax) or ovr (one binary model
@@ -159,6 +168,10 @@ class LogisticRegressionClassifier(SklearnClassifier):
         if self.multi_class == "ovr":
             model = OneVsRestClassifier(model)
         return make_pipeline(StandardScaler(), model) if self.standardize else make_pipeline(model)
+
+    @property
+    def uses_seed(self) -> bool:
+        return self.solver in SHUFFLING_SOLVERS
 
 
 class SVMClassifier(SklearnClassifier):
@@ -186,6 +199,10 @@ class SVMClassifier(SklearnClassifier):
         proba = np.zeros((len(X), self.spec.num_classes), dtype=np.float64)
         proba[np.arange(len(X)), self.predict(X, mask)] = 1.0
         return proba
+
+    @property
+    def uses_seed(self) -> bool:
+        return False  # SVC's random_state only drives Platt scaling (probability=True), never used here
 
 
 class RandomForestFeatureClassifier(SklearnClassifier):
@@ -228,6 +245,12 @@ class GradientBoostingFeatureClassifier(SklearnClassifier):
     def fit(self, X: np.ndarray, mask: np.ndarray, y: np.ndarray, *, seed: int = 0, class_weights: bool = False) -> SklearnClassifier:
         with threadpool_limits(limits=self.n_threads):
             return super().fit(X, mask, y, seed=seed, class_weights=class_weights)
+
+    @property
+    def uses_seed(self) -> bool:
+        # Early stopping is off, so random_state only subsamples the rows the bins are found on,
+        # and only beyond 200,000 of them (scikit-learn's binning subsample).
+        return self.fit_info.num_samples > 200_000
 
     def predict_proba(self, X: np.ndarray, mask: np.ndarray) -> np.ndarray:
         with threadpool_limits(limits=self.n_threads):
