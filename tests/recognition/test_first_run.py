@@ -1,4 +1,4 @@
-"""The first run tells the truth fast (issue 40.5): the default `aslexp recognize` composes with the
+"""The first run tells the truth fast: the default `aslexp recognize` composes with the
 classifier chosen by measurement (docs/recognition.md, "The default run"), and every run ends with
 its test metrics beside the strongest simple baseline and the majority class on the same splits,
 in metrics.json (``comparison``) and on the terminal."""

@@ -1,4 +1,4 @@
-"""`aslexp lookup` (issue 40 item 4): a tiny retrieval model (1 gloss split, 2 properties, a forest of
+"""`aslexp lookup`: a tiny retrieval model (1 gloss split, 2 properties, a forest of
 10 trees) saved by `aslexp retrieve retrieval.save_model=all` looks up a repository keypoint file and a
 `.pose` file made from it: the card, metrics.json and the figure are written, the top 10 are lexicon
 signs with their values, every property's probabilities sum to 1, the clip's own sign gets a rank (said,

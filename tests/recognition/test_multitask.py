@@ -1,4 +1,4 @@
-"""One model, six properties (issue 40 item 1): the multi-task classifier trains on the real aligned
+"""One model, six properties: the multi-task classifier trains on the real aligned
 WLASL-Lex clips (a missing value masks its head's loss), each head's probabilities sum to 1, the
 temperature fitted on validation lowers the validation NLL and the held-out ECE is reported; the
 one-head form is a registered classifier; a bad config is one clear line."""

@@ -1,4 +1,4 @@
-"""A classifier is a module plus a YAML (issue 36 item 5): one registered from the tests trains,
+"""A classifier is a module plus a YAML: one registered from the tests trains,
 is evaluated and reported by `aslexp recognize` with no edit to aslexp."""
 
 from __future__ import annotations

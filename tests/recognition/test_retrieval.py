@@ -1,4 +1,4 @@
-"""Lexicon retrieval for unseen glosses (issue 40 item 2): a lexicon entry whose properties are given
+"""Lexicon retrieval for unseen glosses: a lexicon entry whose properties are given
 ranks first; the oracle's figures are the counts of the lexicon CSV (and the issue's); ties give the
 expected rank; `aslexp retrieve` runs end to end on a tiny budget (the documented commands of
 docs/recognition.md, cut) and writes a complete run folder; an unknown property is one line."""

@@ -1,4 +1,4 @@
-"""Phonology as help for seen signs (issue 40 item 3): the split keeps every tested gloss in training;
+"""Phonology as help for seen signs: the split keeps every tested gloss in training;
 top-k counts what it should; the multi-task fit lets only the named heads choose the epoch; `aslexp
 glosses` runs end to end on a tiny budget (the documented commands of docs/recognition.md, cut),
 writes a complete run folder, and the results page's entry is made from that folder; a bad key is

@@ -1,5 +1,5 @@
 """Look one clip up in the lexicon: its predicted phonology and the ASL-LEX signs that fit it best
-(``aslexp lookup``, issue 40 item 4; no Hydra here).
+(``aslexp lookup``; no Hydra here).
 
 Two halves:
 

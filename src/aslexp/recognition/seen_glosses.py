@@ -1,4 +1,4 @@
-"""Phonology as help for seen signs (issue 40 item 3): gloss classification on glosses seen in
+"""Phonology as help for seen signs: gloss classification on glosses seen in
 training, with and without auxiliary ASL-LEX property heads, paired over K seeded splits.
 
 Kezar et al. (2023) add phonological property heads to a sign classifier as an auxiliary loss and

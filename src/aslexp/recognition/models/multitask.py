@@ -1,4 +1,4 @@
-"""One model, six properties (issue 40 item 1): one encoder over the keypoint sequence, a head per
+"""One model, six properties: one encoder over the keypoint sequence, a head per
 ASL-LEX property (optionally a gloss head), each head's probabilities calibrated on the validation
 clips by temperature scaling, with the expected calibration error (ECE) per head.
 
