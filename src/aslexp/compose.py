@@ -34,9 +34,11 @@ IMITATE = "imitate"  # the job whose groups the imitation wing names (conf/imita
 
 @functools.lru_cache(maxsize=4)
 def _loader(conf_dir: str):
+    from hydra import version
     from hydra._internal.config_loader_impl import ConfigLoaderImpl
     from hydra._internal.utils import create_config_search_path
 
+    version.setbase("1.3")  # the jobs' version_base (aslexp.jobs._common), not Hydra's 1.1 fallback
     return ConfigLoaderImpl(config_search_path=create_config_search_path(conf_dir))
 
 

@@ -1,4 +1,4 @@
-"""Keypoint files not named by WLASL video id (issue 27, item 2), on copies of the project's own
+"""Keypoint files not named by WLASL video id, on copies of the project's own
 291 real MediaPipe Pose clips renamed in the test:
 
 - ``gloss/``: ``<gloss>_<n>.npy`` (spaces as ``_``: ``thank_you_1.npy``), some in capitals;

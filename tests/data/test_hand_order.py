@@ -1,4 +1,4 @@
-"""Two-hand arrays in MediaPipe's detection order (issue 27, item 1), on folders made from the
+"""Two-hand arrays in MediaPipe's detection order, on folders made from the
 project's own data: the real MediaPipe Pose keypoints of the 291 WLASL clips carry each hand's
 wrist, index and little-finger knuckles and thumb (landmarks 15-22, the signer's left and right),
 and how visible each hand is. From them each test folder holds (T, 126) arrays of 21 landmarks per

@@ -1,4 +1,4 @@
-"""A folder of `.pose` files with a damaged one (issue 39 item 8): the folder's layout is read from
+"""A folder of `.pose` files with a damaged one: the folder's layout is read from
 the first readable file and said in the log, and the damaged file is skipped with a warning, as a
 damaged `.npy` is."""
 

@@ -21,7 +21,10 @@ GENTLE = {"terms": {"pose": {"weight": 0.65, "scale": 0.1}}}
 
 
 def make_envs(motion, **env):
-    cfg = {"episode_steps": 60, **env}
+    from aslexp.compose import resolve_group
+
+    # env=default's absolute targets (the body's own env is a residual, which starts at the controller)
+    cfg = {**resolve_group("env", "default"), "episode_steps": 60, **env}
     return (ImitationEnv(motion, env=cfg, reward=GENTLE),
             ImitationEnv(motion, env={**cfg, "early_termination": {"min_reward": None}}, reward=GENTLE))
 
@@ -75,3 +78,98 @@ def test_corrupt_checkpoint_is_refused_and_nothing_is_lost(tmp_path, motion_a):
     (tmp_path / "other.pt").write_text("not a checkpoint")
     with pytest.raises(CheckpointError):
         load_checkpoint(tmp_path / "other.pt")
+
+
+def _csv_steps(path):
+    import csv
+
+    with open(path, newline="", encoding="utf-8") as fh:
+        return [int(row["step"]) for row in csv.DictReader(fh)]
+
+
+# An update and an evaluation (a checkpoint) every 128 steps, each a second or so.
+SMALL_UPDATES = {**TINY, "hidden_sizes": (16, 16), "steps_per_rollout": 128, "minibatch_size": 64, "epochs": 1,
+                 "eval_interval": 128, "eval_steps": 20}
+
+
+@pytest.mark.parametrize("damage", ["emptied", "torn", "deleted"])
+def test_a_resume_rebuilds_an_emptied_or_torn_progress_csv_from_the_checkpoint(tmp_path, motion_a, damage, caplog):
+    import logging
+
+    env, eval_env = make_envs(motion_a, action_mode="residual", residual_range=0.2)
+    first = PPOTrainer(env, eval_env, PPOConfig(**{**SMALL_UPDATES, "total_steps": 256}), tmp_path, seed=1)
+    first.train()
+    progress = tmp_path / "progress.csv"
+    assert _csv_steps(progress) == [128, 256]
+    if damage == "emptied":
+        progress.write_bytes(b"")  # as a full disk or a crashed copy leaves it
+    elif damage == "torn":
+        progress.write_bytes(progress.read_bytes()[:-40])  # the last row cut in the middle
+    else:
+        progress.unlink()
+    second = PPOTrainer(env, eval_env, PPOConfig(**{**SMALL_UPDATES, "total_steps": 384}), tmp_path, seed=1)
+    second.restore(tmp_path / "checkpoints" / "last.pt")
+    with caplog.at_level(logging.WARNING, logger="aslexp.rl.ppo"):
+        result = second.train()
+    assert _csv_steps(progress) == [128, 256, 384] == [row["step"] for row in result.history]
+    said = [r.getMessage() for r in caplog.records if "progress.csv" in r.getMessage()]
+    if damage == "deleted":
+        assert said == []  # a folder without the file gets the curve, as a resume into a new folder does
+    else:
+        assert said == [f"{progress}: rebuilt from the checkpoint's history (2 rows, to step 256; the file held "
+                        f"{0 if damage == 'emptied' else 2} rows, not those)"]
+    assert not list(tmp_path.glob(".progress.csv.*"))  # every rewrite went through a temporary file
+
+
+@pytest.mark.slow  # two imitate jobs (each measures its baselines first)
+def test_a_sigkill_between_checkpoints_then_an_in_place_resume_writes_each_step_once(tmp_path):
+    """A real imitate job killed with SIGKILL after an update that no checkpoint holds: resumed in
+    place, progress.csv holds every step once (the rows after the checkpoint are trained again)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    import job_process
+
+    root = Path(__file__).resolve().parents[2]
+    run_dir = tmp_path / "run"
+    # an update every 128 steps, a checkpoint every 256 (at each evaluation)
+    small = ["motion=B", "env=residual", "ppo=fast", "ppo.hidden_sizes=[16,16]", "ppo.steps_per_rollout=128",
+             "ppo.minibatch_size=64", "ppo.epochs=1", "ppo.eval_interval=256", "ppo.eval_steps=20",
+             "ppo.eval_at_start=false", "plots=false", "render.gif=false", "render.mp4=false",
+             f"hydra.run.dir={run_dir}"]
+    progress = run_dir / "progress.csv"
+    job = subprocess.Popen([sys.executable, "-m", "aslexp.jobs.imitate", *small, "ppo.total_steps=100000"],
+                           cwd=root, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def past_a_checkpoint() -> bool:
+        try:
+            steps = _csv_steps(progress)
+        except (OSError, KeyError, ValueError):
+            return False
+        return bool(steps) and steps[-1] > 256 and steps[-1] % 256 != 0
+
+    try:
+        deadline = time.monotonic() + 240
+        while not past_a_checkpoint() and job.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        os.kill(job.pid, signal.SIGKILL)
+    finally:
+        job.kill()
+        job.wait()
+    killed_at = _csv_steps(progress)
+    checkpoint = load_checkpoint(run_dir / "checkpoints" / "last.pt")["steps"]
+    assert checkpoint % 256 == 0 and killed_at[-1] > checkpoint, (killed_at, checkpoint)
+
+    total = killed_at[-1] + 128
+    resumed = job_process.run([sys.executable, "-m", "aslexp.jobs.imitate", *small, f"resume={run_dir}",
+                               f"ppo.total_steps={total}"], cwd=root, env=dict(os.environ), capture_output=True,
+                              text=True, timeout=300)  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert _csv_steps(progress) == list(range(128, total + 1, 128))  # each step once, in order
+    lost = (killed_at[-1] - checkpoint) // 128
+    assert (f"{progress}: {lost} row(s) after step {checkpoint} (the checkpoint's last) removed: this resume "
+            "trains those steps again") in resumed.stdout + resumed.stderr + (run_dir / "imitate.log").read_text()

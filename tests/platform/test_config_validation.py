@@ -53,7 +53,7 @@ def test_a_choice_that_needs_more_names_the_whole_fix_at_once(aslexp, tmp_path):
                            "env.action_mode=residual")
     assert line.endswith("Add: env.action_mode=residual env.action_range=joint")
     assert not run_dir.exists()
-    with initialize_config_dir(config_dir=str(CONF.resolve()), version_base=None):
+    with initialize_config_dir(config_dir=str(CONF.resolve()), version_base="1.3"):
         fixed = compose("imitate", overrides=chosen + line.split("Add: ")[1].split())
     check_config("imitate", fixed)  # nothing more needed
 

@@ -1,4 +1,4 @@
-"""One damaged run file never stops the tools (issue 26.7): `runs list`, `runs diff`, `report`,
+"""One damaged run file never stops the tools: `runs list`, `runs diff`, `report`,
 `sweep status` and `sweep best` on a real sweep folder where trials' run.json, metrics.json and
 .hydra/overrides.yaml were damaged after the fact. Each tool names every damaged file it reads in
 one warning line, goes on with the rest and exits as documented; no traceback. `report` on a

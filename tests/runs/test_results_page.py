@@ -1,4 +1,4 @@
-"""The results page (docs/results.md, issue 28 item 1): every row's command composes for its job with
+"""The results page (docs/results.md): every row's command composes for its job with
 the overlay, engine and reward the catalogue names; the committed page is what the committed snapshots
 render; a snapshot is made from real run folders (tiny imitate and recognize runs), kept when its
 folders are gone, and an entry with neither says "not run"; the thesis' numbers of the catalogue are
@@ -430,7 +430,7 @@ def test_the_generated_differences_change_when_a_runs_config_changes():
     del old["ppo"]["action_mapping"], old["ppo"]["kl_stop"]
     lines = differences.imitation_differences([old], thesis, runs, 10)
     assert any("the only one before ppo.action_mapping existed" in line for line in lines)
-    # baselines measured at report time from phase 0 (runs before session 19)
+    # baselines measured at report time from phase 0 (the earliest runs)
     lines = differences.imitation_differences([thesis], thesis, {**runs, "protocols": [((4, 2400), None)]}, 10)
     assert "from phase 0 only" in lines[-1]
 

@@ -1,4 +1,4 @@
-"""The recognition entries of the results page (issue 35 item 3): per row the test clips and all
+"""The recognition entries of the results page: per row the test clips and all
 clips, Wilson intervals for proportions (a bootstrap or none for MCC), the "no better than chance"
 mark, no spread over the seeds of a deterministic model, and a generated line of differences from
 the thesis; on the committed snapshots, the real data and real tiny runs."""

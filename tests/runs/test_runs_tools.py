@@ -53,7 +53,7 @@ def test_runs_diff_reports_added_and_removed_keys(small_sweep: Path, tmp_path: P
 
 
 def test_runs_list_shows_every_override_whole(tmp_path: Path) -> None:
-    """Issue 39 item 8: the override that tells runs apart is often the last; the table never cuts it."""
+    """The override that tells runs apart is often the last; the table never cuts it."""
     run = tmp_path / "run"
     tail = "+note=the_override_that_tells_this_run_apart_from_the_one_beside_it"
     job_process.run([sys.executable, "-m", "aslexp.jobs.quadratic", "x=0.25", "y=-0.75", "+label=a_long_label_first",

@@ -1,4 +1,4 @@
-"""A trial whose job outlives its sweep process is adopted, not replaced (issue 26, item 4).
+"""A trial whose job outlives its sweep process is adopted, not replaced.
 
 With ``hydra/launcher=local`` (submitit's local executor) or Slurm recipe A each trial's job is a
 process of its own: killing the sweep leaves it running. The resume waits for it and tells the
@@ -231,3 +231,37 @@ def test_ctrl_c_in_a_terminal_reaches_the_job_too_and_both_say_interrupted_at_on
     trial = load_study(sweep).trials[0]
     assert trial.state == TrialState.FAIL and trial.user_attrs[ATTR_STATE] == INTERRUPTED
     assert _run(sweep / "0")["status"] == "interrupted"
+
+
+def test_a_job_started_again_in_a_given_up_trial_s_folder_leaves_its_run_json_as_the_study_has_it(tmp_path):
+    """A requeued job (Slurm requeues a preempted or timed-out job with the same arguments) starts
+    again in its trial's folder after a resume gave that trial up, recorded it interrupted and ran
+    its point again: the job refuses, and the folder's run.json stays byte for byte what the study
+    says (interrupted), so `runs list` and the study agree."""
+    sweep = tmp_path / "sweep"
+    proc = subprocess.Popen(sweep_command(sweep, "hydra.sweeper.n_trials=2", "sleep=30"), cwd=tmp_path,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    wait_for(lambda: (sweep / "0" / "run.json").exists(), 60, "the first trial's run.json")
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    run_sweep(sweep, "hydra.sweeper.n_trials=1", "sleep=0", "hydra.sweeper.continue_study=true")
+    lost = load_study(sweep).trials[0]
+    assert lost.state == TrialState.FAIL and lost.user_attrs[ATTR_STATE] == INTERRUPTED
+    record = sweep / "0" / "run.json"
+    before = record.read_bytes()
+    assert json.loads(before)["status"] == "interrupted"
+
+    context = {"storage": str(sweep / "optuna.journal"), "study_name": "quadratic",
+               "trial_id": lost._trial_id, "number": 0, "pruner": {}}
+    overrides = [f"{k}={v}" for k, v in lost.params.items()]
+    again = job_process.run([sys.executable, "-m", "aslexp.jobs.quadratic", *overrides, "sleep=30",
+                             f"hydra.run.dir={sweep / '0'}"], cwd=tmp_path, capture_output=True, text=True,
+                            timeout=60, env={**os.environ, "ASLEXP_TRIAL": json.dumps(context)})  # fmt: skip
+    assert again.returncode == 1
+    assert ("TrialGivenUp: trial 0 of study 'quadratic' is already fail in the study (" in again.stderr
+            and "the job does not run it" in again.stderr), again.stderr[-2000:]
+    assert record.read_bytes() == before
+    listed = json.loads(run_cli("runs", "list", str(sweep), "--format", "json").stdout)
+    assert {Path(row["path"]).name: row["status"] for row in listed} == {"0": "interrupted", "1": "completed"}
+    status = run_cli("sweep", "status", str(sweep)).stdout
+    assert "interrupted 1" in status and "complete 1" in status, status

@@ -1,5 +1,5 @@
 """Every command of docs/sweeps.md, and the sweep and run commands of the README and the how-to pages
-(docs/howto_*.md), runs (issues 11.7, 28.3).
+(docs/howto_*.md), runs.
 
 The commands are read from the documents' ```bash blocks, so a command that stops working, or a
 new one, is caught here. They run as written, on tiny budgets: counts, sizes and cluster

@@ -1,5 +1,5 @@
-"""A full disk never costs a study (issue 26.1): journal appends are all-or-nothing; and never
-costs its budget (issue 39.6): a trial whose own files find the disk full does not count, the
+"""A full disk never costs a study: journal appends are all-or-nothing; and never
+costs its budget: a trial whose own files find the disk full does not count, the
 sweep waits for room (or stops in one line naming the file), and the trial's point runs again.
 
 The disk is a real small tmpfs filled by a real file (root can mount one here and in CI); where

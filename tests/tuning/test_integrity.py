@@ -1,4 +1,4 @@
-"""Sweep integrity (issue 11): nothing finished is overwritten, duplicated or silently lost.
+"""Sweep integrity: nothing finished is overwritten, duplicated or silently lost.
 
 Real Hydra multiruns of the quadratic job on real journal files and PostgreSQL."""
 
@@ -56,7 +56,7 @@ def test_two_studies_in_one_sweep_folder_both_complete_and_never_share_a_folder(
 
 
 def test_a_sweep_with_another_search_space_into_a_study_s_folder_is_refused_untouched(tmp_path):
-    """Issue 39.7: another space and fixed override (``x=interval(2,3) noise=0.5`` beside x in
+    """Another space and fixed override (``x=interval(2,3) noise=0.5`` beside x in
     [-1, 1]) is another sweep, not a resume: refused in one line (exit 2) that names the folder,
     what differs and the ways on, with every file of the first study byte-identical (its journal
     too). The same space written otherwise is the same sweep: it resumes."""

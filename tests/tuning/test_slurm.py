@@ -1,4 +1,4 @@
-"""Sweeps and extraction on a real Slurm cluster (issue 11.8): a single-node cluster on loopback,
+"""Sweeps and extraction on a real Slurm cluster: a single-node cluster on loopback,
 started by scripts/ci_slurm.sh. Recipe A (the launcher, trials in flight), recipe B (an array of
 workers on one study), scancel of a running trial, and extraction as an array job."""
 
@@ -165,7 +165,7 @@ def test_extraction_as_an_array_job_one_shard_per_task_resumable(tmp_path):
 def test_recipe_a_a_trial_whose_sweep_was_killed_is_waited_for_and_adopted(tmp_path):
     """SIGKILL of the sweep process (recipe A: it waits for its trial's Slurm job) leaves the job
     running; the same command resumes, waits for the job and adopts the result its run.json
-    records: no replacement, and study, run.json and `sweep status` agree (issue 26)."""
+    records: no replacement, and study, run.json and `sweep status` agree."""
     sweep = tmp_path / "sweep"
     command = ["hydra.sweeper.n_trials=1", "sleep=10", *SLURM]
     with open(tmp_path / "sweep.err", "w") as err:  # a file: the job does not inherit it
@@ -192,3 +192,50 @@ def test_recipe_a_a_trial_whose_sweep_was_killed_is_waited_for_and_adopted(tmp_p
     assert accounting([job])[job]["State"] == "COMPLETED"
     status = run_cli("sweep", "status", str(sweep)).stdout
     assert "budget 1, 1 counted, 0 to go" in status and "complete 1" in status
+
+
+def _largest_node_gb() -> int:
+    out = subprocess.run(["sinfo", "-h", "-p", "debug", "-o", "%m"], capture_output=True, text=True, check=True)
+    return max(int(v.rstrip("+")) for v in out.stdout.split()) // 1024
+
+
+def _queued_jobs(name: str) -> list[str]:
+    return subprocess.run(["squeue", "-h", "-n", name, "-o", "%i"], capture_output=True, text=True).stdout.split()
+
+
+def test_a_memory_request_above_every_node_is_refused_in_one_line_and_the_study_resumes(tmp_path):
+    """The launcher's default of 32 GB on a smaller node: one line naming hydra.launcher.mem_gb and
+    the size that fits, exit 2, nothing submitted, and the trial not counted; the same command with
+    that size then runs the whole budget."""
+    sweep = tmp_path / "sweep"
+    largest = _largest_node_gb()
+    too_much = [*SLURM, f"hydra.launcher.mem_gb={largest + 64}"]
+    refused = run_sweep(sweep, "hydra.sweeper.n_trials=2", *too_much, check=False, timeout=120)
+    lines = [ln for ln in refused.stderr.splitlines() if ln.strip() and not ln.startswith("[20")]
+    assert refused.returncode == 2, refused.stderr[-3000:]
+    assert len(lines) == 1, lines
+    assert lines[0].startswith(f"aslexp quadratic: hydra.launcher.mem_gb={largest + 64}: Slurm cannot give a job "
+                               f"{largest + 64} GB on partition 'debug'; the largest node of partition 'debug' has ")
+    assert lines[0].endswith(f"MB: set hydra.launcher.mem_gb={largest} or less (null: Slurm's default); "
+                             "nothing was submitted")  # fmt: skip
+    assert not _queued_jobs("quadratic") and not list(sweep.rglob("*.submission_file*"))
+    study = _study(sweep)
+    assert [t.user_attrs.get(ATTR_STATE) for t in study.trials] == [INTERRUPTED]  # not counted: run again
+    run_sweep(sweep, "hydra.sweeper.n_trials=2", *SLURM, f"hydra.launcher.mem_gb={largest}", timeout=300)
+    study = _study(sweep)
+    assert sum(t.state == optuna.trial.TrialState.COMPLETE for t in study.trials) == 2
+
+
+def test_a_plain_multirun_with_too_much_memory_stops_in_one_line(tmp_path):
+    """The same refusal without the Optuna sweeper (a grid over the basic sweeper)."""
+    sweep = tmp_path / "grid"
+    largest = _largest_node_gb()
+    proc = job_process.run([sys.executable, "-m", "aslexp.jobs.quadratic", "-m", "x=0.5,1.5",
+                            f"hydra.sweep.dir={sweep}", *SLURM, f"hydra.launcher.mem_gb={largest + 64}"],
+                           cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                           env={**os.environ, "HYDRA_FULL_ERROR": "0"})  # fmt: skip
+    lines = [ln for ln in proc.stderr.splitlines() if ln.strip() and not ln.startswith("[20")]
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert len(lines) == 1 and f"hydra.launcher.mem_gb={largest + 64}: Slurm cannot give a job" in lines[0], lines
+    assert f"set hydra.launcher.mem_gb={largest} or less" in lines[0] and "Traceback" not in proc.stderr
+    assert not _queued_jobs("quadratic")

@@ -1,4 +1,4 @@
-"""A sweep folder is self-contained (issue 26.6): moved, copied or read-only, it reads back.
+"""A sweep folder is self-contained: moved, copied or read-only, it reads back.
 
 sweep.json records the journal relative to the folder and the study records trial folders
 relative to the study's home; the tools open the journal read-only and take no lock."""

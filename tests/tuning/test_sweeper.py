@@ -185,7 +185,7 @@ def test_sigint_marks_the_running_trial_interrupted_and_resume_completes(tmp_pat
     # The same command with a budget that ends sooner (interrupted trials do not count).
     run_sweep(sweep, f"hydra.sweeper.n_trials={completed + 2}", "sleep=0.8")
     assert _count(sweep, TrialState.COMPLETE) == completed + 2
-    # It runs the interrupted point again, as the Ctrl-C line said (issue 39.8).
+    # It runs the interrupted point again, as the Ctrl-C line said.
     rerun = [t for t in load_study(sweep).trials if t.user_attrs.get(ATTR_RERUN_OF) is not None]
     assert len(rerun) == 1 and rerun[0].user_attrs[ATTR_RERUN_OF] == interrupted[0].number
     assert rerun[0].params == interrupted[0].params and rerun[0].state == TrialState.COMPLETE
@@ -305,7 +305,7 @@ def test_best_trial_command_reproduces_its_metric(tmp_path: Path) -> None:
 
 
 def test_a_sweep_that_completes_its_budget_exits_0_although_a_worker_was_killed(tmp_path: Path) -> None:
-    """Issue 39.8: worker 1 is killed (SIGKILL) in its trial; worker 0 finds the trial lost, runs
+    """Worker 1 is killed (SIGKILL) in its trial; worker 0 finds the trial lost, runs
     its point again and completes the budget: the sweep did its work, exit 0 with a warning."""
     sweep = tmp_path / "sweep"
     proc = subprocess.Popen(sweep_command(sweep, "hydra.sweeper.n_trials=3",

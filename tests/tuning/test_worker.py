@@ -181,7 +181,7 @@ def test_specs_and_names_fail_clearly(journal: str) -> None:
 
 
 def test_an_interrupted_trial_s_point_runs_again_and_a_point_gets_three_runs_at_most(journal):
-    """Issue 39.8: the point an interruption stopped is run again (the next trial takes it), not
+    """The point an interruption stopped is run again (the next trial takes it), not
     replaced by another; one that is interrupted every time is given up after three runs."""
     study = _study(journal)
     settings = WorkerSettings(storage_spec=journal, study_name="unit", n_trials=2,

@@ -41,14 +41,45 @@ def npy_ids(directory: Path) -> set[str]:
     return {path.stem for path in directory.glob("*.npy") if not path.name.endswith(hands.HANDEDNESS_SUFFIX)}
 
 
+# dtype kinds a keypoint array may hold: bool, signed and unsigned integers, floats
+NUMERIC_KINDS = "biuf"
+KIND_WORDS = {"U": "text", "S": "bytes", "O": "Python objects", "c": "complex numbers", "V": "records",
+              "M": "dates", "m": "time spans"}  # fmt: skip
+
+
+def _check_npy_header(path: Path) -> None:
+    """Compare what a .npy header promises with the bytes the file holds, before reading any data:
+    a header that claims (10**12, 132) over 64 bytes would otherwise make numpy allocate terabytes
+    (a MemoryError that names no file), and a wrong dtype would fail later without naming it."""
+    with path.open("rb") as handle:
+        version = np.lib.format.read_magic(handle)  # ValueError: not a .npy file
+        read_header = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
+            np.lib.format.read_array_header_2_0  # fmt: skip
+        shape, _, dtype = read_header(handle)
+        data_bytes = path.stat().st_size - handle.tell()
+    if dtype.hasobject or dtype.kind not in NUMERIC_KINDS:
+        raise DataError(f"{path}: array of dtype {dtype} ({KIND_WORDS.get(dtype.kind, dtype.kind)}); expected "
+                        "numbers (float or integer keypoint coordinates)")  # fmt: skip
+    expected = int(np.prod(shape, dtype=object)) * dtype.itemsize
+    if data_bytes < expected:  # "Failed to read all data": the phrase numpy uses for a short file
+        raise DataError(f"{path}: not a plain .npy array (Failed to read all data: its header says shape "
+                        f"{tuple(shape)} of {dtype} = {expected} bytes, the file holds {data_bytes} bytes after "
+                        "the header; truncated, or a header that does not describe the file)")  # fmt: skip
+
+
 def load_npy(path: Path) -> np.ndarray:
+    """A numeric .npy array; an empty, truncated or lying file, or one of strings or objects, is a
+    :class:`DataError` naming the file (the dataset build skips it and counts it)."""
     if not path.is_file():
         raise FileNotFoundError(f"keypoint file not found: {path}")
+    if path.stat().st_size == 0:
+        raise DataError(f"{path}: empty file (0 bytes), not a .npy array")
     try:
+        _check_npy_header(path)
         return np.load(path, allow_pickle=False)
-    except EOFError:  # numpy's word for a 0-byte file (a truncated one is a ValueError)
-        raise DataError(f"{path}: empty file ({path.stat().st_size} bytes), not a .npy array") from None
-    except ValueError as error:
+    except DataError:
+        raise
+    except (ValueError, SyntaxError) as error:  # SyntaxError: a header dict that is not a literal
         raise DataError(f"{path}: not a plain .npy array ({error})") from None
 
 

@@ -35,6 +35,7 @@ from __future__ import annotations
 import copy
 import csv
 import functools
+import io
 import logging
 import math
 import time
@@ -51,6 +52,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
 from aslexp.config_schema import PPO, read
+from aslexp.files import atomic_path
 from aslexp.rl.checkpoint import load_checkpoint, save_checkpoint
 from aslexp.rl.evaluate import EvaluationSummary, even_phases, evaluate_phases
 from aslexp.rl.noise import ActionNoise
@@ -610,8 +612,10 @@ class PPOTrainer:
         next_eval = (self.steps // cfg.eval_interval + 1) * cfg.eval_interval
         stopped = "total_steps"
         csv_file = ProgressCSV(self.out_dir / "progress.csv")
-        if self.history and not csv_file.path.exists():  # resumed into a new folder: the folder keeps the whole curve
-            csv_file.extend(self.history)
+        if self.history:  # resumed (into a new folder, or in place after a kill): the file holds the checkpoint's rows
+            note = csv_file.match_history(self.history)
+            if note:
+                log.warning("%s", note)
         log.info("PPO %s: %d environment(s) (%s), %d steps per update, learner on %s, rollout on %s",
                  cfg.name, self.num_envs, self.mode, cfg.batch_size,
                  self.device, self.rollout_agent.device)
@@ -730,31 +734,58 @@ def clipped_ppo_losses(agent: Agent, data: MinibatchData, clip_epsilon: float, v
 
 class ProgressCSV:
     """progress.csv: one row per update, appended; the header is the union of the keys seen so
-    far (the file is rewritten only when a row brings a new key, e.g. the first evaluation)."""
+    far (the file is rewritten, atomically, only when a row brings a new key, e.g. the first
+    evaluation, or to match a resumed run's history)."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
         self.keys: list[str] = []
         if path.exists():
-            with open(path, newline="", encoding="utf-8") as fh:
-                self.keys = list(csv.DictReader(fh).fieldnames or [])
+            try:
+                with open(path, newline="", encoding="utf-8") as fh:
+                    self.keys = list(csv.DictReader(fh).fieldnames or [])
+            except (csv.Error, UnicodeDecodeError):
+                pass  # damaged: its first rewrite gives it a header again
 
-    def extend(self, rows: list[dict[str, Any]]) -> None:
-        """Write ``rows`` at once (a header of all their keys), e.g. a resumed run's earlier rows."""
-        self._rewrite([*self._rows(), *rows])
+    def match_history(self, history: list[dict[str, Any]]) -> str | None:
+        """Make the file hold exactly ``history``, a checkpoint's rows: after a kill between two
+        checkpoints it holds rows the checkpoint does not (the resume trains those steps again:
+        they would repeat), and an emptied, torn or damaged file is rebuilt. A file that holds
+        them byte for byte is left as it is. Returns the line that says what changed (None:
+        nothing, or a new folder's first copy of the curve)."""
+        existed = self.path.exists()
+        try:
+            held = self.path.read_bytes() if existed else b""
+        except OSError:
+            held = None
+        self.keys = list(dict.fromkeys(k for row in history for k in row))
+        if held == _csv_text(self.keys, history).encode("utf-8"):
+            return None
+        steps = [_step(row) for row in self._rows()]
+        wanted = [int(row["step"]) for row in history]
+        self.keys = []
+        self._rewrite(history)
+        if not existed:
+            return None
+        if len(steps) > len(wanted) and steps[:len(wanted)] == wanted:
+            return (f"{self.path}: {len(steps) - len(wanted)} row(s) after step {wanted[-1]} (the checkpoint's last) "
+                    "removed: this resume trains those steps again")  # fmt: skip
+        return (f"{self.path}: rebuilt from the checkpoint's history ({len(wanted)} rows, to step {wanted[-1]}; "
+                f"the file held {len(steps)} rows, not those)")  # fmt: skip
 
     def _rewrite(self, rows: list[dict[str, Any]]) -> None:
         self.keys = list(dict.fromkeys([*self.keys, *(k for row in rows for k in row)]))
-        with open(self.path, "w", newline="", encoding="utf-8") as fh:
-            writer = csv.DictWriter(fh, fieldnames=self.keys, restval="")
-            writer.writeheader()
-            writer.writerows(rows)
+        with atomic_path(self.path) as tmp:  # a kill mid-rewrite leaves the old file whole
+            tmp.write_bytes(_csv_text(self.keys, rows).encode("utf-8"))
 
     def _rows(self) -> list[dict[str, Any]]:
         if not self.path.exists():
             return []
-        with open(self.path, newline="", encoding="utf-8") as fh:
-            return list(csv.DictReader(fh))
+        try:
+            with open(self.path, newline="", encoding="utf-8") as fh:
+                return list(csv.DictReader(fh))
+        except (csv.Error, UnicodeDecodeError):  # damaged: a resume rebuilds it (match_history)
+            return []
 
     def append(self, row: dict[str, Any]) -> None:
         if any(k not in self.keys for k in row) or not self.path.exists():
@@ -762,6 +793,21 @@ class ProgressCSV:
             return
         with open(self.path, "a", newline="", encoding="utf-8") as fh:
             csv.DictWriter(fh, fieldnames=self.keys, restval="").writerow(row)
+
+
+def _csv_text(keys: list[str], rows: list[dict[str, Any]]) -> str:
+    buffer = io.StringIO(newline="")
+    writer = csv.DictWriter(buffer, fieldnames=keys, restval="")
+    writer.writeheader()
+    writer.writerows(rows)
+    return buffer.getvalue()
+
+
+def _step(row: dict[str, Any]) -> int | None:
+    try:
+        return int(float(row.get("step")))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return None
 
 
 def _duration(seconds: float) -> str:

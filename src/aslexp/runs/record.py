@@ -6,7 +6,8 @@ Layout of a run directory (the jobs fill it; tools under ``aslexp.runs`` only re
     run.json           job, command line, git commit and dirty flag, seed, host, versions,
                        the process (host, pid, start; Slurm job when there is one),
                        start/end time, status (running|completed|failed|pruned|interrupted),
-                       error (one line) and traceback, main metric
+                       error (one line) and traceback, main metric; in a sweep, the trial
+                       (study, number, the sampler's settings)
     metrics.json       the job's numbers (the main metric among them)
     <job>.log          the log
     ...                plots (PNG), tables (CSV), checkpoints
@@ -219,6 +220,11 @@ def start_run(
     run_dir = Path(run_dir)
     if not overwrite:
         refuse_finished_run(run_dir)
+    from aslexp.tuning.context import current_trial_context, refuse_given_up_trial
+
+    if (run_dir / RUN_FILE).exists():  # a sweep's trial started again (a requeued Slurm job)
+        refuse_given_up_trial()  # given up in the study: its record there stays as the study has it
+    trial = current_trial_context()
     run_dir.mkdir(parents=True, exist_ok=True)
     info: dict[str, Any] = {
         "job": job,
@@ -237,6 +243,8 @@ def start_run(
         "error": None,
         "main_metric": None,
     }
+    if trial is not None:  # a sweep's trial: which one, and every setting of the sampler that drew it
+        info["trial"] = {"study_name": trial.study_name, "number": trial.number, "sampler": dict(trial.sampler or {})}
     if extra:
         info.update(extra)
     run = Run(run_dir, info)

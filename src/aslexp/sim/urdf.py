@@ -8,12 +8,14 @@ upper-body humanoid) come as URDF paths; :func:`read_joints` gives the joint tab
 
 from __future__ import annotations
 
+import math
 import os
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from aslexp.config_schema import Section
+from aslexp.errors import ConfigError, DataError
 from aslexp.files import atomic_write_text
 
 FINGERS = ("thumb", "index", "middle", "ring", "pinkie")
@@ -79,6 +81,15 @@ class HandProportions(Section):
     joint_limits: tuple[float, float] = (0.0, 2.0)
     effort: float = 1000.0
     velocity: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("palm_mass", "phalanx_mass"):  # a massless or negative link cannot be simulated
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"{name}={getattr(self, name)!r}: expected a positive mass in kg")
+        lower, upper = self.joint_limits
+        if not lower <= upper:
+            raise ConfigError(f"joint_limits=[{lower!r}, {upper!r}]: expected [lower, upper] with lower <= upper "
+                              "(radians)")  # fmt: skip
 
 def _vec(values) -> str:
     return " ".join(f"{float(v):g}" for v in values)
@@ -161,8 +172,73 @@ def write_hand_urdf(path: str | os.PathLike, proportions: HandProportions | None
     return atomic_write_text(path, build_hand_urdf(proportions))
 
 
+# Joints that move their child link: a child without mass (or with a negative one) cannot be simulated.
+MOVING_JOINTS = ("revolute", "continuous", "prismatic", "spherical", "floating", "planar")
+LIMITED_JOINTS = ("revolute", "prismatic")
+
+
+def _number(path: Path, where: str, text: str | None, default: str | None = None) -> float:
+    value = text if text is not None else default
+    try:
+        return float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise DataError(f"URDF {path}: {where}={value!r}; expected a number") from None
+
+
+def _mesh_candidates(path: Path, filename: str) -> list[Path]:
+    """Where PyBullet and MuJoCo look for a mesh: as given (absolute) or beside the URDF; a
+    ``package://name/rest`` path beside the URDF either with or without its package folder."""
+    if filename.startswith("file://"):
+        filename = filename[len("file://"):]
+    if filename.startswith("package://"):
+        rest = filename[len("package://"):]
+        inner = rest.split("/", 1)[1] if "/" in rest else rest
+        return [path.parent / rest, path.parent / inner]
+    mesh = Path(filename).expanduser()
+    return [mesh] if mesh.is_absolute() else [path.parent / mesh]
+
+
+def check_urdf(path: Path, root: ET.Element) -> None:
+    """Refuse, before any engine loads it, a URDF whose body cannot be simulated or loaded: a link on
+    a moving joint with a mass <= 0, a joint limit with lower > upper, a mesh file that is not there.
+    One :class:`DataError` naming the file, the link, joint or mesh, and what was expected."""
+    moved = {child.get("link") for joint in root.findall("joint") if joint.get("type") in MOVING_JOINTS
+             for child in joint.findall("child")}  # fmt: skip
+    problems = []
+    for link in root.findall("link"):
+        name = link.get("name")
+        mass_el = link.find("inertial/mass")
+        if mass_el is not None:
+            mass = _number(path, f"link {name!r} mass value", mass_el.get("value"))
+            if mass < 0 or not math.isfinite(mass) or (mass == 0 and name in moved):
+                problems.append(f"link {name!r} has mass {mass:g}; expected a positive mass in kg "
+                                "(a link that a joint moves needs one)")  # fmt: skip
+        for mesh in link.iter("mesh"):
+            filename = mesh.get("filename")
+            if not filename:
+                problems.append(f"link {name!r}: a <mesh> without filename")
+                continue
+            candidates = _mesh_candidates(path, filename)
+            if not any(candidate.is_file() for candidate in candidates):
+                problems.append(f"link {name!r}: mesh {filename!r} not found "
+                                f"(tried {', '.join(map(str, candidates))})")  # fmt: skip
+    for joint in root.findall("joint"):
+        limit_el = joint.find("limit")
+        if limit_el is None or joint.get("type") not in LIMITED_JOINTS:
+            continue
+        name = joint.get("name")
+        lower = _number(path, f"joint {name!r} limit lower", limit_el.get("lower"), "0")
+        upper = _number(path, f"joint {name!r} limit upper", limit_el.get("upper"), "0")
+        if lower > upper:
+            problems.append(f"joint {name!r} has limits lower={lower:g} > upper={upper:g}; expected lower <= upper")
+    if problems:
+        more = f" (and {len(problems) - 1} more problems)" if len(problems) > 1 else ""
+        raise DataError(f"URDF {path}: {problems[0]}{more}")
+
+
 def read_joints(urdf: str | os.PathLike) -> list[JointInfo]:
-    """The joints of a URDF file in file order (PyBullet's order with URDF_MAINTAIN_LINK_ORDER)."""
+    """The joints of a URDF file in file order (PyBullet's order with URDF_MAINTAIN_LINK_ORDER),
+    after :func:`check_urdf` (every body's URDF is read here before either engine loads it)."""
     path = Path(urdf)
     if not path.is_file():
         raise FileNotFoundError(f"URDF not found: {path}")
@@ -171,21 +247,30 @@ def read_joints(urdf: str | os.PathLike) -> list[JointInfo]:
     if end >= 0:  # PyBullet ignores bytes after </robot> (pybullet_data's humanoid.urdf has some)
         text = text[:end + len("</robot>")]
     try:
-        root = ET.fromstring(text)
+        root = ET.fromstring(text.lstrip())  # PyBullet reads a file with blank lines before <?xml
     except ET.ParseError as exc:
-        raise ValueError(f"URDF {path} is not valid XML: {exc}") from exc
+        raise DataError(f"URDF {path} is not valid XML: {exc}") from None
+    check_urdf(path, root)
     joints = []
-    for element in root.iter("joint"):
+    for element in root.findall("joint"):  # the robot's own (a <transmission> names joints too)
+        name = element.get("name")
         axis_el = element.find("axis")
         limit_el = element.find("limit")
-        axis = tuple(float(v) for v in axis_el.get("xyz").split()) if axis_el is not None else (1.0, 0.0, 0.0)
+        axis = (1.0, 0.0, 0.0)
+        if axis_el is not None:
+            axis = tuple(_number(path, f"joint {name!r} axis xyz", v) for v in (axis_el.get("xyz") or "").split())
+            if len(axis) != 3:
+                raise DataError(f"URDF {path}: joint {name!r} axis xyz={axis_el.get('xyz')!r}; expected three numbers")
         lower = upper = None
         if limit_el is not None:
-            lower = float(limit_el.get("lower", "nan"))
-            upper = float(limit_el.get("upper", "nan"))
+            lower = _number(path, f"joint {name!r} limit lower", limit_el.get("lower"), "nan")
+            upper = _number(path, f"joint {name!r} limit upper", limit_el.get("upper"), "nan")
+        parent, child = element.find("parent"), element.find("child")
+        if parent is None or child is None:
+            raise DataError(f"URDF {path}: joint {name!r} needs a <parent link=...> and a <child link=...>")
         joints.append(JointInfo(
-            name=element.get("name"), type=element.get("type"),
-            parent=element.find("parent").get("link"), child=element.find("child").get("link"),
+            name=name, type=element.get("type"),
+            parent=parent.get("link"), child=child.get("link"),
             axis=axis, lower=lower, upper=upper,
         ))
     return joints

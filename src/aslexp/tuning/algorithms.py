@@ -8,6 +8,8 @@ A job process rebuilds the study's pruner from the same spec (see :mod:`aslexp.t
 from __future__ import annotations
 
 import hashlib
+import inspect
+import logging
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -15,6 +17,8 @@ import optuna
 from optuna.distributions import BaseDistribution
 from optuna.samplers import BaseSampler
 from optuna.trial import FrozenTrial, TrialState
+
+log = logging.getLogger(__name__)
 
 SAMPLERS = {
     "tpe": "TPESampler",
@@ -112,6 +116,79 @@ class PerTrialSeedSampler(BaseSampler):
 # Samplers whose seed is not a random stream but part of the design: QMC's seed scrambles one
 # low-discrepancy sequence that the study walks along (its position is kept in the storage).
 _SEED_IS_DESIGN = {"qmc"}
+
+
+ATTR_SAMPLER = "aslexp_sampler"  # study and trial user attr: the sampler's settings (sampler_settings)
+
+
+def _plain_setting(value: Any) -> Any:
+    """A setting as JSON: numbers, text, lists and maps as they are; a function by its name; an
+    object (a sampler given as another's fallback, a mutation) by its class."""
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, Mapping):
+        return {str(k): _plain_setting(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain_setting(v) for v in value]
+    if callable(value) and hasattr(value, "__qualname__"):
+        return f"{getattr(value, '__module__', '')}.{value.__qualname__}"
+    return type(value).__name__
+
+
+def sampler_settings(spec: Mapping[str, Any] | None, study: optuna.Study | None = None) -> dict[str, Any]:
+    """Every setting of the sampler ``spec`` builds, the Optuna version's own defaults included
+    (Optuna 5's TPE is multivariate unless told otherwise, decided per ``study``: a 4.x study's
+    seed then draws other points). ``{"name", "class", "optuna", "seed", "seed_per_trial",
+    "settings": {...}}``: what a study and its trials record, so that a resumed or repeated sweep
+    can tell it samples differently."""
+    spec = dict(spec or {"name": "tpe"})
+    name = str(spec.get("name", "tpe")).lower()
+    built = _build("sampler", SAMPLERS, optuna.samplers, spec, "tpe")
+    # TPE keeps some settings in a tuple of its own (its "multivariate" there is unused: skipped)
+    estimator = getattr(built, "_parzen_estimator_parameters", None)
+    settings = {}
+    for key, parameter in inspect.signature(type(built).__init__).parameters.items():
+        if key == "self" or parameter.kind in (parameter.VAR_POSITIONAL, parameter.VAR_KEYWORD):
+            continue
+        value = spec.get(key, None if parameter.default is parameter.empty else parameter.default)
+        if hasattr(built, f"_{key}"):
+            value = getattr(built, f"_{key}")
+        elif key in getattr(estimator, "_fields", ()) and key != "multivariate":
+            value = getattr(estimator, key)
+        settings[key] = _plain_setting(value)
+    if study is not None and hasattr(built, "_is_multivariate"):  # None: Optuna decides by the study
+        settings["multivariate"] = bool(built._is_multivariate(study))
+    seed = spec.get("seed")
+    if "seed" in settings:
+        settings["seed"] = seed  # the study's seed (each trial's own stream is derived from it)
+    return {"name": name, "class": type(built).__name__, "optuna": optuna.__version__,
+            "seed": seed, "seed_per_trial": seed is not None and name not in _SEED_IS_DESIGN,
+            "settings": settings}
+
+
+def sampler_changes(before: Mapping[str, Any], now: Mapping[str, Any]) -> list[str]:
+    """``key: old -> new`` for each setting (or the class, the Optuna version) that differs."""
+    changes = [f"{key}: {before.get(key)!r} -> {now.get(key)!r}" for key in ("class", "optuna", "seed")
+               if before.get(key) != now.get(key)]  # fmt: skip
+    old, new = before.get("settings") or {}, now.get("settings") or {}
+    changes += [f"{key}: {old.get(key)!r} -> {new.get(key)!r}" for key in sorted(set(old) | set(new))
+                if old.get(key) != new.get(key)]  # fmt: skip
+    return changes
+
+
+def record_sampler_settings(study: optuna.Study, settings: Mapping[str, Any]) -> list[str]:
+    """Keep ``settings`` in the study (``ATTR_SAMPLER``; each trial also records the settings that
+    drew it). A study sampled before with other settings (another Optuna, another default) keeps
+    going, with one warning saying what changed; returns those changes."""
+    before = study.user_attrs.get(ATTR_SAMPLER)
+    changes = sampler_changes(before, settings) if isinstance(before, Mapping) else []
+    if changes:
+        log.warning("study %r was sampled with other settings before (%s): trials from now on are drawn "
+                    "with these, and its seed does not repeat the earlier sequence", study.study_name,
+                    "; ".join(changes))  # fmt: skip
+    if before != settings:
+        study.set_user_attr(ATTR_SAMPLER, dict(settings))
+    return changes
 
 
 def make_sampler(spec: Mapping[str, Any] | None) -> optuna.samplers.BaseSampler:

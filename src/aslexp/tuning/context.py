@@ -12,12 +12,15 @@ The sweeper passes the trial as JSON in the environment variable ``ASLEXP_TRIAL`
 ``hydra.job.env_set``, so it reaches the job in-process, in a submitit subprocess or on a Slurm
 node alike, and stays out of the job's config):
 ``{"storage": SPEC, "study_name": ..., "trial_id": ..., "number": ..., "pruner": {...},
-"heartbeat": SECONDS}``. A job in the sweeper's own process uses the sweeper's live trial
+"heartbeat": SECONDS, "sampler": {...}}`` (the job's run.json records its study, number and
+sampler). A job in the sweeper's own process uses the sweeper's live trial
 object; any other process loads the study from the storage, and there:
 
 * refuses to run a trial the study has finished already (its worker was gone before the job
   started, say a Slurm job that waited in the queue, and a resume gave the trial up and ran a
-  replacement): :class:`TrialGivenUp`, recorded in run.json as the job's error;
+  replacement): :class:`TrialGivenUp`, recorded in run.json as the job's error, unless the
+  folder holds the trial's run.json already (a requeued job in its trial's folder): that record,
+  the one the study agrees with, is left as it is (:func:`refuse_given_up_trial`);
 * refreshes the trial's heartbeat every ``heartbeat`` seconds while it runs, so that a sweep
   that lost the job's worker can tell, from any host, that the job still runs and wait for its
   result rather than run a replacement.
@@ -51,6 +54,7 @@ class TrialContext:
     number: int
     pruner: Mapping[str, Any] | None = None
     heartbeat: float | None = None  # seconds between the job's heartbeats (None: none)
+    sampler: Mapping[str, Any] | None = None  # the settings that drew the trial (algorithms.sampler_settings)
 
     def to_json(self) -> str:
         data = {"storage": self.storage, "study_name": self.study_name,
@@ -58,6 +62,8 @@ class TrialContext:
                 "pruner": dict(self.pruner or {})}
         if self.heartbeat:
             data["heartbeat"] = self.heartbeat
+        if self.sampler:
+            data["sampler"] = dict(self.sampler)
         return json.dumps(data, sort_keys=True, separators=(",", ":"))
 
     @classmethod
@@ -67,7 +73,8 @@ class TrialContext:
             return cls(storage=str(data["storage"]), study_name=str(data["study_name"]),
                        trial_id=int(data["trial_id"]), number=int(data["number"]),
                        pruner=data.get("pruner") or None,
-                       heartbeat=float(data["heartbeat"]) if data.get("heartbeat") else None)
+                       heartbeat=float(data["heartbeat"]) if data.get("heartbeat") else None,
+                       sampler=data.get("sampler") or None)
         except (ValueError, KeyError, TypeError) as err:
             raise ValueError(f"{ENV_VAR} is not a trial description ({err}): {text[:200]!r}") from err
 
@@ -130,6 +137,40 @@ def current_trial_context() -> TrialContext | None:
     return TrialContext.from_json(text) if text else None
 
 
+def _loaded_trial(context: TrialContext) -> tuple[Any, Any]:
+    """The study (with its pruner) and the frozen trial of ``context``, from the storage."""
+    import optuna
+
+    from aslexp.tuning.algorithms import make_pruner
+    from aslexp.tuning.storage import open_storage
+
+    study = optuna.load_study(study_name=context.study_name, storage=open_storage(context.storage),
+                              pruner=make_pruner(context.pruner))
+    return study, study._storage.get_trial(context.trial_id)
+
+
+def _refuse_if_finished(context: TrialContext, frozen: Any) -> None:
+    if frozen.state.is_finished():
+        from aslexp.tuning.worker import ATTR_ERROR
+
+        why = frozen.user_attrs.get(ATTR_ERROR)
+        raise TrialGivenUp(
+            f"trial {context.number} of study {context.study_name!r} is already "
+            f"{frozen.state.name.lower()} in the study" + (f" ({why})" if why else "") +
+            ": its sweep gave it up before this job started; the job does not run it")
+
+
+def refuse_given_up_trial() -> None:
+    """Raise :class:`TrialGivenUp` when this job is a sweep's trial that the study has finished
+    already: a job started again in its trial's folder (a requeued Slurm job) calls it before it
+    writes anything there, so the folder keeps the record the study agrees with. Nothing to do
+    outside a sweep, or for a trial the sweeper runs in this very process."""
+    context = current_trial_context()
+    if context is None or (context.study_name, context.number) in _LIVE_TRIALS:
+        return
+    _refuse_if_finished(context, _loaded_trial(context)[1])
+
+
 def trial_reporter(cfg: Mapping[str, Any] | None = None) -> NullReporter | TrialReporter:
     """The reporter for this job: a real trial reporter inside a sweep, else a NullReporter.
 
@@ -144,20 +185,8 @@ def trial_reporter(cfg: Mapping[str, Any] | None = None) -> NullReporter | Trial
         return TrialReporter(live)
     import optuna
 
-    from aslexp.tuning.algorithms import make_pruner
-    from aslexp.tuning.storage import open_storage
-
-    study = optuna.load_study(study_name=context.study_name, storage=open_storage(context.storage),
-                              pruner=make_pruner(context.pruner))
-    frozen = study._storage.get_trial(context.trial_id)
-    if frozen.state.is_finished():
-        from aslexp.tuning.worker import ATTR_ERROR
-
-        why = frozen.user_attrs.get(ATTR_ERROR)
-        raise TrialGivenUp(
-            f"trial {context.number} of study {context.study_name!r} is already "
-            f"{frozen.state.name.lower()} in the study" + (f" ({why})" if why else "") +
-            ": its sweep gave it up before this job started; the job does not run it")
+    study, frozen = _loaded_trial(context)
+    _refuse_if_finished(context, frozen)
     if context.heartbeat and (context.study_name, context.trial_id) not in _JOB_HEARTBEATS:
         from aslexp.tuning.worker import Heartbeat
 

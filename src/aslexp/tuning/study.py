@@ -74,6 +74,8 @@ class SweepInfo:
     params: dict[str, str] = field(default_factory=dict)
     fixed_overrides: list[str] = field(default_factory=list)
     sampler: dict[str, Any] = field(default_factory=dict)
+    # every setting the sampler ran with, Optuna's defaults included (algorithms.sampler_settings)
+    sampler_settings: dict[str, Any] = field(default_factory=dict)
     pruner: dict[str, Any] = field(default_factory=dict)
     task_module: str | None = None    # e.g. aslexp.jobs.recognize (python -m form of the job)
     command: str | None = None

@@ -61,6 +61,7 @@ import yaml
 from optuna.distributions import BaseDistribution
 from optuna.trial import FrozenTrial, Trial, TrialState
 
+from aslexp.errors import ConfigError
 from aslexp.files import read_json
 from aslexp.process import (
     boot_id,
@@ -130,6 +131,11 @@ def is_interrupted(trial: FrozenTrial) -> bool:
 
 def counts_toward_budget(trial: FrozenTrial) -> bool:
     return not is_interrupted(trial)
+
+
+class LaunchRefused(ConfigError):
+    """The launcher refused a trial's job for a setting every trial shares (a Slurm memory request
+    no node can give): the sweep stops in one line (exit 2) with the trial not counted."""
 
 
 def budget_used(trials: Iterable[FrozenTrial]) -> int:
@@ -707,6 +713,11 @@ def _run_worker(study: optuna.Study, distributions: Mapping[str, BaseDistributio
             try:
                 with Heartbeat(study, trial._trial_id, settings.heartbeat_interval):
                     outcome = launch(trial)
+            except LaunchRefused as err:  # every trial would be refused alike (a Slurm node too small):
+                # stop, the trial not counted (the same command, corrected, resumes)
+                record_outcome(study, trial, Outcome(INTERRUPTED, error=f"not launched: {err}"))
+                trial = None
+                raise
             except Exception as err:  # noqa: BLE001 - a launcher error fails this trial only
                 log.error("trial %d could not be launched:\n%s", trial.number,
                           "".join(traceback.format_exception(err)))

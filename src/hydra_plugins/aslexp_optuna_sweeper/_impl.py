@@ -27,7 +27,8 @@ from hydra.types import HydraContext, TaskFunction
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from aslexp.runs.logfmt import install_float_rounding, quiet_log_write_errors
-from aslexp.tuning.algorithms import AlgorithmSpecError, make_pruner, make_sampler
+from aslexp.tuning.algorithms import (ATTR_SAMPLER, AlgorithmSpecError, make_pruner, make_sampler,
+                                      record_sampler_settings, sampler_settings)
 from aslexp.tuning.context import (
     ENV_VAR,
     TrialContext,
@@ -47,6 +48,7 @@ from aslexp.tuning.worker import (
     ATTR_RUN_DIR,
     INTERRUPTED,
     DirectionMismatchError,
+    LaunchRefused,
     Outcome,
     WorkerSettings,
     budget_complete,
@@ -132,7 +134,7 @@ class SweeperImpl(Sweeper):
             print(f"aslexp {self.config.hydra.job.name}: {err}", file=sys.stderr, flush=True)
             raise SystemExit(1) from err
         except (SearchSpaceError, StudyError, StorageError, AlgorithmSpecError,
-                DirectionMismatchError) as err:
+                DirectionMismatchError, LaunchRefused) as err:
             # Bad input, not a bug: say what is wrong in one line, without a traceback.
             print(f"aslexp {self.config.hydra.job.name}: {err}", file=sys.stderr, flush=True)
             raise SystemExit(2) from err
@@ -153,6 +155,9 @@ class SweeperImpl(Sweeper):
                                        pruner=make_pruner(self.pruner_spec))
         # Seeded: each trial draws from its own stream, chosen by its number (never shared).
         study.sampler = make_sampler(self.sampler_spec)
+        self.sampler_settings = sampler = sampler_settings(self.sampler_spec, study)
+        if self.worker_index == 0:
+            record_sampler_settings(study, sampler)
         existing = len(study.get_trials(deepcopy=False))
         label = f"worker {self.worker_index}"
         # The folder's first study keeps it; another study gets studies/<name>/ (never a shared
@@ -160,7 +165,8 @@ class SweeperImpl(Sweeper):
         self.home = study_home(sweep_dir, SweepInfo(
             job=job_name, study_name=study_name, storage=redact(spec),
             direction=self.direction, n_trials=self.n_trials, params=space.sources,
-            fixed_overrides=space.fixed, sampler=self.sampler_spec, pruner=self.pruner_spec,
+            fixed_overrides=space.fixed, sampler=self.sampler_spec, sampler_settings=sampler,
+            pruner=self.pruner_spec,
             task_module=_task_module(self.task_function, strict=False),
             command=" ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
         ), write=self.worker_index == 0, continue_study=self.continue_study)
@@ -183,8 +189,10 @@ class SweeperImpl(Sweeper):
             summary = run_worker(
                 study, space.distributions, settings,
                 launch=lambda trial: self._launch(study, trial, space, spec, study_name),
-                on_asked=lambda trial: study._storage.set_trial_user_attr(
-                    trial._trial_id, ATTR_OVERRIDES, space.overrides_for(trial.params)),
+                on_asked=lambda trial: (
+                    study._storage.set_trial_user_attr(trial._trial_id, ATTR_OVERRIDES,
+                                                       space.overrides_for(trial.params)),
+                    study._storage.set_trial_user_attr(trial._trial_id, ATTR_SAMPLER, sampler)),
             )
         except KeyboardInterrupt:
             _stop_children(children, grace=_CHILD_GRACE)
@@ -217,7 +225,7 @@ class SweeperImpl(Sweeper):
                 spec: str, study_name: str) -> Outcome:
         context = TrialContext(storage=spec, study_name=study_name, trial_id=trial._trial_id,
                                number=trial.number, pruner=self.pruner_spec,
-                               heartbeat=self.heartbeat_interval or None)
+                               heartbeat=self.heartbeat_interval or None, sampler=self.sampler_settings)
         subdir = self._claim_trial_folder(trial.number, space.overrides_for(trial.params))
         run_dir = str(self.sweep_dir / subdir)
         # Known before the job starts: a trial lost with its worker is marked in its run.json too.
