@@ -33,8 +33,16 @@ TINY = dict(hidden_sizes=(32, 32), learning_rate=1e-3, steps_per_rollout=128, mi
 ENV = {"episode_steps": 15, "early_termination": {"min_reward": 0.15}}
 
 
+def absolute(**env) -> dict:
+    """env=default's absolute targets (whose random actions end episodes both ways; the body's own env
+    is a residual on the controller) with ENV and ``env`` over it."""
+    from aslexp.compose import resolve_group
+
+    return {**resolve_group("env", "default"), **ENV, **env}
+
+
 def factory(motion, engine: str | None = None, **env):
-    return functools.partial(ImitationEnv, motion, engine=engine, env={**ENV, **env})
+    return functools.partial(ImitationEnv, motion, engine=engine, env=absolute(**env))
 
 
 def test_two_workers_collect_the_transitions_of_two_single_environments(tmp_path, motion_a):
@@ -103,7 +111,7 @@ def test_rollout_workers_collect_what_the_same_loop_collects_in_this_process(tmp
 
 
 def test_a_run_with_rollout_workers_trains_and_resumes(tmp_path, motion_a):
-    eval_env = ImitationEnv(motion_a, env={**ENV, "early_termination": {"min_reward": None}})
+    eval_env = ImitationEnv(motion_a, env=absolute(early_termination={"min_reward": None}))
     config = PPOConfig(**{**TINY, "total_steps": 128}, num_envs=2, vector_env="workers")
     first = PPOTrainer(factory(motion_a), eval_env, config, tmp_path, seed=1)
     try:
@@ -144,7 +152,7 @@ def test_gae_bootstraps_truncation_not_termination_in_each_environment(tmp_path,
 
 
 def test_a_run_with_two_workers_resumes(tmp_path, motion_a):
-    eval_env = ImitationEnv(motion_a, env={**ENV, "early_termination": {"min_reward": None}})
+    eval_env = ImitationEnv(motion_a, env=absolute(early_termination={"min_reward": None}))
     config = PPOConfig(**{**TINY, "total_steps": 128}, num_envs=2)
     first = PPOTrainer(factory(motion_a), eval_env, config, tmp_path, seed=1)
     try:
@@ -200,7 +208,7 @@ def test_device_switch(tmp_path, motion_a):
 @pytest.mark.parametrize("rollout_device", ["cpu", "learner"])
 def test_learner_on_cuda_and_back(tmp_path, motion_a, rollout_device):
     # MuJoCo: GPU machines run Python 3.12, where PyBullet has no wheel.
-    eval_env = ImitationEnv(motion_a, engine="mujoco", env={**ENV, "early_termination": {"min_reward": None}})
+    eval_env = ImitationEnv(motion_a, engine="mujoco", env=absolute(early_termination={"min_reward": None}))
     config = PPOConfig(**TINY, device="cuda", num_envs=2, rollout_device=rollout_device)
     trainer = PPOTrainer(factory(motion_a, engine="mujoco"), eval_env, config, tmp_path)
     try:
@@ -222,7 +230,7 @@ def test_learner_on_cuda_and_back(tmp_path, motion_a, rollout_device):
 
 
 def test_evaluation_is_several_phases_and_the_headline_is_the_last(tmp_path, motion_a, caplog):
-    eval_env = ImitationEnv(motion_a, env={**ENV, "early_termination": {"min_reward": None}})
+    eval_env = ImitationEnv(motion_a, env=absolute(early_termination={"min_reward": None}))
     lookahead = reference_policy(1)
     summary = evaluate_phases(eval_env, lookahead, 20, (0.0, 0.5))
     singles = [evaluate(eval_env, lookahead, 20, phase=p).mean_reward for p in (0.0, 0.5)]

@@ -1,0 +1,183 @@
+"""A training pool of real signs, folded by gloss (train_motions=wlasl_signs, experiment=signs_unseen), on a
+real slice of the shared WLASL clips: eight MediaPipe Pose arrays extracted here, four glosses with two
+clips each, one of them (70033, "coffee") marked implausible by the extraction (its arms out of view)."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import io
+import json
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import job_process
+
+from aslexp.compose import compose, resolve_group
+from aslexp.envs.assembly import ImitationSetup
+from aslexp.envs.batched import BatchedImitationEnv
+from aslexp.envs.motion_pool import TrainMotionsSpec, sign_fold, training_motions
+from aslexp.envs.sign_folds import gloss_folds
+from aslexp.errors import ConfigError, DataError
+
+# again, cookie, ready: two plausible clips each; coffee: one plausible, one (70033) out of view
+SLICE = {"01457": "again", "01467": "again", "13169": "cookie", "13180": "cookie", "46287": "ready",
+         "46302": "ready", "11552": "coffee", "70033": "coffee"}
+THESIS = {"00433": "above", "52861": "snow", "69318": "father", "69546": "yes"}
+
+
+@pytest.fixture(scope="module")
+def sign_slice(data_root, tmp_path_factory) -> Path:
+    from aslexp.pose.extract_cli import extract_main
+
+    arrays = data_root / "keypoints" / "wlasl-mediapipe-pose"
+    wlasl = data_root / "wlasl" / "WLASL_v0.3.json"
+    if not arrays.is_dir() or not wlasl.is_file():
+        pytest.skip(f"the shared WLASL pose arrays or {wlasl} are not under {data_root}")
+    out = tmp_path_factory.mktemp("signs")
+    with contextlib.redirect_stdout(io.StringIO()):
+        code = extract_main([*(str(arrays / f"{v}.npy") for v in SLICE), "--motions", "--out", str(out),
+                             "--wlasl", str(wlasl), "--quiet"])
+    assert code == 0
+    return out
+
+
+def _spec(folder: Path, **changes) -> TrainMotionsSpec:
+    values = {**resolve_group("train_motions", "wlasl_signs"), "folder": str(folder), "folds": 2, **changes}
+    return TrainMotionsSpec.parse(values)
+
+
+def test_the_thesis_signs_glosses_are_wlasls(data_root):
+    wlasl = data_root / "wlasl" / "WLASL_v0.3.json"
+    if not wlasl.is_file():
+        pytest.skip(f"{wlasl} not found")
+    glosses = {i["video_id"]: entry["gloss"] for entry in json.loads(wlasl.read_text()) for i in entry["instances"]}
+    spec = TrainMotionsSpec.parse(resolve_group("train_motions", "wlasl_signs"))
+    assert spec.thesis_signs == {v: glosses[v] for v in THESIS} == THESIS
+    assert spec.include_thesis_signs and spec.fold is None
+
+
+def test_no_fold_trains_on_a_gloss_it_tests_and_the_run_motion_picks_its_fold(sign_slice, data_root):
+    spec = _spec(sign_slice)
+    glosses = set(SLICE.values()) | set(THESIS.values())
+    tested = []
+    for k in range(spec.folds):
+        fold = sign_fold(dataclasses.replace(spec, fold=k), data_root)
+        trained = {SLICE.get(name) or THESIS[name] for name in fold.summary()["motions"]}
+        assert trained and not trained & set(fold.test_glosses)
+        assert trained | set(fold.test_glosses) == glosses  # every gloss is trained or tested
+        tested += fold.test_glosses
+    assert sorted(tested) == sorted(glosses)  # each gloss tested in exactly one fold
+    # the assignment is the seed's and the gloss list's alone: recorded, and the same again
+    assert fold.assignment == gloss_folds(sorted(glosses), 2, spec.seed)
+    assert gloss_folds(list(reversed(sorted(glosses))), 2, spec.seed) == fold.assignment
+    assert any(gloss_folds(glosses, 2, seed) != fold.assignment for seed in range(1, 6))
+    # fold null: the fold that tests the run's motion's gloss; the clip and every clip of its gloss held out
+    for evaluated, gloss in ((data_root / "motions" / "upper_body" / "00433.txt", "above"),
+                             (sign_slice / "motions" / "upper_body" / "01457.txt", "again")):
+        fold = sign_fold(spec, data_root, str(evaluated))
+        assert fold.held_out == evaluated.stem and fold.held_out_gloss == gloss and gloss in fold.test_glosses
+        assert fold.fold == fold.assignment[gloss]
+        assert not {c.name for c in fold.train} & {v for v, g in {**SLICE, **THESIS}.items() if g == gloss}
+    with pytest.raises(ConfigError, match="train_motions.fold=null"):
+        sign_fold(dataclasses.replace(spec, include_thesis_signs=False), data_root, "motions/upper_body/00433.txt")
+    with pytest.raises(ConfigError, match="train_motions.folds=9: expected 2 to 8"):
+        sign_fold(dataclasses.replace(spec, folds=9, fold=0), data_root)
+
+
+def test_a_folder_that_is_no_extraction_is_one_line(sign_slice, data_root, tmp_path):
+    with pytest.raises(ConfigError, match=r"train_motions.folder=\S*nowhere: no such folder"):
+        sign_fold(_spec(tmp_path / "nowhere"), data_root)
+    with pytest.raises(DataError, match="no motions/reports/ in it"):
+        sign_fold(_spec(tmp_path), data_root)
+    reports = tmp_path / "motions" / "reports"
+    reports.mkdir(parents=True)
+    report = json.loads((sign_slice / "motions" / "reports" / "01457.json").read_text())
+    del report["pose_array"]["gloss"]
+    (reports / "01457.json").write_text(json.dumps(report))
+    with pytest.raises(DataError, match=r"01457.json: pose_array.gloss: expected the clip's gloss"):
+        sign_fold(_spec(tmp_path), data_root)
+
+
+def test_implausible_motions_are_left_out_and_counted(sign_slice, data_root):
+    report = json.loads((sign_slice / "motions" / "reports" / "70033.json").read_text())
+    assert report["upper_body"]["plausibility"]["plausible"] is False  # the extraction's own verdict
+    spec = _spec(sign_slice, include_thesis_signs=False)
+    folds = gloss_folds(set(SLICE.values()), spec.folds, spec.seed)
+    evaluated = next(v for v, g in SLICE.items() if folds[g] != folds["coffee"])  # a fold that trains on coffee
+    motion = sign_slice / "motions" / "upper_body" / f"{evaluated}.txt"
+    setup = ImitationSetup.from_groups(motion, body="upper_body", data_root=data_root)
+    pool = training_motions(spec, setup, str(motion))
+    signs = pool.summary()["signs"]
+    assert "coffee" not in signs["test_glosses"] and SLICE[evaluated] in signs["test_glosses"]
+    assert signs["implausible_left_out"] == {"count": 1, "motions": {"70033": ["out_of_view"]}}
+    assert signs["implausible_in_folder"] == 1 and "70033" not in signs["motions"] and "11552" in signs["motions"]
+    assert pool.summary()["count"] == len(pool.motions) == len(signs["motions"]) and pool.held_out == evaluated
+
+
+def test_a_batch_of_signs_reads_each_rows_own_motion_ahead(sign_slice, data_root):
+    """The pool mixes lengths and frame steps (the extracted clips at 25 fps, the thesis' 69318 at
+    0.03 s); each row observes its own motion's reference one control step ahead (the last values)."""
+    cfg = compose("imitate", ["experiment=signs_unseen", "motion='00433'", f"train_motions.folder={sign_slice}",
+                              "train_motions.folds=2", "train_motions.seed=2", f"data_root={data_root}"])
+    setup = ImitationSetup.from_config(cfg, data_root)
+    env = setup.env
+    assert list(env.observe_future) == [1] and not (env.observe_future_velocities or env.observe_joints
+                                                    or env.observe_reference_root)  # the frame ahead comes last
+    from aslexp.jobs._imitation import training_pool
+
+    pool = training_pool(cfg, setup)
+    assert "69318" in pool.signs["thesis_signs"] and len({round(float(m.dt[0]), 6) for m in pool.motions}) == 2
+    batch = BatchedImitationEnv.from_setup(16, setup, shape_reward=True, motions=pool.motions)
+    durations = batch.pool.durations
+    assert len(pool.motions) == 6 and len(set(np.round(durations, 6))) == 5  # lengths of 1.56 s to 4.16 s
+    obs, _ = batch.reset(seed=list(range(16)))
+    actions = np.zeros((16, batch.single_action_space.shape[0]), dtype=np.float32)
+    for _ in range(3):
+        obs, *_ = batch.step(actions)
+    assert len(set(batch.clip.tolist())) >= 3
+    dt = 1.0 / env.control_hz
+    for row in range(16):
+        own = int(batch.clip[row])
+        assert 0.0 <= batch.time[row] <= durations[own] + 3 * dt
+        ahead = [r.joints_many(np.array([batch.time[row] + dt]))[0] for r in batch.pool.references]
+        seen = obs[row, -len(ahead[own]):]
+        np.testing.assert_allclose(seen, ahead[own], atol=1e-5)
+        assert not any(np.allclose(seen, other, atol=1e-5) for i, other in enumerate(ahead) if i != own)
+    batch.close()
+
+
+def _imitate(tmp_path: Path, data_root: Path, run: str, *overrides: str) -> dict:
+    env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "MPLBACKEND": "Agg"}
+    tiny = ["ppo.total_steps=256", "ppo.num_envs=8", "ppo.steps_per_rollout=128", "ppo.minibatch_size=64",
+            "ppo.eval_interval=256", "ppo.eval_steps=30", "ppo.eval_episodes=1", "ppo.hidden_sizes=[16,16]",
+            "plots=false", "render.gif=false", "render.mp4=false"]
+    proc = job_process.run([sys.executable, "-m", "aslexp.cli", "imitate", "experiment=signs_unseen", *overrides,
+                            *tiny, f"hydra.run.dir={tmp_path / run}"], capture_output=True, text=True, timeout=600,
+                           env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert json.loads((tmp_path / run / "run.json").read_text())["status"] == "completed"
+    return json.loads((tmp_path / run / "metrics.json").read_text())
+
+
+def test_the_overlay_scores_a_held_out_sign_zero_shot(sign_slice, data_root, tmp_path):
+    """experiment=signs_unseen, tiny: on the thesis' 00433 (no source keypoints: no `signing`) and on an
+    extracted clip held out of its fold, which is also scored against the signer."""
+    folder = [f"train_motions.folder={sign_slice}", "train_motions.folds=2", "train_motions.seed=2"]
+    thesis = _imitate(tmp_path, data_root, "above", "motion='00433'", *folder)
+    signs = thesis["train_motions"]["signs"]
+    assert thesis["motion"] == "00433" and thesis["train_motions"]["held_out"] == "00433"
+    assert signs["held_out_gloss"] == "above" and "00433" not in signs["motions"]
+    assert thesis["train_motions"]["count"] == len(signs["motions"]) > 0 and 0.0 < thesis["last_eval"] <= 1.0
+    assert thesis["steps"] == 256 and "signing" not in thesis
+    assert signs["implausible_left_out"] == {"count": 1, "motions": {"70033": ["out_of_view"]}}
+
+    clip = sign_slice / "motions" / "upper_body" / "01457.txt"
+    held = _imitate(tmp_path, data_root, "again", f"motion.file={clip}", "motion.name=01457", *folder)
+    signs = held["train_motions"]["signs"]
+    assert signs["held_out"] == "01457" and "again" in signs["test_glosses"]
+    assert not {"01457", "01467"} & set(signs["motions"]) and {"00433", "13169"} <= set(signs["motions"])
+    assert set(held["signing"]["stages"]) >= {"reference", "policy", "controller"}
