@@ -1,4 +1,4 @@
-"""Bad config values are refused at the edge (issue 26.8): one line naming the key, the value given
+"""Bad config values are refused at the edge: one line naming the key, the value given
 and what is expected, exit 2, and no run folder; the shipped configs all pass. The real CLI in a
 subprocess; the schema (aslexp.config_schema) and the readers that share it in-process."""
 
@@ -38,7 +38,7 @@ def test_a_bad_value_is_one_line_exit_2_and_no_run_folder(aslexp, tmp_path, job,
 
 
 def test_a_choice_that_needs_more_names_the_whole_fix_at_once(aslexp, tmp_path):
-    """Issue 39 item 1: the 240 Hz tracking PD on the thesis' hand took three tries, each error naming
+    """The 240 Hz tracking PD on the thesis' hand took three tries, each error naming
     one more override; the first refusal names them all, and the overrides it names then compose."""
     from hydra import compose, initialize_config_dir
 
@@ -59,7 +59,7 @@ def test_a_choice_that_needs_more_names_the_whole_fix_at_once(aslexp, tmp_path):
 
 
 def test_an_experiment_that_cannot_be_assembled_is_refused_before_its_run_folder(aslexp, tmp_path):
-    """Issue 39 item 8: a refusal found when the experiment is assembled (here a whole sign on the
+    """A refusal found when the experiment is assembled (here a whole sign on the
     hand) used to leave a failed run folder; it is found at the edge now, exit 2, no folder."""
     run_dir = tmp_path / "run"
     proc = aslexp("imitate", "motion='00433'", f"hydra.run.dir={run_dir}", check=False, timeout=120)
