@@ -13,8 +13,9 @@ export PIP_DISABLE_PIP_VERSION_CHECK=1
 pip install -q --upgrade pip setuptools wheel 2>&1 | grep -v "is ignored" || true
 # torch first, so that every later requirement sees 2.13.0 as satisfied.
 pip install -q "torch==2.13.0" 2>&1 | grep -v "is ignored" || true
-# The wandb extra too: logger=wandb and its tests (offline unless a W&B key is configured).
-pip install -q -e ".[dev,wandb]" 2>&1 | grep -v "is ignored" || true
+# The wandb extra too: logger=wandb and its tests (offline unless a W&B key is configured); and mjx
+# (engine=mjx: mujoco-mjx and the CPU jax: ~25 s more on a first install, jaxlib ~350 MB on disk; mujoco and torch kept).
+pip install -q -e ".[dev,wandb,mjx]" 2>&1 | grep -v "is ignored" || true
 # Sweeps use aslexp's own Optuna sweeper (src/hydra_plugins/aslexp_optuna_sweeper), not the stock
 # hydra-optuna-sweeper 1.3.0: that one pins optuna<3 and cannot resume to a total budget, prune or
 # run asynchronous workers. Nothing here installs it (if present, our plugin hides its configs).

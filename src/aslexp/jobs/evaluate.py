@@ -3,7 +3,7 @@
     aslexp evaluate motion=A                                   # the no-learning baselines only, and figures
     aslexp evaluate <the run's overrides> resume=RUN ppo.eval_episodes=16   # re-evaluate a trained run
     aslexp evaluate motion.file=FILE policy=RUN_DIR            # a trained policy performs a motion
-    aslexp evaluate motion.file=FILE policy=RUN_DIR engine=pybullet   # ... on another engine than its own
+    aslexp evaluate motion.file=FILE policy=RUN_DIR engine=NAME       # ... on another engine than its own
 
 The groups and keys are the imitate job's (conf/evaluate.yaml includes conf/imitate.yaml), so a run's
 own overrides re-evaluate it; runs go to outputs/evaluate/. ``aslexp imitate`` keeps its forms of the

@@ -197,6 +197,7 @@ class MujocoBody:
             _inertia_from_shapes(mujoco, mspec)
         # A diverging state stays diverged (MuJoCo would silently reset it): the env counts and ends it.
         mspec.option.disableflags = int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
+        self._extend_spec(mspec)
         self.model = mspec.compile()  # the physics: no sensors to evaluate at every step
         # Probes read what the observation and reward need, as sensors: the end-effector tips (the
         # reference's probe), then every link's and the root's frame (world position, orientation,
@@ -251,6 +252,9 @@ class MujocoBody:
         self.peak_speeds = np.zeros(0)  # per environment of the last step(): fastest joint before the clamp
         self.peak_dofs = np.zeros(0, dtype=int)  # and its MuJoCo degree of freedom (dof_name)
         self._dof_names = {int(v): name for v, name in zip(self.qvel_index, layout.velocity_names)}
+
+    def _extend_spec(self, mspec) -> None:
+        """What a subclass adds to the model before it compiles (the MJX engine: its collision limits)."""
 
     def dof_name(self, dof: int) -> str:
         """The layout joint a MuJoCo degree of freedom belongs to ("the root" for a free base's)."""
@@ -667,13 +671,15 @@ class MujocoCharacter:
                  summary="MuJoCo: the same URDFs; many environments per process (envs.batched)",
                  divergence_hint="a stable-PD controller (physical gains) or engine=pybullet, whose motors "
                                  "the MuJoCo stand-in only approximates")
-def build(spec: EngineSpec, request: SimulationRequest) -> Simulation:
+def build(spec: EngineSpec, request: SimulationRequest, body_class: type[MujocoBody] = MujocoBody) -> Simulation:
     """One environment: the simulated character and its kinematic reference share one compiled
     model (the reference is posed, never stepped); images are drawn by PyBullet's TinyRenderer
-    from the poses (MuJoCo's renderer needs OpenGL)."""
+    from the poses (MuJoCo's renderer needs OpenGL). ``body_class``: the body that steps them
+    (another engine's subclass of :class:`MujocoBody`, e.g. the MJX engine's)."""
     world = MujocoWorld(request.physics, spec)
+    body = body_class(request.urdf, request.body, request.layout, request.physics, None, spec)
     sim = MujocoCharacter(world, request.urdf, request.body, request.layout, request.root_position,
-                          request.root_rotation)
+                          request.root_rotation, body=body)
     ref = MujocoCharacter(world, request.urdf, request.body, request.layout, request.root_position,
                           request.root_rotation, kinematic=True, body=sim.body)
     ground = world.add_ground() if request.body.base == "free" else None
