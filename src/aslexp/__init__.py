@@ -4,5 +4,5 @@ Two wings over one foundation: phonological property recognition (WLASL x ASL-LE
 and imitation (simulated hands and an upper-body humanoid learning signs with PPO).
 """
 
-__version__ = "0.1.0"
+__version__ = "0.4.0"
 from aslexp import envs as _envs  # noqa: E402,F401  (registers the gymnasium environments)

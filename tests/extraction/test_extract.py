@@ -186,7 +186,7 @@ def test_imitation_env_loads_the_upper_body_motion(extracted, data_root, tmp_pat
             "motion_layout": [[name, width] for name, width in R.UPPER_BODY_COLUMNS],
             "joint_groups": {"all": ["*"]}, "self_collision": False,
             "end_effectors": ["right_wrist", "left_wrist"], "end_effector_offset": [0.0, 0.0, 0.0]}
-    env = ImitationEnv(path, body=body)
+    env = ImitationEnv(path, body=body, env="default")
     try:
         assert env.layout.motion_columns == R.UPPER_FILE_VALUES and env.layout.num_joints == 38
         env.reset(seed=0)

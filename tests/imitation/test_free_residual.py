@@ -61,7 +61,9 @@ def test_a_constant_random_correction_has_the_asked_size_and_holds_still(motion_
     assert run.action_rms == pytest.approx(0.04, rel=1e-5) and all(np.array_equal(a, actions[0]) for a in actions)
     assert not np.array_equal(actions[0], constant_correction_policy(0.04, seed=4)(None, env))
     np.testing.assert_array_equal(actions[0], constant_correction_policy(0.04, seed=3)(None, env))
-    absolute = ImitationEnv(motion_a, env=FIXED)
+    from aslexp.compose import resolve_group
+
+    absolute = ImitationEnv(motion_a, env={**resolve_group("env", "default"), **FIXED})  # absolute targets
     with pytest.raises(ValueError, match="need a residual action"):
         constant_correction_policy(0.04, seed=3)(None, absolute)
     env.close(), absolute.close()

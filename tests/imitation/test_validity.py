@@ -24,7 +24,7 @@ from .test_jobs import run_job
 
 TRACKING_240 = dict(controller="reference_velocity_tuned", reward="hand_thesis",
                     env={"physics_hz": 240, "control_hz": 240, "action_mode": "residual",
-                         "reference_state_init": False})
+                         "reference_state_init": False, "early_termination": {"min_reward": None}})
 
 
 def test_mujoco_clamps_joint_speed_as_pybullet_and_a_stable_episode_never_ends_as_diverged(motion_a):

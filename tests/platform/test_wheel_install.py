@@ -45,7 +45,7 @@ def test_an_installed_wheel_runs_recognize_and_gym_make(installed, tmp_path):
                "env = gym.make('aslexp/HandImitation-v0', motion='A')\n"
                "obs, _ = env.reset(seed=0); print(obs.shape, env.unwrapped.motion.source)")
     assert env.returncode == 0, env.stderr[-2000:]
-    assert env.stdout.split()[0] == "(209,)" and env.stdout.strip().endswith("motions/hand/A.txt")
+    assert env.stdout.split()[0] == "(269,)" and env.stdout.strip().endswith("motions/hand/A.txt")
     sweeps = _run(installed, tmp_path, "-m", "aslexp.cli", "recognize", "--help")
     assert "classifier_mlp" in sweeps.stdout
     # The archived overlays and the README the help names travel too.
