@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import subprocess
 
 import pytest
 
@@ -71,3 +72,19 @@ def pytest_runtest_logreport(report: pytest.TestReport) -> None:
             "stop": report.stop}
     with open(_timeline["path"], "a", encoding="utf-8") as fh:
         fh.write(json.dumps(line) + "\n")
+
+
+# A full disk for real: a 64 KB tmpfs (a test that needs one skips where mount is refused). The sweep
+# tests' journal disk (tests/tuning/test_full_disk.py) is its own.
+@pytest.fixture()
+def small_disk(tmp_path):
+    mount = tmp_path / "small"
+    mount.mkdir()
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mount)],
+                          capture_output=True, text=True)
+    if done.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], capture_output=True)

@@ -115,20 +115,6 @@ def test_many_inputs_warned_of_one_thing_give_one_counted_line(data_root, tmp_pa
     assert f"warning(s) of {len(kinds)} kind(s) above" in printed
 
 
-@pytest.fixture()
-def small_disk(tmp_path):
-    mount = tmp_path / "small"
-    mount.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mount)], capture_output=True,
-                          text=True)  # fmt: skip
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
-    try:
-        yield mount
-    finally:
-        subprocess.run(["umount", "-l", str(mount)], capture_output=True)
-
-
 def test_a_full_disk_is_one_line_and_leaves_no_temporary(data_root, small_disk):
     proc = _cli(data_root / POSE_DIR / "10585.npy", data_root / POSE_DIR / "01457.npy", "--motions", "--out",
                 small_disk / "out")  # fmt: skip

@@ -23,20 +23,6 @@ from aslexp.jobs._common import one_line
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture()
-def small_disk(tmp_path):
-    mount = tmp_path / "small"
-    mount.mkdir()
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mount)],
-                          capture_output=True, text=True)
-    if done.returncode != 0:
-        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
-    try:
-        yield mount
-    finally:
-        subprocess.run(["umount", "-l", str(mount)], capture_output=True)
-
-
 def test_a_dataset_build_on_a_full_disk_names_the_file_and_fails_the_run(small_disk, tmp_path):
     run_dir, cache = tmp_path / "run", small_disk / "cache"
     proc = job_process.run(
