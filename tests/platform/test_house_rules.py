@@ -8,7 +8,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 README_WORDS = 700
-# "issue 38", "issues 37, 38", "Issue 26.8", "session 19", "sessions 12-13"
+# the word issue or session (any case, singular or plural) followed by a number
 TRACKER = re.compile(r"\b(issues?|sessions?)\s+#?\d", re.IGNORECASE)
 SPOKEN_OF = ["src", "conf", "sweeps", "bench", "scripts", "tests", "docs", ".ci"]
 TEXT = {".py", ".yaml", ".yml", ".md", ".sh", ".toml", ".txt", ""}
