@@ -44,8 +44,9 @@ class _Refused(Exception):
 class Key:
     """One key's type (``int``, ``float``, ``bool``, ``str``, ``choice`` or ``list``) and range.
 
-    ``low``/``high`` bound numbers (``low_open``/``high_open``: excluded); ``choices`` lists the
-    values of a ``choice``; ``item`` is a list's element; ``nullable`` accepts null.
+    ``low``/``high`` bound numbers (``low_open``/``high_open``: excluded; ``finite``: no infinity,
+    which a number with one bound would otherwise take); ``choices`` lists the values of a
+    ``choice``; ``item`` is a list's element; ``nullable`` accepts null.
     """
 
     kind: str
@@ -58,6 +59,7 @@ class Key:
     nullable: bool = False
     nonempty: bool = False
     aliases: tuple[tuple[str, str], ...] = ()  # other spellings of a choice: (alias, choice)
+    finite: bool = False
 
     # ------------------------------------------------------------------ what is expected
 
@@ -78,10 +80,11 @@ class Key:
             else:
                 text = ("integers" if plural else "an integer") + self._range()
         elif self.kind == "float":
+            noun = "finite number" if self.finite else "number"
             if self.low == 0 and self.low_open and self.high is None:
-                text = "positive numbers" if plural else "a positive number"
+                text = f"positive {noun}s" if plural else f"a positive {noun}"
             else:
-                text = ("numbers" if plural else "a number") + self._range()
+                text = (f"{noun}s" if plural else f"a {noun}") + self._range()
         elif self.kind == "bool":
             text = "true or false"
         elif self.kind == "choice":
@@ -124,6 +127,8 @@ class Key:
             if isinstance(value, (list, tuple, dict)):
                 raise _Refused
             return str(value)
+        if self.finite and not math.isfinite(number):
+            raise _Refused
         if self.low is not None and (number < self.low or (self.low_open and number == self.low)):
             raise _Refused
         if self.high is not None and (number > self.high or (self.high_open and number == self.high)):
@@ -183,12 +188,12 @@ def Int(low: int | None = None, high: int | None = None, *, nullable: bool = Fal
 
 
 def Float(low: float | None = None, high: float | None = None, *, low_open: bool = False,  # noqa: N802
-          high_open: bool = False, nullable: bool = False) -> Key:
-    return Key("float", low, high, low_open, high_open, nullable=nullable)
+          high_open: bool = False, nullable: bool = False, finite: bool = False) -> Key:
+    return Key("float", low, high, low_open, high_open, nullable=nullable, finite=finite)
 
 
-def Positive(*, nullable: bool = False) -> Key:  # noqa: N802
-    return Key("float", 0, None, low_open=True, nullable=nullable)
+def Positive(*, nullable: bool = False, finite: bool = False) -> Key:  # noqa: N802
+    return Key("float", 0, None, low_open=True, nullable=nullable, finite=finite)
 
 
 def Bool() -> Key:  # noqa: N802
@@ -385,6 +390,10 @@ _PRECISION_ALIASES = {alias + suffix: canonical for alias, canonical in (
     ("32", "32"), ("fp32", "32"), ("float32", "32"), ("bf16", "bf16"), ("bfloat16", "bf16"),
     ("fp16", "fp16"), ("16", "fp16"), ("float16", "fp16")) for suffix in ("", "-mixed")}
 FRACTION = Float(0, 1)
+# A PD gain (conf/controller groups, tune_pd's tuning.kp/kd): a negative or infinite one drives
+# the joints away from their targets, or blows the simulation up, and still ends with a score.
+GAIN = Float(0, finite=True)
+MAX_FORCE = Positive(finite=True)
 
 #: conf/ppo/base.yaml documents every key (aslexp.rl.ppo.PPOConfig reads them).
 PPO: dict[str, Key] = {
@@ -472,6 +481,17 @@ JOBS: dict[str, dict[str, Key | dict[str, Key]]] = {
         "seed": SEED,
         "ppo": PPO,
         "render.frames_every": Int(0),  # 0: no GIF frames
+        "signing.read_back.enabled": Bool(),
+        "signing.read_back.overrides": List(Text()),
+    },
+    "signing": {
+        "seed": SEED,
+        "signing.motions": Text(),
+        "signing.limit": Int(1, nullable=True),
+        "signing.implausible": Choice("skip", "keep"),
+        "signing.held_out_only": Bool(),
+        "signing.read_back.enabled": Bool(),
+        "signing.read_back.overrides": List(Text()),
     },
     "recognize": {
         "seed": SEED,
@@ -490,11 +510,11 @@ JOBS: dict[str, dict[str, Key | dict[str, Key]]] = {
         "seed": SEED,
         "tuning.steps": Int(1, nullable=True),
         "tuning.lookahead": Int(0),
-        "tuning.objective": Choice("mean_abs", "thesis"),
-        "tuning.kp": Float(0, nullable=True),
-        "tuning.kd": Float(0, nullable=True),
-        "tuning.max_force": Positive(nullable=True),
-        "tuning.velocity_scale": Float(nullable=True),
+        "tuning.objective": Choice("reward", "mean_abs", "thesis"),
+        "tuning.kp": Float(0, nullable=True, finite=True),
+        "tuning.kd": Float(0, nullable=True, finite=True),
+        "tuning.max_force": Positive(nullable=True, finite=True),
+        "tuning.velocity_scale": Float(nullable=True, finite=True),
         "tuning.random.seconds": Positive(),
         "tuning.random.keyframe_seconds": Positive(),
         "tuning.random.seed": SEED,

@@ -174,7 +174,7 @@ def test_tune_pd_thesis_objective_is_eq_5_14(tmp_path, motion_a, data_root):
 
 def test_a_run_that_trains_nothing_measures_baselines_only_in_a_folder_named_by_engine(tmp_path):
     """Ppo.total_steps=0 starts no worker processes, keeps the untrained policy's
-    level as such (never the run's result or main metric), and the folder name says the engine."""
+    level as such (never the run's result or main metric), and the folder name says the body and engine."""
     env = {**os.environ, "ASLEXP_DATA_ROOT": str(ROOT.parent / "shared" / "data")}
     proc = job_process.run([sys.executable, "-m", "aslexp.jobs.imitate", "motion=B", "ppo.total_steps=0",
                            "ppo.num_envs=4", "ppo.vector_env=workers", "ppo.eval_steps=20", "plots=false",
@@ -182,7 +182,7 @@ def test_a_run_that_trains_nothing_measures_baselines_only_in_a_folder_named_by_
                           text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     [run] = (tmp_path / "outputs" / "imitate").iterdir()
-    assert run.name.endswith("_B_pybullet_s0")
+    assert run.name.endswith("_B_hand15_pybullet_s0")
     log = (run / "imitate.log").read_text()
     assert "worker process" not in log and "nothing trained (ppo.total_steps=0)" in log
     metrics = json.loads((run / "metrics.json").read_text())

@@ -181,3 +181,59 @@ def test_the_overlay_scores_a_held_out_sign_zero_shot(sign_slice, data_root, tmp
     assert signs["held_out"] == "01457" and "again" in signs["test_glosses"]
     assert not {"01457", "01467"} & set(signs["motions"]) and {"00433", "13169"} <= set(signs["motions"])
     assert set(held["signing"]["stages"]) >= {"reference", "policy", "controller"}
+
+
+def _signing(tmp_path: Path, data_root: Path, run: str, *overrides: str) -> dict:
+    """`aslexp signing` on the slice with tiny read-back models (3 gloss folds of nine glosses, two
+    properties, logistic regression; cached under ``tmp_path``)."""
+    read_back = [f"model_cache={tmp_path / 'models'}", "folds=3",
+                 "glosses=[again,coffee,cookie,ready,can,eat,table,time,need]",
+                 f"overrides=['data.num_frames=24','cache_dir={tmp_path / 'datasets'}']",
+                 "lookup.overrides=['classifier=logreg','retrieval.properties=[sign_type,major_location]']"]
+    env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "MPLBACKEND": "Agg"}
+    proc = job_process.run([sys.executable, "-m", "aslexp.cli", "signing", *overrides,
+                            f"signing.read_back.overrides=[{','.join(json.dumps(o) for o in read_back)}]",
+                            f"hydra.run.dir={tmp_path / run}"], capture_output=True, text=True, timeout=600, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    folder = tmp_path / run
+    assert json.loads((folder / "run.json").read_text())["status"] == "completed"
+    records = [json.loads(line) for line in (folder / "clips.jsonl").read_text().splitlines()]
+    return {"records": records, "table": json.loads((folder / "signing.json").read_text()), "folder": folder,
+            "log": proc.stderr}
+
+
+def test_the_signing_table_scores_every_clip_against_the_person_and_reads_it_back(sign_slice, data_root, tmp_path):
+    """`aslexp signing` on the slice: every plausible clip performed (the retargeted reference, the
+    controller alone), scored against its source keypoints and read back beside the person's own
+    clip by a fold model that never saw its gloss; the table, its figure, and a resumed run that
+    scores nothing again."""
+    first = _signing(tmp_path, data_root, "table", f"signing.motions={sign_slice}")
+    records, out = first["records"], first["table"]
+    assert [r["motion"] for r in records] == sorted(set(SLICE) - {"70033"})  # 70033 is implausible
+    assert out["left_out"] == [{"motion": "70033", "why": "implausible: out_of_view"}]
+    for record in records:
+        assert record["gloss"] == SLICE[record["motion"]]
+        assert set(record["stages"]) == {"reference", "controller"}
+        assert all(0.0 <= record["stages"][s]["body"]["dtw_mje"] < 1.0 for s in record["stages"])
+        assert 0.0 < record["rewards"]["controller"] <= 1.0
+        read = record["read_back"]
+        assert set(read["stages"]) == {"source", "reference", "controller"}
+        for stage in read["stages"].values():
+            assert set(stage["properties"]) == {"sign_type", "major_location"}
+            assert 1.0 <= stage["lexicon_rank"] <= stage["lexicon_size"]
+        assert f"held out {record['gloss']!r}" in read["fold_note"]  # the fold that read it never saw its gloss
+    table = out["table"]
+    assert table["clips"] == 7 and table["glosses"] == 4 and table["stages"] == ["reference", "controller"]
+    assert set(table["read_back"]) == {"source", "reference", "controller"}
+    assert set(table["targets"]["controller"]) == {"sign_type agreement", "major_location agreement",
+                                                   "lookup median rank", "body keypoint error"}
+    markdown = (first["folder"] / "signing.md").read_text()
+    assert "| lookup median rank |" in markdown and "body keypoint error" in markdown
+    from PIL import Image
+
+    with Image.open(first["folder"] / "signing.png") as image:
+        assert image.size[0] > 3 * image.size[1] / 2  # three panels side by side
+
+    again = _signing(tmp_path, data_root, "resumed", f"signing.motions={sign_slice}", f"resume={first['folder']}")
+    assert all(r["reused_from"] == str(first["folder"]) for r in again["records"])
+    assert again["table"]["table"]["keypoint_error"] == table["keypoint_error"]

@@ -28,6 +28,18 @@ CONF = Path(__file__).resolve().parents[2] / "conf"
     ("recognize", "trainer.max_epochs=abc", "trainer.max_epochs=abc: expected a positive integer"),
     ("recognize", "n_seeds=0", "n_seeds=0: expected a positive integer"),
     ("tune_pd", "seed=1.5", "seed=1.5: expected an integer >= 0"),
+    # gains and rates are range-checked too
+    ("imitate", "controller.groups.default.kd=-1e6",
+     "controller.groups.default.kd=-1000000.0: expected a finite number >= 0"),
+    ("imitate", "controller.groups.default.kp=inf", "controller.groups.default.kp=inf: expected a finite number >= 0"),
+    ("imitate", "controller.groups.default.max_force=0",
+     "controller.groups.default.max_force=0: expected a positive finite number"),
+    ("imitate", "env.control_hz=0.001", "env.control_hz=0.001: expected a number in [1, 10000]"),
+    ("imitate", "env.physics_hz=1e9", "env.physics_hz=1000000000.0: expected a number in [1, 100000]"),
+    ("imitate", "env.control_hz=7", "env.physics_hz=240: expected a whole multiple of control_hz (7): 1x, 2x, ..."),
+    ("tune_pd", "controller.groups.default.kd=-1", "controller.groups.default.kd=-1: expected a finite number >= 0"),
+    ("tune_pd", "env.control_hz=0.5", "env.control_hz=0.5: expected a number in [1, 10000]"),
+    ("tune_pd", "tuning.kp=inf", "tuning.kp=inf: expected null or a finite number >= 0"),
 ])
 def test_a_bad_value_is_one_line_exit_2_and_no_run_folder(aslexp, tmp_path, job, override, expected):
     run_dir = tmp_path / "run"
@@ -124,7 +136,7 @@ def test_the_schema_declares_every_key_its_readers_accept():
 
     assert set(PPO) == {f.name for f in dataclasses.fields(PPOConfig)}
     assert set(TRAINER) == {f.name for f in dataclasses.fields(TrainerConfig)}
-    assert set(JOBS) == {"imitate", "recognize", "tune_pd"}
+    assert set(JOBS) == {"imitate", "recognize", "signing", "tune_pd"}
     # Choices declared in the schema are the readers' own lists.
     from aslexp.data.preprocess import PADDINGS
     from aslexp.data.splits import RARE_RULES

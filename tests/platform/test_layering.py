@@ -38,7 +38,7 @@ LEVELS: dict[str, int] = {
     "envs": 5,
     "rl": 5,             # imports no environment: evaluation takes any env with ImitationEnv's interface
     "tuning": 5,         # a sweep reads run.json through runfile, not through runs
-    "signing": 5,        # a performance in its source's keypoints, scored (pose, keypoints); takes any env
+    "signing": 6,        # a performance in its source's keypoints, scored (pose, keypoints) and read back (recognition); takes any env
     "runs": 6,           # run records and tools; the sweep tools read studies (tuning)
     "reports": 6,        # reports read run folders: nothing of envs, sim or rl (recognition's metrics and resplits)
     "measure": 7,        # what simulates and learns nothing (baselines, engine agreement): envs, rl; run configs via reports

@@ -56,11 +56,19 @@ def test_three_runs_started_at_the_same_instant_get_three_folders(tmp_path):
             next(o for o in json.loads((p / "run.json").read_text())["overrides"] if o.startswith("x="))[2:])
 
 
-def test_the_default_folder_names_hold_seed_motion_and_engine():
+def test_the_default_folder_names_hold_seed_motion_body_and_engine():
     from hydra import compose, initialize_config_dir
 
     with initialize_config_dir(str(PROJECT_ROOT / "conf"), version_base="1.3"):
-        for job, overrides, parts in (("imitate", ["motion=C", "seed=3"], ["_C_mujoco_s3"]),
+        # The hand and the upper body on one clip: two folder names, each naming its body.
+        for job in ("imitate", "evaluate", "plan"):
+            for body in ("hand15", "upper_body"):
+                cfg = compose(job, overrides=["motion=00433", f"body={body}", "engine=mujoco", "seed=3"],
+                              return_hydra_config=True)
+                folder = Path(cfg.hydra.run.dir)
+                assert folder.parent == Path("outputs") / job and folder.name.endswith(f"_00433_{body}_mujoco_s3"), \
+                    (job, folder)
+        for job, overrides, parts in (("imitate", ["motion=C", "seed=3"], ["_C_hand15_mujoco_s3"]),
                                       ("recognize", ["seed=2"], ["_s2"]),
                                       ("tune_pd", ["seed=5"], ["hand15_mujoco_s5"])):
             cfg = compose(job, overrides=overrides, return_hydra_config=True)

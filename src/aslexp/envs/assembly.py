@@ -170,13 +170,37 @@ def resolve_motion_path(motion: str | os.PathLike, data_root: str | os.PathLike 
     path = Path(motion).expanduser()
     if path.is_absolute() or path.is_file():
         return path
-    if not path.suffix and len(path.parts) == 1 and (CONF_DIR / "motion" / f"{path}.yaml").is_file():
+    if _is_motion_name(path):
         path = Path(group("motion", str(path))["file"])
+    return _data_root(data_root) / path
+
+
+def find_motion_file(motion: str | os.PathLike, data_root: str | os.PathLike | None) -> Path:
+    """:func:`resolve_motion_path`, or a FileNotFoundError whose one line names every place looked at."""
+    path = resolve_motion_path(motion, data_root)
+    if path.is_file():
+        return path
+    given = Path(motion).expanduser()
+    if given.is_absolute():
+        raise FileNotFoundError(f"motion file {motion} not found (an absolute path: looked nowhere else)")
+    named = f" (conf/motion/{given}.yaml names file {group('motion', str(given))['file']})" \
+        if _is_motion_name(given) else ""
+    raise FileNotFoundError(
+        f"motion file {motion}{named} not found; looked at {Path.cwd() / given} (as given, relative to the "
+        f"current directory {Path.cwd()}) and at {path} (under the data root {_data_root(data_root)}; "
+        f"data_root= or $ASLEXP_DATA_ROOT sets it)")
+
+
+def _is_motion_name(path: Path) -> bool:
+    return not path.suffix and len(path.parts) == 1 and (CONF_DIR / "motion" / f"{path}.yaml").is_file()
+
+
+def _data_root(data_root: str | os.PathLike | None) -> Path:
     if data_root is None:
         from aslexp.data.root import resolve_data_root
 
         data_root = resolve_data_root(None, must_exist=False)
-    return Path(data_root) / path
+    return Path(data_root)
 
 
 def _load_motion(motion: str | os.PathLike | Motion, layout: BodyLayout, data_root: Path) -> Motion:
@@ -186,7 +210,7 @@ def _load_motion(motion: str | os.PathLike | Motion, layout: BodyLayout, data_ro
                              f"per frame but the motion has {motion.num_columns}")
         return motion
     try:
-        return load_motion(resolve_motion_path(motion, data_root), expected_columns=layout.motion_columns,
+        return load_motion(find_motion_file(motion, data_root), expected_columns=layout.motion_columns,
                            quaternions=layout.quaternion_columns)
     except MotionFormatError as err:
         raise MotionFormatError(f"{err}{_bodies_for(err.found, data_root)}") from None

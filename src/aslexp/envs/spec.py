@@ -20,6 +20,8 @@ TRAINING_ONLY_KEYS = ("heading_shaping", "offset_shaping")
 # = the reference one step ahead) are defined without them, so a variant cannot move its own bar.
 RESIDUAL_BASE_KEYS = ("residual_base_smoothing", "residual_base_smoothing_groups")
 UP_AXIS = 1  # the motions and worlds are y-up (gravity -9.8 y)
+CONTROL_HZ = Float(1, 10_000)
+PHYSICS_HZ = Float(1, 100_000)
 
 
 @dataclass(frozen=True)
@@ -28,8 +30,10 @@ class EnvSpec(Section):
 
     SECTION = "env"
 
-    physics_hz: float = 240.0
-    control_hz: float = 30.0
+    # Hz, bounded so that a slip fails at once (control_hz=0.001 asked for 240 000 physics steps per
+    # action and ran silently for minutes); the physics rate is a whole multiple of the control rate.
+    physics_hz: float = field(default=240.0, metadata=key(PHYSICS_HZ))
+    control_hz: float = field(default=30.0, metadata=key(CONTROL_HZ))
     gravity: tuple[float, float, float] = (0.0, -9.8, 0.0)
     solver_iterations: int = 10
     non_contact_inner_iterations: int = 1
@@ -101,7 +105,8 @@ class EnvSpec(Section):
                               f"got {self.action_mode!r}, {self.action_range_margin}")
         ratio = self.physics_hz / self.control_hz
         if abs(ratio - round(ratio)) > 1e-6 or ratio < 1:
-            raise ConfigError(f"physics_hz={self.physics_hz}: must be a multiple of control_hz ({self.control_hz})")
+            raise ConfigError(f"physics_hz={self.physics_hz:g}: expected a whole multiple of control_hz "
+                              f"({self.control_hz:g}): 1x, 2x, ...")
 
     @property
     def substeps(self) -> int:

@@ -274,7 +274,7 @@ def finish(bench: Bench, policy: Callable[[Any], Any] | None, own: dict[str, Any
                     frames_every=frames_every if policy is None else 0)
     final = look if policy is None else evaluate(env, lambda obs, env: policy(obs), ppo.eval_steps,
                                                  record=True, frames_every=frames_every)
-    signing = signing_scores(env, look, final, out_dir)  # before the per-joint view replaces q_sim
+    signing = signing_scores(env, look, final, out_dir, cfg)  # before the per-joint view replaces q_sim
     joint_names = [j.name for j in env.layout.joints]
     if not env.layout.all_revolute:  # spherical joints: rotation angle and angular speed
         for run in ([final] if final is look else [final, look]):
@@ -316,15 +316,41 @@ def finish(bench: Bench, policy: Callable[[Any], Any] | None, own: dict[str, Any
     return metrics
 
 
-def signing_scores(env, look, final, out_dir: Path) -> dict[str, Any] | None:
+def signing_scores(env, look, final, out_dir: Path, cfg: dict[str, Any] | None = None) -> dict[str, Any] | None:
     """The performance against the person it imitates (aslexp.signing): the retargeted reference,
     the controller alone and (when one acted) the policy, and signing.pose; None, said in one line,
-    for a motion with no source keypoint file."""
+    for a motion with no source keypoint file. With ``signing.read_back.enabled`` each stage and the
+    person's clip are also read back by the recognition wing (aslexp.signing.reading)."""
     from aslexp.signing.performance import signing_metrics
 
+    keypoints: dict = {}
     if final is look:
-        return signing_metrics(env, look.trajectory, out_dir, stage="controller")
-    return signing_metrics(env, final.trajectory, out_dir, stage="policy", others={"controller": look.trajectory})
+        signing = signing_metrics(env, look.trajectory, out_dir, stage="controller", keypoints=keypoints)
+    else:
+        signing = signing_metrics(env, final.trajectory, out_dir, stage="policy", others={"controller": look.trajectory},
+                                  keypoints=keypoints)
+    settings = ((cfg or {}).get("signing") or {}).get("read_back") or {}
+    if signing is not None and settings.get("enabled"):
+        signing["read_back"] = _read_back(signing, keypoints, tuple(settings.get("overrides") or ()),
+                                          cfg.get("data_root"))
+    return signing
+
+
+def _read_back(signing: dict[str, Any], keypoints: dict, overrides: tuple[str, ...], data_root) -> dict[str, Any]:
+    import json
+
+    from aslexp.data.root import resolve_data_root
+    from aslexp.errors import DataError
+    from aslexp.signing.reading import gloss_of_source, models_for, read_back_stages
+
+    report = json.loads(Path(signing["motion_report"]).read_text())
+    gloss = gloss_of_source(report, signing["source"], resolve_data_root(data_root))
+    if gloss is None:
+        return {"note": f"{signing['source']}: no gloss known for the clip (its report and WLASL name none)"}
+    try:
+        return read_back_stages(models_for(overrides), keypoints, signing["source"], gloss)
+    except DataError as error:  # a gloss without a lexicon entry: the keypoint scores stand
+        return {"note": str(error)}
 
 
 def _controller_name(cfg: dict[str, Any]) -> str:

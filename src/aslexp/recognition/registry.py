@@ -122,6 +122,21 @@ def get_classifier(name: str, module: str | None = None) -> ClassifierEntry:
                          f"(or give classifier.module, the module that registers it)") from None
 
 
+def check_classifier_name(name: str, module: str | None = None) -> None:
+    """Refuse an unknown classifier before a job writes anything: one line listing the known ones
+    (a ConfigError: exit 2). A built-in is known without importing torch; another name is looked up
+    as :func:`get_classifier` does (``module``, the entry points)."""
+    if name in BUILT_IN:
+        return
+    try:
+        get_classifier(name, module)
+    except ConfigError:
+        raise  # a classifier.module that cannot be imported: already one line naming it
+    except ValueError:
+        raise ConfigError(f"classifier.name={name}: unknown classifier; expected one of "
+                          f"{', '.join(classifier_names())} (or a classifier.module that registers it)") from None
+
+
 def classifier_names() -> tuple[str, ...]:
     """Every known classifier: the built-ins in table order, then the registered ones."""
     _load_entry_points()

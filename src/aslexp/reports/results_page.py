@@ -46,7 +46,7 @@ import numpy as np
 
 from aslexp.files import atomic_write_text
 from aslexp.paths import CONF_DIR
-from aslexp.reports import results_recognition, results_retrieval, results_seen_glosses
+from aslexp.reports import results_recognition, results_retrieval, results_seen_glosses, results_signing
 from aslexp.reports.job_table import read_json
 from aslexp.reports.commands import command_overrides  # noqa: F401 - part of this module's interface
 from aslexp.runfile import RUN_FILE, machines
@@ -60,9 +60,9 @@ SNAPSHOT_SCHEMA = 1
 IMITATION_REPORTS = ("thesis", "scratch", "residual")
 RECOGNITION_REPORTS = ("recognition", "recognition_per_class")
 # One job run's own table (`aslexp retrieve`: aslexp.reports.results_retrieval; `aslexp glosses`:
-# aslexp.reports.results_seen_glosses), each module with results_summary and render; such an entry
+# aslexp.reports.results_seen_glosses; `aslexp signing`: aslexp.reports.results_signing), each module with results_summary and render; such an entry
 # may name no overlay (overlay: null): the job's defaults are its setting.
-JOB_TABLE_REPORTS = {module.REPORT: module for module in (results_retrieval, results_seen_glosses)}
+JOB_TABLE_REPORTS = {module.REPORT: module for module in (results_retrieval, results_seen_glosses, results_signing)}
 _REQUIRED = ("id", "title", "beside", "thesis", "overlay", "job", "command", "engine", "reward", "report",
              "runs", "earlier")
 # Overrides that name where a run goes or how it is watched, not what it runs.

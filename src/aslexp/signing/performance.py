@@ -56,13 +56,15 @@ def score_trajectory(env: Any, trajectory: Mapping[str, np.ndarray], source: Sig
 
 def signing_metrics(env: Any, trajectory: Mapping[str, np.ndarray], run_dir: str | os.PathLike,
                     stage: str = "policy", others: Mapping[str, Mapping[str, np.ndarray]] | None = None,
-                    write_pose: bool = True) -> dict | None:  # fmt: skip
+                    write_pose: bool = True, keypoints: dict[str, np.ndarray] | None = None) -> dict | None:  # fmt: skip
     """The ``signing`` entry of metrics.json, and ``<run_dir>/signing.pose`` (``trajectory``'s
     simulated body, at the control rate, in the source's image frame); None, with one log line
     saying why, for a motion without source keypoints or a body without the upper body's points.
 
     Stages: ``reference`` (``trajectory``'s ``q_ref`` played kinematically), ``stage`` (its ``q_sim``)
-    and each of ``others`` (name -> trajectory: e.g. the controller alone on the reference)."""
+    and each of ``others`` (name -> trajectory: e.g. the controller alone on the reference).
+    ``keypoints``, when given, receives each stage's (T, 75, 4) image keypoints by stage name (a
+    read-back reads them: aslexp.signing.reading)."""
     started = time.perf_counter()
     source, why = SigningSource.for_motion(getattr(env.motion, "source", None))
     if source is None:
@@ -74,17 +76,20 @@ def signing_metrics(env: Any, trajectory: Mapping[str, np.ndarray], run_dir: str
         log.info("signing: not scored: %s", error)
         return None
     stages: dict[str, dict] = {}
-    stages[REFERENCE_STAGE], _ = score_trajectory(env, trajectory, source, "q_ref")
-    stages[stage], keypoints = score_trajectory(env, trajectory, source, "q_sim")
+    points: dict[str, np.ndarray] = {}
+    stages[REFERENCE_STAGE], points[REFERENCE_STAGE] = score_trajectory(env, trajectory, source, "q_ref")
+    stages[stage], points[stage] = score_trajectory(env, trajectory, source, "q_sim")
     for name, other in (others or {}).items():
-        stages[name], _ = score_trajectory(env, other, source, "q_sim")
+        stages[name], points[name] = score_trajectory(env, other, source, "q_sim")
+    if keypoints is not None:
+        keypoints.update(points)
     out: dict = {"source": str(source.image.path), "motion_report": str(source.report),
                  "retargeting_error": source.retargeting_error, "camera": source.camera.to_dict(),
                  "root": "the reference's (a free root's drift is not in the keypoints)", "stages": stages}  # fmt: skip
     if write_pose:
         from aslexp.keypoints.posefile import write_holistic_pose
 
-        path = write_holistic_pose(Path(run_dir) / SIGNING_POSE, keypoints, float(env.spec_env.control_hz),
+        path = write_holistic_pose(Path(run_dir) / SIGNING_POSE, points[stage], float(env.spec_env.control_hz),
                                    source.camera.width, source.camera.height)  # fmt: skip
         out["pose_file"] = path.name
     out["seconds"] = round(time.perf_counter() - started, 3)

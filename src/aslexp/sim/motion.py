@@ -29,6 +29,9 @@ LOOP_MODES = ("wrap", "none")
 MAX_MOTION_VALUE = 1000.0  # larger in magnitude: a broken file (load_motion refuses it)
 ROOT_COLUMNS = 7  # root position (3) + root quaternion (4)
 QUATERNION_TOLERANCE = 0.5  # |norm - 1| above this: not a unit quaternion (DeepMimic's own files reach 0.42)
+# Plausible frame durations (s): 240 fps to 10 fps. The thesis' clips use 0.03-0.033 s; one outside
+# this range is usually in other units (milliseconds, or a frame count), and it runs, slowed or sped up.
+PLAUSIBLE_FRAME_DURATION = (1.0 / 240.0, 0.1)
 
 
 class MotionFormatError(DataError):
@@ -71,7 +74,8 @@ class Motion:
             )
         if not np.all(np.isfinite(dt_arr)) or np.any(dt_arr[: max(len(dt_arr) - 1, 1)] <= 0):
             bad = int(np.argmax(~(np.isfinite(dt_arr) & (dt_arr > 0))))
-            raise MotionFormatError(f"{where}: frame {bad} has duration dt={dt_arr[bad]!r}; expected dt > 0")
+            raise MotionFormatError(f"{where}: frame {bad} has duration dt={float(dt_arr[bad])!r}; "
+                                    f"expected a finite dt > 0 (seconds)")
         self.frames = frames
         self.dt = dt_arr
         self.loop = loop
@@ -291,7 +295,29 @@ def load_motion(
             f"({found + 1} columns with dt)", found=found
         )
     loop = payload.get("Loop", "wrap")
-    return Motion(data[:, 1:], data[:, 0], loop=loop, quaternions=quaternions, source=str(path))
+    motion = Motion(data[:, 1:], data[:, 0], loop=loop, quaternions=quaternions, source=str(path))
+    warn_implausible_frame_duration(motion)
+    return motion
+
+
+_warned_frame_duration: set[tuple[str, float, float]] = set()
+
+
+def warn_implausible_frame_duration(motion: Motion) -> None:
+    """One WARNING line (once per file and durations) when a frame duration lies outside
+    :data:`PLAUSIBLE_FRAME_DURATION`; a non-positive or non-finite one :class:`Motion` refuses."""
+    used = motion.dt[:-1] if motion.num_frames > 1 else motion.dt  # the last frame's duration is never played
+    shortest, longest = float(used.min()), float(used.max())
+    low, high = PLAUSIBLE_FRAME_DURATION
+    key = (str(motion.source), shortest, longest)
+    plausible = low <= shortest and longest <= high
+    if plausible or key in _warned_frame_duration or not log.isEnabledFor(logging.WARNING):
+        return  # in range, said already, or silenced (a job's edge check: the job itself says it, in its log)
+    _warned_frame_duration.add(key)
+    given = f"{shortest:.4g} s" if shortest == longest else f"{shortest:.4g}-{longest:.4g} s"
+    log.warning("%s: frame duration %s is outside the expected range %.4g-%.4g s (1/240 s to 0.1 s; the "
+                "thesis' motions use 0.03-0.033 s): the first value of each frame is its duration in seconds; "
+                "as given the motion lasts %.4g s", motion.source, given, low, high, motion.duration)
 
 
 def random_motion(lower: Sequence[float], upper: Sequence[float], seconds: float = 4.0, dt: float = 0.03,

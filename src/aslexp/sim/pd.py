@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from aslexp.config_schema import Choice, Section, key
+from aslexp.config_schema import GAIN, MAX_FORCE, Choice, Float, Section, key
 from aslexp.errors import ConfigError
 from aslexp.sim.body import BodyLayout
 
@@ -47,9 +47,9 @@ TARGET_RATES = ("control", "physics")
 class Gains(Section):
     SECTION = "gains"
 
-    kp: float
-    kd: float
-    max_force: float = 100.0
+    kp: float = field(metadata=key(GAIN))
+    kd: float = field(metadata=key(GAIN))
+    max_force: float = field(default=100.0, metadata=key(MAX_FORCE))
     mode: str | None = field(default=None, metadata=key(Choice(*MODES, nullable=True)))  # None: the controller's
 
 
@@ -64,7 +64,7 @@ class ControllerSpec(Section):
     groups: dict[str, Gains] = field(default_factory=dict)
     # zero (thesis) | reference: reference joint velocity as target
     target_velocity: str = field(default="zero", metadata=key(Choice(*TARGET_VELOCITIES)))
-    velocity_scale: float = 1.0  # multiplies the reference velocity target
+    velocity_scale: float = field(default=1.0, metadata=key(Float(finite=True)))  # multiplies the reference velocity target
     # control (thesis) | physics: reference re-sampled every substep
     target_rate: str = field(default="control", metadata=key(Choice(*TARGET_RATES)))
     # Physical gains (N m/rad, N m s/rad) in place of `groups` for an engine whose actuators take

@@ -1,0 +1,233 @@
+"""``aslexp signing``: the simulated signer scored against the person over a folder of extracted motions.
+
+    aslexp signing                                              # the 291 WLASL clips, the standing body's controller
+    aslexp signing motions=DIR limit=20                         # another folder, its first 20 motions
+    aslexp signing policy=RUN_DIR                               # ... and a trained policy performing each one
+    aslexp signing resume=RUN_DIR                               # an interrupted table: its clips are not redone
+
+Every motion of ``motions`` (a folder ``aslexp extract --motions`` wrote: ``motions/upper_body/*.txt``
+and ``reports/``) is performed once from its start: the retargeted reference played kinematically,
+the controller alone on the reference one step ahead and, with ``policy=``, the policy (under its
+run's setting, :mod:`aslexp.jobs.performing`). Each stage's keypoints in the source's image frame are
+scored against the person's (DTW, :mod:`aslexp.signing.performance`) and read back by the recognition
+wing's fold models beside the person's own clip (:mod:`aslexp.signing.reading`). The run folder holds
+``clips.jsonl`` (a line per clip, written as it goes), ``signing.json`` and ``signing.md`` (the table
+with intervals over glosses and the targets, :mod:`aslexp.signing.table`) and ``signing.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig
+
+from aslexp.errors import ConfigError, DataError
+from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
+
+log = logging.getLogger("aslexp.signing")
+
+CLIPS_FILE = "clips.jsonl"
+TABLE_JSON = "signing.json"
+TABLE_MD = "signing.md"
+FIGURE = "signing.png"
+
+
+def motion_files(folder: str | Path, limit: int | None, implausible: str,
+                 glosses: set[str] | None = None) -> tuple[list[Path], list[dict]]:  # fmt: skip
+    """The upper-body motions of an extraction folder (:func:`aslexp.envs.sign_folds.read_sign_folder`,
+    sorted by name; those of ``glosses`` only, when given; the first ``limit``) and those left out
+    (marked implausible by their report, unless ``implausible: keep``)."""
+    from aslexp.envs.sign_folds import read_sign_folder
+
+    kept, left_out = [], []
+    for clip in read_sign_folder(Path(folder)):
+        if glosses is not None and clip.gloss not in glosses:
+            continue
+        if not clip.plausible and implausible == "skip":
+            left_out.append({"motion": clip.name, "why": "implausible: " + "; ".join(clip.reasons)})
+            continue
+        kept.append(clip.file)
+    return (kept if limit is None else kept[:limit]), left_out
+
+
+def held_out_glosses(performer: dict[str, Any] | None) -> set[str] | None:
+    """A pool-trained policy's test glosses (its run's ``train_motions``): the signs it never saw."""
+    pool = (performer or {}).get("trained_on")
+    signs = pool.get("signs") if isinstance(pool, dict) else None
+    if isinstance(signs, dict) and signs.get("test_glosses"):
+        return set(signs["test_glosses"])
+    return None
+
+
+def policy_of(cfg: dict[str, Any]):
+    """``policy=RUN_DIR``: the config its run performs under and its agent (weights and observation
+    statistics); None when no policy is given."""
+    if not cfg.get("policy"):
+        return cfg, None, None
+    from aslexp.jobs.performing import performing_config
+
+    performing, record = performing_config(cfg)
+    return performing, record, record["checkpoint"]
+
+
+def _agent(cfg: dict[str, Any], env, checkpoint: str):
+    from aslexp.rl.checkpoint import load_checkpoint
+    from aslexp.rl.ppo import PPOConfig, agent_for_spaces
+
+    agent = agent_for_spaces(PPOConfig.parse(cfg["ppo"]).model, env.observation_space, env.action_space)
+    try:
+        agent.load_state_dict(load_checkpoint(checkpoint)["agent"])
+    except (KeyError, RuntimeError, ValueError) as error:
+        raise ConfigError(f"policy: checkpoint {checkpoint} does not fit this body and setting: {error}") from None
+    return agent
+
+
+def score_clip(cfg: dict[str, Any], motion: Path, data_root: Path, models, agent_state: dict) -> dict[str, Any]:
+    """One clip: its stages performed once from the start, scored against the person and read back."""
+    from aslexp.envs.assembly import ImitationSetup
+    from aslexp.envs.imitation import ImitationEnv
+    from aslexp.rl.evaluate import evaluate
+    from aslexp.signing.performance import signing_metrics
+    from aslexp.signing.reading import gloss_of_source, read_back_stages
+
+    started = time.perf_counter()
+    clip_cfg = {**cfg, "motion": {"name": motion.stem, "file": str(motion)}}
+    setup = ImitationSetup.from_config(clip_cfg, data_root)
+    env = ImitationEnv.from_setup(setup.merged(env={"early_termination": {"min_reward": None}}))
+    try:
+        steps = int(math.ceil(float(env.reference.duration) * float(env.spec_env.control_hz))) + 1
+        look = evaluate(env, lambda obs, env: env.reference_action(1), steps, record=True)
+        runs, rewards = {"controller": look}, {"controller": round(look.mean_reward, 5)}
+        if agent_state.get("checkpoint"):
+            if "agent" not in agent_state:
+                agent_state["agent"] = _agent(cfg, env, agent_state["checkpoint"])
+            runs["policy"] = evaluate(env, lambda obs, env: agent_state["agent"].act(obs), steps, record=True)
+            rewards["policy"] = round(runs["policy"].mean_reward, 5)
+        final = "policy" if "policy" in runs else "controller"
+        keypoints: dict = {}
+        signing = signing_metrics(env, runs[final].trajectory, None, stage=final, write_pose=False, keypoints=keypoints,
+                                  others={n: r.trajectory for n, r in runs.items() if n != final})
+    finally:
+        env.close()
+    record: dict[str, Any] = {"motion": motion.stem, "file": str(motion), "rewards": rewards,
+                              "diverged": {n: bool(r.diverged) for n, r in runs.items()}}
+    if signing is None:
+        return {**record, "stages": None, "why": "no source keypoints (the log says why)"}
+    report = json.loads(Path(signing["motion_report"]).read_text())
+    gloss = gloss_of_source(report, signing["source"], data_root)
+    record.update(gloss=gloss, source=signing["source"], stages=signing["stages"],
+                  retargeting_error=signing["retargeting_error"])
+    if models is not None and gloss is not None:
+        try:
+            record["read_back"] = read_back_stages(models, keypoints, signing["source"], gloss)
+        except DataError as error:  # a gloss without a lexicon entry: its keypoint scores stand
+            record["read_back"] = None
+            record["read_back_why"] = str(error)
+    record["seconds"] = round(time.perf_counter() - started, 3)
+    return record
+
+
+def _reused(resume: str | None, wanted: set[str]) -> dict[str, dict]:
+    """``resume=RUN_DIR``: an earlier signing run's clip records (those of this run's motions)."""
+    if not resume:
+        return {}
+    path = Path(resume) / CLIPS_FILE
+    if not path.is_file():
+        raise ConfigError(f"resume={resume}: no {path}; expected a folder of `aslexp signing`")
+    out = {}
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            log.warning("%s:%d: not a JSON line (an interrupted write?): that clip is scored again", path, number)
+            continue
+        if record.get("motion") in wanted:
+            out[record["motion"]] = record
+    return out
+
+
+def signing_table(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
+    """The job without Hydra: every motion scored (reusing ``resume``'s), the table and its figure."""
+    from aslexp.data.root import resolve_data_root
+    from aslexp.files import write_json, write_text
+    from aslexp.signing import table as T
+
+    settings = cfg["signing"]
+    performing, performer, checkpoint = policy_of(cfg)
+    glosses = held_out_glosses(performer) if settings.get("held_out_only", True) else None
+    files, left_out = motion_files(settings["motions"], settings.get("limit"), settings.get("implausible", "skip"),
+                                   glosses)
+    if glosses is not None:
+        log.info("signing: the policy's held-out glosses only (%d; signing.held_out_only=false: every clip)",
+                 len(glosses))
+    data_root = resolve_data_root(cfg.get("data_root"))
+    models = None
+    if settings["read_back"]["enabled"]:
+        from aslexp.signing.reading import models_for
+
+        models = models_for(tuple(settings["read_back"]["overrides"]))
+    done = _reused(cfg.get("resume"), {p.stem for p in files})
+    agent_state = {"checkpoint": checkpoint}
+    records, started, scored = [], time.perf_counter(), 0
+    to_score = sum(p.stem not in done for p in files)
+    with open(out_dir / CLIPS_FILE, "a", encoding="utf-8") as sink:
+        for i, motion in enumerate(files):
+            record = done.get(motion.stem)
+            if record is None:
+                record = score_clip(performing, motion, data_root, models, agent_state)
+                scored += 1
+            else:
+                record = {**record, "reused_from": str(cfg["resume"])}
+            sink.write(json.dumps(record) + "\n")
+            sink.flush()
+            records.append(record)
+            if scored and (scored % 10 == 0 or scored == to_score) and record.get("reused_from") is None:
+                rate = scored / (time.perf_counter() - started)
+                log.info("signing: %d/%d clips (%d scored here: %.2f clips/s, ETA %.0f s)", i + 1, len(files), scored,
+                         rate, (to_score - scored) / rate)
+    properties = list(models.properties) if models is not None else []
+    recall_at = list(models.setup.settings.recall_at) if models is not None else [10, 50]
+    table = T.build_table(records, properties, recall_at)
+    unscored = [{"motion": r["motion"], "why": r.get("why")} for r in records if not r.get("stages")]
+    out = {"motions": str(settings["motions"]), "clips": len(records), "left_out": left_out, "unscored": unscored,
+           "policy": performer, "read_back": None if models is None else {
+               "cache": models.cache, "fit_time_s": round(models.fit_time_s, 1), "folds": len(models.folds)},
+           "seconds": round(time.perf_counter() - started, 1), "table": table}
+    lines = T.table_lines(table, properties, recall_at) if table["clips"] else ["no clip was scored"]
+    out.update(table_lines=lines, verdict_lines=T.verdict_lines(table))
+    write_json(out_dir / TABLE_JSON, out)
+    write_text(out_dir / TABLE_MD, "\n".join([f"# The signer against the person: {table['clips']} clips of "
+                                              f"{table['glosses']} glosses", "", *lines, "", *out["verdict_lines"]]) + "\n")
+    if cfg.get("plots", True) and table["clips"]:
+        from aslexp.viz.signing import plot_signing_table
+
+        scored = [r for r in records if r.get("stages")]
+        plot_signing_table({s: T.keypoint_errors(scored, s) for s in table["stages"]},
+                           {n: T.lexicon_ranks(scored, n) for n in table["read_back"]}, table, properties,
+                           out_dir / FIGURE)
+    for line in out["verdict_lines"]:
+        log.info("signing: %s", line[2:])
+    return out
+
+
+@job_main("signing")
+def main(cfg: DictConfig) -> None:
+    """Hydra entry point: a measurement, nothing to rank (no objective)."""
+    def body(run) -> None:
+        seed_everything(int(cfg.seed))
+        result = signing_table(to_dict(cfg), run.dir)
+        run.save_metrics({"clips": result["clips"], "left_out": len(result["left_out"]),
+                          "unscored": len(result["unscored"]), "table": result["table"],
+                          "table_lines": result["table_lines"], "verdict_lines": result["verdict_lines"]})
+        return None
+
+    return run_guarded("signing", cfg, body)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,174 @@
+"""The signer against the person over many clips (``aslexp signing``; docs/signing.md, "The table"):
+per stage (the retargeted reference, the controller alone, a policy) the keypoint error to the
+person and the recognition wing's reading beside the person's own clip, with intervals over glosses.
+
+A record is one clip's (:func:`aslexp.jobs.signing.score_clip`): ``gloss``, ``stages`` (each
+stage's ``signing`` scores) and ``read_back`` (:func:`aslexp.signing.reading.read_back_stages`).
+The targets are the ones a readable signer should meet: each body property's agreement with
+ASL-LEX within 5 points of the source clip's own, the lookup's median rank within 10% of the
+source's, and the controller's keypoint error at most 1.2x the retargeted reference's.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from aslexp.signing.reading import SOURCE_STAGE
+
+AGREEMENT_POINTS = 0.05  # a stage keeps a property when its agreement is within 5 points of the source's
+RANK_RATIO = 1.10  # ... and the lexicon rank when its median is within 10% of the source's
+PHYSICS_RATIO = 1.2  # the controller's keypoint error at most this times the reference's
+
+
+def _bootstrap(values: np.ndarray, glosses: Sequence[str], how: str, resamples: int, confidence: float,
+               seed: int) -> dict[str, float]:  # fmt: skip
+    """A statistic of per-clip ``values`` (NaN: no value) with a percentile bootstrap over glosses."""
+    values = np.asarray(values, dtype=np.float64)
+    known = np.isfinite(values)
+    stat = np.median if how == "median" else np.mean
+    if not known.any():
+        return {"value": math.nan, "low": math.nan, "high": math.nan, "n": 0}
+    names = np.asarray(glosses, dtype=object)
+    groups = [np.flatnonzero((names == g) & known) for g in sorted(set(names[known]))]
+    rng = np.random.default_rng(seed)
+    draws = [float(stat(values[np.concatenate([groups[i] for i in rng.integers(len(groups), size=len(groups))])]))
+             for _ in range(resamples)]
+    tail = (1 - confidence) / 2
+    low, high = np.quantile(draws, [tail, 1 - tail])
+    q25, q75 = np.quantile(values[known], [0.25, 0.75])
+    return {"value": float(stat(values[known])), "low": float(low), "high": float(high), "n": int(known.sum()),
+            "q25": float(q25), "q75": float(q75)}
+
+
+def stage_names(records: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The stages the records hold, in their order (reference, controller, policy)."""
+    names: list[str] = []
+    for record in records:
+        names += [n for n in record.get("stages") or {} if n not in names]
+    return names
+
+
+def keypoint_errors(records: Sequence[Mapping[str, Any]], stage: str, part: str = "body") -> np.ndarray:
+    """Per clip the stage's DTW mean joint error of ``part`` (NaN where none)."""
+    out = []
+    for record in records:
+        cell = ((record.get("stages") or {}).get(stage) or {}).get(part) or {}
+        value = cell.get("dtw_mje", cell.get("dtwp"))
+        out.append(math.nan if value is None else float(value))
+    return np.asarray(out)
+
+
+def rewards(records: Sequence[Mapping[str, Any]], stage: str) -> np.ndarray:
+    return np.asarray([float(((r.get("rewards") or {}).get(stage)) or math.nan) for r in records])
+
+
+def lexicon_ranks(records: Sequence[Mapping[str, Any]], reading: str) -> list[float]:
+    """Per clip read back the lexicon rank of the true gloss by ``reading`` (a stage or the source)."""
+    return [float(r["read_back"]["stages"][reading]["lexicon_rank"]) for r in records
+            if r.get("read_back") and reading in r["read_back"]["stages"]]
+
+
+def build_table(records: Sequence[Mapping[str, Any]], properties: Sequence[str], recall_at: Sequence[int] = (10, 50),
+                resamples: int = 2000, confidence: float = 0.95, seed: int = 0) -> dict[str, Any]:  # fmt: skip
+    """Every stage's keypoint error and reward, and every reading's agreement and lexicon rank (the
+    source's beside), each with its bootstrap interval over glosses; then the targets."""
+    from aslexp.recognition.read_back import IntervalSettings, table_of
+
+    scored = [r for r in records if r.get("stages")]
+    glosses = [str(r["gloss"]) for r in scored]
+    stages = stage_names(scored)
+    interval = IntervalSettings(resamples=resamples, confidence=confidence, seed=seed)
+    table: dict[str, Any] = {"clips": len(scored), "glosses": len(set(glosses)), "stages": stages,
+                             "keypoint_error": {}, "reward": {}, "read_back": {}}
+    for stage in stages:
+        table["keypoint_error"][stage] = {
+            part: _bootstrap(keypoint_errors(scored, stage, part), glosses, "median", resamples, confidence, seed)
+            for part in ("body", "left_hand", "right_hand", "hands")}
+        if stage != "reference":
+            table["reward"][stage] = _bootstrap(rewards(scored, stage), glosses, "mean", resamples, confidence, seed)
+    read = [r for r in scored if r.get("read_back")]
+    for stage in [SOURCE_STAGE, *stages]:
+        results = [{**r["read_back"]["stages"][stage], "gloss": r["gloss"]} for r in read
+                   if stage in r["read_back"]["stages"]]
+        if results:
+            table["read_back"][stage] = table_of(results, properties, recall_at, interval)
+    table["targets"] = targets(table, properties)
+    return table
+
+
+def targets(table: Mapping[str, Any], properties: Sequence[str]) -> dict[str, Any]:
+    """Each stage against the bars a readable signer meets (module doc): met, or by how much it misses."""
+    out: dict[str, Any] = {}
+    read = table.get("read_back") or {}
+    source = read.get(SOURCE_STAGE)
+    for stage in table["stages"]:
+        row: dict[str, Any] = {}
+        if source is not None and stage in read:
+            for prop in properties:
+                ours = read[stage]["properties"][prop]["agreement"]["value"]
+                theirs = source["properties"][prop]["agreement"]["value"]
+                row[f"{prop} agreement"] = {"value": ours, "source": theirs,
+                                            "met": bool(ours >= theirs - AGREEMENT_POINTS)}
+            ours = read[stage]["lookup"]["phonology+prior"]["median_rank"]["value"]
+            theirs = source["lookup"]["phonology+prior"]["median_rank"]["value"]
+            row["lookup median rank"] = {"value": ours, "source": theirs, "met": bool(ours <= RANK_RATIO * theirs)}
+        if stage != "reference" and "reference" in table["keypoint_error"]:
+            ours = table["keypoint_error"][stage]["body"]["value"]
+            theirs = table["keypoint_error"]["reference"]["body"]["value"]
+            row["body keypoint error"] = {"value": ours, "reference": theirs, "ratio": ours / theirs if theirs else math.nan,
+                                          "met": bool(ours <= PHYSICS_RATIO * theirs)}
+        out[stage] = row
+    return out
+
+
+def _cell(c: Mapping[str, float], digits: int = 3, scale: float = 1.0) -> str:
+    if not math.isfinite(c["value"]):
+        return "-"
+    return f"{scale * c['value']:.{digits}f} [{scale * c['low']:.{digits}f}, {scale * c['high']:.{digits}f}]"
+
+
+def table_lines(table: Mapping[str, Any], properties: Sequence[str], recall_at: Sequence[int] = (10, 50)) -> list[str]:
+    """The table as Markdown: keypoint error and reward per stage, then each reading per stage."""
+    stages = table["stages"]
+    lines = ["| stage | body keypoint error, median [95% CI] (IQR) | reward (mean) |", "|---|---|---|"]
+    for stage in stages:
+        body = table["keypoint_error"][stage]["body"]
+        iqr = f" ({body['q25']:.3f}-{body['q75']:.3f})" if body["n"] else ""
+        reward = table["reward"].get(stage)
+        lines.append(f"| {stage} | {_cell(body)}{iqr} | {'-' if reward is None else _cell(reward)} |")
+    read = table.get("read_back") or {}
+    if read:
+        names = [n for n in (SOURCE_STAGE, *stages) if n in read]
+        lines += ["", "| reading (% or rank) | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+        for prop in properties:
+            lines.append(f"| {prop} agreement with ASL-LEX | "
+                         + " | ".join(_cell(read[n]["properties"][prop]["agreement"], 1, 100) for n in names) + " |")
+        lines.append(f"| {properties[0]} majority value's | "
+                     + " | ".join(_cell(read[n]["properties"][properties[0]]["majority"], 1, 100) for n in names) + " |")
+        lines.append("| lookup median rank | "
+                     + " | ".join(_cell(read[n]["lookup"]["phonology+prior"]["median_rank"], 1) for n in names) + " |")
+        for k in recall_at:
+            lines.append(f"| lookup recall@{k} | "
+                         + " | ".join(_cell(read[n]["lookup"]["phonology+prior"][f"recall@{k}"], 1, 100) for n in names)
+                         + " |")
+        lines.append("| frequency prior alone, median rank | "
+                     + " | ".join(_cell(read[n]["lookup"]["prior"]["median_rank"], 1) for n in names) + " |")
+    return lines
+
+
+def verdict_lines(table: Mapping[str, Any]) -> list[str]:
+    """Each target per stage, plainly: met or missed, with both numbers."""
+    lines = []
+    for stage, row in table["targets"].items():
+        for name, cell in row.items():
+            theirs = cell.get("source", cell.get("reference"))
+            bar = "the source's" if "source" in cell else "the reference's"
+            percent = "agreement" in name
+            shown = (lambda v: f"{100 * v:.1f}%") if percent else (lambda v: f"{v:.3f}")
+            lines.append(f"- {stage}: {name} {shown(cell['value'])} against {bar} {shown(theirs)}: "
+                         f"{'met' if cell['met'] else 'MISSED'}")
+    return lines

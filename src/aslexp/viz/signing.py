@@ -1,0 +1,81 @@
+"""The signer-against-the-person figure (``aslexp signing``'s signing.png): the keypoint error's
+distribution per stage, each property's agreement with ASL-LEX per reading (the person's clip
+first), and the lexicon rank's distribution per reading."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402  (after choosing the backend)
+import numpy as np  # noqa: E402
+
+COLOURS = {"source": "0.35", "reference": "tab:blue", "controller": "tab:orange", "policy": "tab:green"}
+
+
+def _colour(name: str) -> str:
+    return COLOURS.get(name, "tab:purple")
+
+
+def plot_signing_table(errors: Mapping[str, np.ndarray], ranks: Mapping[str, Sequence[float]],
+                       table: Mapping[str, Any], properties: Sequence[str], path: str | Path) -> Path:  # fmt: skip
+    """Save the figure of :func:`aslexp.signing.table.build_table`'s ``table``: ``errors`` (stage ->
+    per-clip body keypoint error) and ``ranks`` (reading -> per-clip lexicon rank of the true gloss)."""
+    stages = list(table["stages"])
+    read = table.get("read_back") or {}
+    panels = 3 if read else 1
+    fig, axes = plt.subplots(1, panels, figsize=(5.2 * panels, 4.2), squeeze=False)
+    ax = axes[0, 0]
+    data = [np.asarray(errors[s], dtype=float) for s in stages]
+    data = [d[np.isfinite(d)] for d in data]
+    parts = ax.violinplot([d if len(d) else [np.nan] for d in data], showmedians=True, showextrema=False)
+    for body, stage in zip(parts["bodies"], stages):
+        body.set_facecolor(_colour(stage))
+        body.set_alpha(0.45)
+    for i, d in enumerate(data, 1):
+        ax.scatter(np.full(len(d), i) + np.random.default_rng(i).uniform(-0.08, 0.08, len(d)), d, s=5,
+                   color=_colour(stages[i - 1]), alpha=0.6)
+    ax.set_xticks(range(1, len(stages) + 1), [f"{s}\n(median {np.median(d):.3f})" if len(d) else s
+                                              for s, d in zip(stages, data)])
+    ax.set_ylabel("body keypoint error after DTW (shoulder widths)")
+    ax.set_title(f"Keypoint error to the person ({table['clips']} clips)")
+    ax.grid(axis="y", alpha=0.3)
+    if read:
+        names = [n for n in ("source", *stages) if n in read]
+        ax = axes[0, 1]
+        width = 0.8 / len(names)
+        for k, name in enumerate(names):
+            cells = [read[name]["properties"][p]["agreement"] for p in properties]
+            values = np.array([100 * c["value"] for c in cells])
+            errors = np.array([[100 * (c["value"] - c["low"]), 100 * (c["high"] - c["value"])] for c in cells]).T
+            ax.bar(np.arange(len(properties)) + (k - (len(names) - 1) / 2) * width, values, width, yerr=errors,
+                   color=_colour(name), label=name, capsize=2)
+        majority = [100 * read[names[0]]["properties"][p]["majority"]["value"] for p in properties]
+        ax.scatter(np.arange(len(properties)), majority, marker="_", s=400, color="k", label="majority value", zorder=3)
+        ax.set_xticks(range(len(properties)), [p.replace("_", " ") for p in properties])
+        ax.set_ylabel("agreement with ASL-LEX (%, 95% CI over glosses)")
+        ax.set_ylim(0, 100)
+        ax.set_title("Phonology read back")
+        ax.legend(fontsize=8)
+        ax.grid(axis="y", alpha=0.3)
+        ax = axes[0, 2]
+        shown = [list(ranks.get(n, [])) for n in names]
+        box = ax.boxplot(shown, patch_artist=True, showfliers=True)
+        for patch, name in zip(box["boxes"], names):
+            patch.set_facecolor(_colour(name))
+            patch.set_alpha(0.6)
+        ax.set_xticks(range(1, len(names) + 1), [f"{n}\n(median {np.median(r):.0f})" if r else n
+                                                 for n, r in zip(names, shown)])
+        ax.set_yscale("log")
+        ax.set_ylabel(f"rank of the true gloss among {read[names[0]]['lexicon_size']} entries (log)")
+        ax.set_title("Lexicon lookup")
+        ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
