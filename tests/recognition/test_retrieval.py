@@ -1,7 +1,10 @@
 """Lexicon retrieval for unseen glosses: a lexicon entry whose properties are given
 ranks first; the oracle's figures are the counts of the lexicon CSV (and the issue's); ties give the
-expected rank; `aslexp retrieve` runs end to end on a tiny budget (the documented commands of
-docs/recognition.md, cut) and writes a complete run folder; an unknown property is one line."""
+expected rank; intervals over splits stay in the metric's range and are not given below 3 splits;
+the default splits' test glosses recur (counted from the real split generator); `aslexp retrieve`
+runs end to end on a tiny budget (the documented commands of docs/recognition.md, cut) and writes a
+complete run folder with recall by frequency band, which the results entry renders; an unknown
+property is one line."""
 
 from __future__ import annotations
 
@@ -21,7 +24,9 @@ import job_process
 from doc_commands import bash_lines
 
 from aslexp.data.lexicon import load_lexicon
+from aslexp.data.splits import SplitOptions
 from aslexp.recognition import retrieval as R
+from aslexp.recognition import retrieval_run as RR
 
 ROOT = Path(__file__).resolve().parents[2]
 DATA = Path(os.environ.get("ASLEXP_DATA_ROOT", ROOT.parent / "shared" / "data"))
@@ -121,6 +126,51 @@ def test_the_oracle_of_a_clip_puts_its_group_first_and_the_prior_orders_it(lexic
     assert ranks["phonology"][0].expected == ranks["oracle"][0].expected  # certain and right = the oracle
 
 
+# --------------------------------------------------------------------------- intervals over splits
+
+
+def test_an_interval_stays_in_the_metrics_range_and_needs_three_splits():
+    # a rate: recall@50 of the prior on three splits, one of which has no frequent test gloss
+    recall = RR.split_interval([0.0, 0.05, 0.9], RR.metric_range("recall@50", 2723))
+    assert recall["low"] == 0.0 and 0.0 < recall["mean"] < recall["high"] <= 1.0
+    assert recall["half_width"] > recall["mean"]  # the t half-width itself is kept, unclipped
+    rank = RR.split_interval([1.0, 2.0, 2700.0], RR.metric_range("median_rank", 2723))
+    assert (rank["low"], rank["high"]) == (1.0, 2723.0)
+    # two splits: t(1) = 12.7 standard errors, the report's "42.4 [-220.7, 305.6]": no interval at all
+    two = RR.split_interval([0.2, 0.65], RR.metric_range("recall@50", 2723))
+    assert two["mean"] == pytest.approx(0.425) and two["n"] == 2
+    assert (two["low"], two["high"], two["half_width"], two["interval"]) == (None, None, None, RR.NO_INTERVAL)
+    assert RR._metric_cell("recall@50", two) == "42.5" and RR._metric_cell("median_rank", {**two, "mean": 90}) == "90"
+
+
+def test_the_default_splits_reuse_test_glosses(clip_cache):
+    """The 10 default gloss splits, drawn by the job's own split generator over the real clips'
+    glosses: 70 test-gloss slots hold only 37 glosses, and 56 slots hold a gloss tested in another split."""
+    from hydra import compose, initialize_config_dir
+
+    from aslexp.jobs._common import to_dict
+    from aslexp.jobs.retrieve import retrieval_clips
+
+    with initialize_config_dir(str(ROOT / "conf"), version_base=None):
+        plain = to_dict(compose("retrieve", overrides=[f"data.root={DATA}"]))
+    properties = ["sign_type", "major_location"]  # the CLI test's builds: the same 285 clips of 47 glosses
+    table = _table(load_lexicon("asllex2", DATA), properties)
+    clips = retrieval_clips(plain, properties, table, clip_cache)
+    assert (len(clips.glosses), len(set(clips.glosses))) == (285, 47)
+    options = SplitOptions.parse(plain["split"])
+    assert options.repeats == 10
+    tests = []
+    for k in range(options.repeats):
+        test = RR.gloss_split(clips.glosses, options, options.seed + k)[2]
+        tests.append(sorted({clips.glosses[i] for i in test}))
+    assert RR.split_overlap(tests) == {"test_slots": 70, "distinct_test_glosses": 37, "recurring": 56,
+                                       "recurring_glosses": 23, "most_tested": 4}
+    # the glosses are common words: the median is about the 92nd most frequent of the 2,723 signs
+    ranks = R.frequency_rank(table, sorted(set(clips.entry_rows.tolist())))
+    assert np.median(ranks) == pytest.approx(91.5)
+    assert R.lexicon_terciles(table, sorted(set(clips.entry_rows.tolist()))) == {"low": 2, "mid": 2, "high": 43}
+
+
 # --------------------------------------------------------------------------- the job
 
 
@@ -142,13 +192,19 @@ def _documented() -> list[str]:
     return [line for line in bash_lines(ROOT / "docs" / "recognition.md") if line.startswith("aslexp retrieve")]
 
 
+@pytest.fixture(scope="module")
+def clip_cache(tmp_path_factory) -> Path:
+    """One dataset cache for this module's runs (the WLASL-Lex builds are made once)."""
+    return tmp_path_factory.mktemp("retrieve-cache")
+
+
 def _cli(args: list[str], cache: Path) -> subprocess.CompletedProcess:
     env = dict(os.environ, ASLEXP_CACHE_DIR=str(cache), MPLBACKEND="Agg")
     return job_process.run([sys.executable, "-m", "aslexp.cli", *args], cwd=ROOT, env=env, capture_output=True,
                           text=True, timeout=300)
 
 
-def test_the_documented_commands_run_and_write_a_complete_run_folder(tmp_path):
+def test_the_documented_commands_run_and_write_a_complete_run_folder(tmp_path, clip_cache):
     commands = _documented()
     assert commands, "docs/recognition.md documents `aslexp retrieve`"
     for number, command in enumerate(commands):
@@ -158,7 +214,7 @@ def test_the_documented_commands_run_and_write_a_complete_run_folder(tmp_path):
         multirun = "-m" in words
         folder = tmp_path / f"run{number}"
         words = _cut(words) + [f"hydra.{'sweep' if multirun else 'run'}.dir={folder}"]
-        proc = _cli(["retrieve", *words], tmp_path / "cache")
+        proc = _cli(["retrieve", *words], clip_cache)
         assert proc.returncode == 0, f"{command}: exit {proc.returncode}\n{proc.stderr[-3000:]}"
         run_dir = next(folder.rglob("run.json")).parent
         assert json.loads((run_dir / "run.json").read_text())["status"] == "completed"
@@ -169,7 +225,10 @@ def test_the_documented_commands_run_and_write_a_complete_run_folder(tmp_path):
         for method in R.METHODS:
             for key in ("recall@1", "recall@10", "recall@50", "mrr", "median_rank"):
                 cell = metrics["table"][method][key]
-                assert cell["n"] == 2 and math.isfinite(cell["mean"]) and math.isfinite(cell["half_width"])
+                # two splits: no t interval, null in metrics.json with the reason
+                assert cell["n"] == 2 and math.isfinite(cell["mean"]) and cell["interval"] == RR.NO_INTERVAL
+                assert cell["low"] is None and cell["high"] is None and cell["half_width"] is None
+        assert all(p["diff"]["low"] is None and p["resolved"] == 0 for p in metrics["paired"])
         assert metrics["table"]["chance"]["recall@50"]["mean"] == pytest.approx(50 / 2723)
         assert metrics["objective"]["name"].startswith("val_")  # a sweep never chooses by test
         with (run_dir / "ranks.csv").open() as handle:
@@ -178,9 +237,49 @@ def test_the_documented_commands_run_and_write_a_complete_run_folder(tmp_path):
         assert {r["split"] for r in rows} == {"0", "1"} and all(float(r["rank_oracle"]) >= 1 for r in rows)
         for split in metrics["per_split"]:  # the test glosses were never trained on, for every property
             assert split["glosses"]["train"] + split["glosses"]["val"] + len(split["glosses"]["test"]) == 47
+        tests = [s["glosses"]["test"] for s in metrics["per_split"]]
+        assert metrics["split_overlap"] == RR.split_overlap(tests)
+        assert metrics["split_overlap"]["test_slots"] == sum(len(t) for t in tests) == 14
+        _check_frequency(metrics, rows)
         table = (run_dir / "retrieval.md").read_text()
         assert "properties used: sign_type, major_location" in table and "| phonology + prior |" in table
+        assert "95% t interval: n/a (fewer than 3 splits)" in table and " [" not in table.split("| method |")[1]
+        assert "| rank > 500 |" in table and "median rank by SignFrequency(Z) of the test glosses" in table
+        if number == 0:
+            _check_results_entry(folder)
         assert "split 2/2" in proc.stderr + (run_dir / "retrieve.log").read_text()  # progress with ETA
+
+
+def _check_frequency(metrics: dict, rows: list[dict]) -> None:
+    """Recall by the true sign's frequency band: every test clip of every split in one band; the
+    prior alone never finds a sign ranked beyond 500 by frequency in its top 50."""
+    frequency = metrics["frequency"]
+    bands = {b["band"]: b for b in frequency["bands"]}
+    assert list(bands) == ["rank 1-100", "rank 101-500", "rank > 500"]
+    assert sum(b["clips"] for b in bands.values()) == len(rows)
+    for band in bands.values():
+        assert set(band["methods"]) == {"prior", "phonology", "phonology+prior"}
+        assert band["clips"] == 0 or all(0.0 <= band["methods"][m]["recall@50"] <= 1.0 for m in band["methods"])
+    rare = bands["rank > 500"]
+    assert rare["clips"] == 0 or rare["methods"]["prior"]["recall@50"] == 0.0
+    prior_rank = {r["entry_id"]: float(r["rank_prior"]) for r in rows}  # the prior's rank = the frequency rank
+    assert frequency["median_prior_rank"]["test_glosses"] == pytest.approx(np.median(list(prior_rank.values())), abs=1e-3)
+    assert frequency["median_prior_rank"]["all_glosses"] == pytest.approx(91.5)
+    assert frequency["glosses_by_lexicon_tercile"] == {"low": 2, "mid": 2, "high": 43}
+
+
+def _check_results_entry(folder: Path) -> None:
+    """The results page's entry of this run: no interval from 2 splits, the overlap and the bands."""
+    from aslexp.reports import results_retrieval
+
+    snapshot = results_retrieval.results_summary({}, [folder])
+    assert snapshot["facts"]["splits"] == 2 and snapshot["facts"]["split_overlap"]["test_slots"] == 14
+    table = "\n".join(results_retrieval.table(snapshot))
+    assert "[" not in table  # no interval from 2 splits
+    legend = "\n".join(results_retrieval.legend(snapshot))
+    assert "95% t interval: n/a (fewer than 3 splits)" in legend and "test-gloss slots" in legend
+    assert "frequency prior is strong because WLASL's glosses are common words" in legend
+    assert "| rank 1-100 |" in legend and "phonology + prior @50 (%)" in legend
 
 
 def test_an_unknown_property_is_one_clear_line(tmp_path):

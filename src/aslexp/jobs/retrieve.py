@@ -3,7 +3,8 @@
 Data flow: lexicon (properties, SignFrequency(Z)) + WLASL-Lex builds of each property (the same
 clips and keypoints) -> one gloss split over the clips, K times -> a classifier per property on the
 training glosses -> per test clip, every lexicon entry scored by its predicted phonology, the
-frequency prior, both, and the oracle -> recall@k, MRR, median rank over splits -> run directory
+frequency prior, both, and the oracle -> recall@k, MRR, median rank over splits (with how often the
+splits reuse test glosses, and recall by the frequency band of the true sign) -> run directory
 (metrics.json, retrieval.md, ranks.csv, recall_at_k.png; with ``retrieval.save_model`` the lookup
 model of ``aslexp lookup`` in model/). Definitions: docs/recognition.md,
 "Lexicon retrieval for unseen glosses". Returns the validation recall@50 of phonology + prior
@@ -102,7 +103,7 @@ def retrieval_clips(cfg: dict[str, Any], properties: list[str], table, cache_dir
 def retrieve(cfg: DictConfig, run) -> float:
     from aslexp.data.lexicon import load_lexicon
     from aslexp.recognition.retrieval import lexicon_table
-    from aslexp.recognition.retrieval_run import run_retrieval, write_outputs, table_lines
+    from aslexp.recognition.retrieval_run import interval_text, run_retrieval, table_lines, write_outputs
 
     plain = to_dict(cfg)
     section = check_retrieval(plain)
@@ -132,6 +133,7 @@ def retrieve(cfg: DictConfig, run) -> float:
     run.set_main_metric("val_recall@50_phonology+prior", value, "maximize")
     for line in table_lines(result):
         log.info("%s", line)
+    log.info("%s", interval_text(len(result["per_split"]), result["split_overlap"]))
     return value
 
 

@@ -308,3 +308,46 @@ def choose(table: LexiconTable, proba: Sequence[np.ndarray], true_index: Sequenc
     best_alone = max(alone, key=lambda c: sign * c["metrics"][select_by])  # max() keeps the first of equals
     best_combined = max(combined, key=lambda c: sign * c["metrics"][select_by])
     return {"phonology": best_alone, "phonology+prior": best_combined, "select_by": select_by}
+
+
+# --------------------------------------------------------------------------- the true sign's frequency
+
+
+# Bands of the true entry's rank by SignFrequency(Z) among all lexicon entries (1 = the most frequent;
+# the prior's own rank): WLASL's glosses are common words (the median of the 47 is about 91 of
+# 2,723), so lexicon terciles would put nearly all of them in the top third.
+FREQUENCY_BAND_EDGES = (100, 500)
+BAND_METHODS = ("prior", "phonology", "phonology+prior")
+
+
+def frequency_rank(table: LexiconTable, entries: Sequence[int]) -> np.ndarray:
+    """The expected rank (ties at random) of each of ``entries`` by SignFrequency(Z), highest first."""
+    return np.array([rank_of_true(table.log_prior, int(e)).expected for e in entries], dtype=np.float64)
+
+
+def frequency_band_names(edges: Sequence[int] = FREQUENCY_BAND_EDGES) -> list[str]:
+    bounds = [0, *edges]
+    return [f"rank {low + 1}-{high}" for low, high in zip(bounds, bounds[1:])] + [f"rank > {edges[-1]}"]
+
+
+def lexicon_terciles(table: LexiconTable, entries: Sequence[int]) -> dict[str, int]:
+    """How many of ``entries`` fall in the low, mid and high third of the lexicon's SignFrequency(Z)."""
+    low, high = np.quantile(table.frequency_z, [1 / 3, 2 / 3])
+    z = table.frequency_z[np.asarray(entries, dtype=np.int64)]
+    return {"low": int(np.sum(z < low)), "mid": int(np.sum((z >= low) & (z < high))), "high": int(np.sum(z >= high))}
+
+
+def frequency_bands(table: LexiconTable, entries: Sequence[int], ranks: Mapping[str, Sequence[Rank]],
+                    recall_at: Sequence[int] = RECALL_AT,
+                    edges: Sequence[int] = FREQUENCY_BAND_EDGES) -> list[dict[str, object]]:
+    """Per band of the true entry's frequency rank, :func:`rank_metrics` of each method of
+    :data:`BAND_METHODS` over the clips whose true entry is in it: ``entries`` are the clips' entry
+    rows and ``ranks[method]`` their ranks, in the same order (clips of every split pooled)."""
+    entries = np.asarray(entries, dtype=np.int64)
+    band = np.searchsorted(np.asarray(edges, dtype=np.float64), frequency_rank(table, entries), side="left")
+    out = []
+    for b, name in enumerate(frequency_band_names(edges)):
+        rows = np.flatnonzero(band == b)
+        out.append({"band": name, "clips": int(len(rows)), "glosses": int(len(set(entries[rows].tolist()))),
+                    "methods": {m: rank_metrics([ranks[m][r] for r in rows], recall_at) for m in BAND_METHODS}})
+    return out

@@ -19,7 +19,10 @@ Per split (``split.seed + k``, k < ``split.repeats``):
    ranks all lexicon entries for every test clip.
 
 Per split the metrics are means over its test clips; the table is the mean over splits with the
-95% t interval (:func:`aslexp.recognition.metrics.mean_interval`).
+95% t interval (:func:`split_interval`: clipped to the metric's range, none below 3 splits). The
+splits are drawn independently, so they reuse test glosses (``split_overlap`` in the result counts
+how often): the interval treats them as independent samples and is too narrow. ``frequency`` in
+the result gives recall by the frequency band of the true sign (:func:`aslexp.recognition.retrieval.frequency_bands`).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +52,9 @@ TABLE_METRICS = ("recall@1", "recall@10", "recall@50", "mrr", "median_rank")
 # The paired comparisons over the same splits that the issue's targets ask about: (method, reference, metric).
 PAIRED = (("phonology", "chance", "recall@50"), ("phonology+prior", "prior", "recall@50"),
           ("phonology+prior", "prior", "median_rank"))
+# A t interval from 2 splits is the mean +- 12.7 standard deviations: none is given below 3.
+MIN_SPLITS_FOR_INTERVAL = 3
+NO_INTERVAL = "n/a (fewer than 3 splits)"
 
 
 @dataclass
@@ -66,6 +73,45 @@ class RetrievalClips:
         n = len(self.X)
         if not (len(self.mask) == len(self.video_ids) == len(self.glosses) == len(self.entry_rows) == n):
             raise ValueError("retrieval clips: X, mask, video_ids, glosses and entry_rows differ in length")
+
+
+def metric_range(metric: str, entries: int) -> tuple[float, float]:
+    """The values ``metric`` can take with a lexicon of ``entries``: a rate in [0, 1], a rank in
+    [1, entries], the mean log rank in [0, log entries]."""
+    if metric in ("median_rank", "mean_rank"):
+        return 1.0, float(entries)
+    if metric == "mean_log_rank":
+        return 0.0, math.log(entries)
+    return 0.0, 1.0  # recall@k, mrr
+
+
+def split_interval(values: Sequence[float], bounds: tuple[float, float]) -> dict[str, Any]:
+    """:func:`mean_interval` over splits with the bounds clipped to ``bounds``; below
+    :data:`MIN_SPLITS_FOR_INTERVAL` splits no interval (low, high and half_width None, and
+    ``interval`` says why)."""
+    interval = mean_interval(values)
+    if interval["n"] < MIN_SPLITS_FOR_INTERVAL:
+        return {**interval, "low": None, "high": None, "half_width": None, "interval": NO_INTERVAL}
+    low, high = bounds
+    return {**interval, "low": min(max(interval["low"], low), high), "high": max(min(interval["high"], high), low)}
+
+
+def split_overlap(test_glosses: Sequence[Sequence[str]]) -> dict[str, int]:
+    """How often the splits' test glosses recur: ``test_slots`` (test glosses summed over splits),
+    ``distinct_test_glosses``, ``recurring`` (the slots whose gloss is a test gloss of another split
+    too), ``recurring_glosses`` and ``most_tested`` (the most splits one gloss is tested in)."""
+    counts = Counter(g for glosses in test_glosses for g in set(glosses))
+    return {"test_slots": sum(counts.values()), "distinct_test_glosses": len(counts),
+            "recurring": sum(n for n in counts.values() if n > 1),
+            "recurring_glosses": sum(1 for n in counts.values() if n > 1),
+            "most_tested": max(counts.values(), default=0)}
+
+
+def gloss_split(glosses: Sequence[str], options: SplitOptions, seed: int) -> tuple[np.ndarray, ...]:
+    """One gloss split of the clips (one label for all: see the module docstring): the clip
+    indices of train, val and test."""
+    result = resplit(["all"] * len(glosses), glosses, options, seed)
+    return tuple(result.keep[np.asarray(result.splits[name], dtype=np.int64)] for name in ("train", "val", "test"))
 
 
 def _format_seconds(seconds: float) -> str:
@@ -155,15 +201,15 @@ def run_retrieval(
     repeats = int(options.repeats)
     start = time.perf_counter()
     per_split, clip_rows = [], []
+    pooled_entries: list[int] = []  # every split's test clips, for recall by frequency band
+    pooled_ranks: dict[str, list[R.Rank]] = {m: [] for m in R.BAND_METHODS}
     curves: dict[str, list[list[float]]] = {m: [] for m in R.METHODS}
     log.info("retrieval: %d clips of %d glosses, %d lexicon entries, properties %s, classifier %s, %d gloss split(s)",
              len(clips.X), len(set(clips.glosses)), len(table), list(table.properties), classifier["name"], repeats)
     for k in range(repeats):
         split_seed = int(options.seed) + k
         split_start = time.perf_counter()
-        result = resplit(["all"] * len(clips.glosses), clips.glosses, options, split_seed)
-        keep = result.keep
-        train, val, test = (keep[np.asarray(result.splits[name], dtype=np.int64)] for name in ("train", "val", "test"))
+        train, val, test = gloss_split(clips.glosses, options, split_seed)
         train_val = np.sort(np.concatenate([train, val]))
         val_proba, test_proba, budgets, seen = [], [], {}, {}
         for j, prop in enumerate(table.properties):
@@ -186,6 +232,9 @@ def run_retrieval(
         eps_both, weight = chosen["phonology+prior"]["smoothing"], chosen["phonology+prior"]["weight"]
         ranks = R.method_ranks(table, test_proba, clips.entry_rows[test], eps_alone, eps_both, weight, test_priors)
         metrics = {m: R.rank_metrics(ranks[m], recall_at) for m in R.METHODS}
+        pooled_entries.extend(int(e) for e in clips.entry_rows[test])
+        for method in R.BAND_METHODS:
+            pooled_ranks[method].extend(ranks[method])
         for method in R.METHODS:
             curves[method].append(R.recall_curve(ranks[method], ks))
         property_accuracy = {}
@@ -229,10 +278,11 @@ def run_retrieval(
                  metrics["phonology+prior"].get("recall@50", math.nan), eps_both, weight,
                  metrics["oracle"].get("recall@50", math.nan), rate, _format_seconds(rate * (repeats - k - 1)))
     keys = [f"recall@{k}" for k in recall_at] + ["mrr", "median_rank", "mean_rank", "mean_log_rank"]
-    summary = {m: {key: mean_interval([s["metrics"][m][key] for s in per_split]) for key in keys} for m in R.METHODS}
-    paired = [{"method": a, "reference": b, "metric": key,
-               **paired_comparison([s["metrics"][a][key] for s in per_split], [s["metrics"][b][key] for s in per_split])}
-              for a, b, key in PAIRED]
+    summary = {m: {key: split_interval([s["metrics"][m][key] for s in per_split], metric_range(key, len(table)))
+                   for key in keys} for m in R.METHODS}
+    overlap = split_overlap([s["glosses"]["test"] for s in per_split])
+    log.info("the %d splits' %d test-gloss slots hold %d distinct glosses; %d slots recur in another split",
+             repeats, overlap["test_slots"], overlap["distinct_test_glosses"], overlap["recurring"])
     return {
         "properties": list(table.properties),
         "classifier": str(classifier["name"]),
@@ -249,7 +299,9 @@ def run_retrieval(
                       "prior_weights": [float(w) for w in prior_weights], "on": "validation glosses"},
         "methods": {m: R.METHOD_LABELS[m] for m in R.METHODS},
         "table": summary,
-        "paired": paired,
+        "paired": _paired(per_split, len(table)),
+        "split_overlap": overlap,
+        "frequency": _frequency(table, clips, pooled_entries, pooled_ranks, recall_at),
         "per_split": per_split,
         "curves": {"k": ks, **{m: list(np.mean(np.array(v), axis=0)) if v else [] for m, v in curves.items()}},
         "oracle_lexicon": R.oracle_lexicon(table, recall_at),
@@ -258,17 +310,56 @@ def run_retrieval(
     }
 
 
+def _paired(per_split: Sequence[Mapping[str, Any]], entries: int) -> list[dict[str, Any]]:
+    """:data:`PAIRED` over the same splits; the difference's interval clipped to the range a
+    difference can take, and none (resolved 0) below :data:`MIN_SPLITS_FOR_INTERVAL` splits."""
+    out = []
+    for a, b, key in PAIRED:
+        item = paired_comparison([s["metrics"][a][key] for s in per_split], [s["metrics"][b][key] for s in per_split])
+        low, high = metric_range(key, entries)
+        span = high - low
+        diff = item["diff"]
+        if diff["n"] < MIN_SPLITS_FOR_INTERVAL:
+            item["diff"] = {**diff, "low": None, "high": None, "half_width": None, "interval": NO_INTERVAL}
+            item["resolved"] = 0
+        else:
+            item["diff"] = {**diff, "low": max(diff["low"], -span), "high": min(diff["high"], span)}
+        out.append({"method": a, "reference": b, "metric": key, **item})
+    return out
+
+
+def _frequency(table: R.LexiconTable, clips: RetrievalClips, entries: Sequence[int],
+               ranks: Mapping[str, Sequence[R.Rank]], recall_at: Sequence[int]) -> dict[str, Any]:
+    """How frequent the glosses are in the lexicon (the prior's rank of their entries; the lexicon
+    terciles of SignFrequency(Z) they fall in) and recall by frequency band of the true sign,
+    pooled over every split's test clips (a clip tested in several splits counts each time)."""
+    all_entries = sorted(set(int(e) for e in clips.entry_rows))
+    tested = sorted(set(int(e) for e in entries))
+    return {
+        "rank_by": "SignFrequency(Z) among all lexicon entries (1 = most frequent; the prior's rank)",
+        "median_prior_rank": {"test_glosses": float(np.median(R.frequency_rank(table, tested))) if tested else None,
+                              "all_glosses": float(np.median(R.frequency_rank(table, all_entries)))},
+        "glosses_by_lexicon_tercile": R.lexicon_terciles(table, all_entries),
+        "band_edges": list(R.FREQUENCY_BAND_EDGES),
+        "bands": R.frequency_bands(table, entries, ranks, recall_at),
+    }
+
+
 # --------------------------------------------------------------------------- outputs
+
+
+def _finite(*values: Any) -> bool:
+    return all(v is not None and math.isfinite(v) for v in values)
 
 
 def _cell(interval: Mapping[str, float], percent: bool) -> str:
     scale, digits = (100.0, 1) if percent else (1.0, 3)
     mean = interval.get("mean", math.nan)
-    if mean is None or not math.isfinite(mean):
+    if not _finite(mean):
         return "-"
     text = f"{scale * mean:.{digits}f}"
     low, high = interval.get("low"), interval.get("high")
-    if low is not None and high is not None and math.isfinite(low) and math.isfinite(high):
+    if _finite(low, high):
         text += f" [{scale * low:.{digits}f}, {scale * high:.{digits}f}]"
     return text
 
@@ -277,11 +368,10 @@ def _metric_cell(metric: str, interval: Mapping[str, float]) -> str:
     if metric.startswith("recall@"):
         return _cell(interval, percent=True)
     if metric in ("median_rank", "mean_rank"):
-        mean = interval.get("mean", math.nan)
-        low, high = interval.get("low", math.nan), interval.get("high", math.nan)
-        if not math.isfinite(mean):
+        mean, low, high = interval.get("mean"), interval.get("low"), interval.get("high")
+        if not _finite(mean):
             return "-"
-        return f"{mean:.0f}" + (f" [{low:.0f}, {high:.0f}]" if math.isfinite(low) and math.isfinite(high) else "")
+        return f"{mean:.0f}" + (f" [{low:.0f}, {high:.0f}]" if _finite(low, high) else "")
     return _cell(interval, percent=False)
 
 
@@ -290,7 +380,7 @@ METRIC_HEADERS = {"mrr": "MRR", "median_rank": "median rank", "mean_rank": "mean
 
 def table_lines(result: Mapping[str, Any]) -> list[str]:
     """The retrieval table as Markdown lines: one row per method, recall@k in %, MRR and the median
-    rank, each the mean over splits with its 95% t interval."""
+    rank, each the mean over splits with its 95% t interval (none below 3 splits)."""
     metrics = [f"recall@{k}" for k in result["recall_at"]] + ["mrr", "median_rank"]
     header = ["method", *[METRIC_HEADERS.get(m, m + " (%)") for m in metrics]]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
@@ -298,6 +388,22 @@ def table_lines(result: Mapping[str, Any]) -> list[str]:
         row = result["table"][method]
         lines.append("| " + " | ".join([result["methods"][method], *[_metric_cell(m, row[m]) for m in metrics]]) + " |")
     return lines
+
+
+def interval_text(splits: int, overlap: Mapping[str, int] | None) -> str:
+    """What the table's brackets are: the 95% t interval over splits, or none below 3 splits; and,
+    when the splits reuse test glosses, that the interval is too narrow."""
+    if splits < MIN_SPLITS_FOR_INTERVAL:
+        text = f"mean over splits; 95% t interval: {NO_INTERVAL}."
+    else:
+        text = "mean over splits with the 95% t interval, clipped to the metric's range."
+    if overlap and overlap.get("recurring"):
+        text += (f" The splits are drawn independently and reuse test glosses: {overlap['recurring']} of the "
+                 f"{overlap['test_slots']} test-gloss slots hold a gloss tested in another split too "
+                 f"({overlap['distinct_test_glosses']} distinct test glosses)")
+        text += (", so the intervals, which treat the splits as independent, are too narrow."
+                 if splits >= MIN_SPLITS_FOR_INTERVAL else ".")
+    return text
 
 
 def describe(result: Mapping[str, Any]) -> str:
@@ -311,23 +417,54 @@ def describe(result: Mapping[str, Any]) -> str:
             f"{', '.join(result['properties'])}; classifier {result['classifier']} (phonology scored as "
             f"{'the likelihood ratio' if result['likelihood'] == 'ratio' else 'the posterior'}); {len(splits)} gloss split(s) of "
             f"{result['num_glosses']} glosses / {result['num_clips']} clips (test per split: {min(test_glosses)}-"
-            f"{max(test_glosses)} glosses, {min(tests)}-{max(tests)} clips); mean over splits with the 95% t "
-            f"interval. Smoothing and prior weight chosen on the validation glosses by "
-            f"{result['selection']['select_by']} (prior weight per split: {', '.join(f'{w:g}' for w in chosen)}). "
+            f"{max(test_glosses)} glosses, {min(tests)}-{max(tests)} clips); "
+            f"{interval_text(len(splits), result.get('split_overlap'))} Smoothing and prior weight chosen on the "
+            f"validation glosses by {result['selection']['select_by']} (prior weight per split: "
+            f"{', '.join(f'{w:g}' for w in chosen)}). "
             f"The oracle over every lexicon entry with these properties: recall@10 {100 * oracle['recall@10']:.1f}%, "
             f"recall@50 {100 * oracle['recall@50']:.1f}% (chance {100 * oracle['chance_recall@10']:.2f}% and "
             f"{100 * oracle['chance_recall@50']:.2f}%).")
 
 
+BAND_KS = (10, 50)
+BAND_LABELS = {"prior": "prior", "phonology": "phonology", "phonology+prior": "phonology + prior"}
+
+
+def _percent(value: Any) -> str:
+    return f"{100 * value:.1f}" if _finite(value) else "-"
+
+
+def frequency_lines(frequency: Mapping[str, Any], recall_at: Sequence[int], entries: int, glosses: int) -> list[str]:
+    """Why the prior is strong (how common the glosses are) and recall by the frequency band of the
+    true sign, as Markdown lines (``frequency`` as :func:`run_retrieval` gives it; the results page
+    passes its snapshot's copy)."""
+    ks = [k for k in BAND_KS if k in recall_at]
+    median, terciles = frequency["median_prior_rank"], frequency["glosses_by_lexicon_tercile"]
+    tested = f"{median['test_glosses']:.0f}" if _finite(median.get("test_glosses")) else "-"
+    lines = [f"The frequency prior is strong because WLASL's glosses are common words: the median rank by "
+             f"SignFrequency(Z) of the test glosses is {tested} of {entries:,} ({median['all_glosses']:.0f} over all "
+             f"{glosses} glosses), and {terciles['high']} of the {glosses} glosses are in the top third of the "
+             f"lexicon's frequency ({terciles['mid']} in the middle, {terciles['low']} in the bottom third). Recall "
+             f"by the true sign's frequency rank, over every split's test clips (a clip tested in several splits "
+             f"counts each time):", ""]
+    header = ["true sign's frequency rank", "clips (glosses)",
+              *[f"{BAND_LABELS[m]} @{k} (%)" for m in R.BAND_METHODS for k in ks]]
+    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for band in frequency["bands"]:
+        cells = [_percent(band["methods"][m].get(f"recall@{k}")) for m in R.BAND_METHODS for k in ks]
+        lines.append("| " + " | ".join([band["band"], f"{band['clips']} ({band['glosses']})", *cells]) + " |")
+    return lines
+
+
 def paired_lines(result: Mapping[str, Any]) -> list[str]:
     """One line per paired comparison: the mean difference over the same splits with its 95% t
-    interval, splits won / tied / lost and the Wilcoxon p."""
+    interval (none below 3 splits), splits won / tied / lost and the Wilcoxon p."""
     lines = []
     for item in result.get("paired", []):
         diff, percent = item["diff"], item["metric"].startswith("recall@")
         scale, unit = (100.0, " points") if percent else (1.0, "")
         interval = (f" [{scale * diff['low']:+.1f}, {scale * diff['high']:+.1f}]"
-                    if math.isfinite(diff["low"]) and math.isfinite(diff["high"]) else "")
+                    if _finite(diff["low"], diff["high"]) else "")
         lines.append(f"- {result['methods'][item['method']]} minus {result['methods'][item['reference']]}, "
                      f"{item['metric']}: {scale * diff['mean']:+.1f}{unit}{interval}; splits higher/equal/lower "
                      f"{item['wins']}/{item['ties']}/{item['losses']}, Wilcoxon p = {item['wilcoxon_p']:.3g}")
@@ -343,7 +480,9 @@ def write_outputs(result: Mapping[str, Any], out_dir: str | Path) -> dict[str, s
     out.mkdir(parents=True, exist_ok=True)
     write_text(out / TABLE_FILE, "# Lexicon retrieval for unseen glosses\n\n" + describe(result) + "\n\n"
                + "\n".join(table_lines(result)) + "\n\nPaired over the same splits:\n\n"
-               + "\n".join(paired_lines(result)) + "\n")
+               + "\n".join(paired_lines(result)) + "\n\n"
+               + "\n".join(frequency_lines(result["frequency"], result["recall_at"],
+                                           result["lexicon_entries"], result["num_glosses"])) + "\n")
     write_rows_csv(out / RANKS_FILE, result["clips"], ["split", "split_seed", "video_id", "gloss", "entry_id"])
     files = {"table": TABLE_FILE, "ranks": RANKS_FILE}
     try:

@@ -1,8 +1,10 @@
 """The lexicon-retrieval entry of the results page (``report: retrieval``, docs/results.md): the table
 of an ``aslexp retrieve`` run folder, one row per method (chance, the frequency prior alone,
 phonology alone, phonology + prior, the oracle, oracle + prior), recall@k, MRR and the median rank,
-each the mean over gloss splits with its 95% t interval, as the run's metrics.json holds them, and a
-line that says where the issue's targets land. :func:`results_summary` makes the snapshot's rows
+each the mean over gloss splits with its 95% t interval (none below 3 splits), as the run's metrics.json
+holds them; the legend says how often the splits reuse test glosses (so the intervals are too narrow),
+why the frequency prior is strong (how common the glosses are) with recall by the frequency band of
+the true sign, and where the issue's targets land. :func:`results_summary` makes the snapshot's rows
 from the run folder; :func:`render` draws the table (the entry's other lines are results_page's)."""
 
 from __future__ import annotations
@@ -53,9 +55,23 @@ def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any
                     "diff": {k: number(p["diff"][k]) for k in ("mean", "low", "high")},
                     "wins": p["wins"], "ties": p["ties"], "losses": p["losses"], "wilcoxon_p": number(p["wilcoxon_p"])}
                    for p in metrics.get("paired", [])],
+        "recall_at": list(metrics.get("recall_at", [])),
     }
+    if "split_overlap" in metrics:  # runs made before these were recorded have neither
+        facts["split_overlap"] = dict(metrics["split_overlap"])
+    if "frequency" in metrics:
+        facts["frequency"] = _frequency_facts(metrics["frequency"])
     return {"rows": rows, "run_dirs": [run_dir], "skipped": skipped, "quantity": "test retrieval over gloss splits",
             "row_name": "method", "facts": facts}
+
+
+def _frequency_facts(frequency: dict[str, Any]) -> dict[str, Any]:
+    """metrics.json's ``frequency`` with its numbers as a snapshot keeps them (None for NaN)."""
+    bands = [{"band": b["band"], "clips": b["clips"], "glosses": b["glosses"],
+              "methods": {m: {k: number(v) for k, v in values.items()} for m, values in b["methods"].items()}}
+             for b in frequency["bands"]]
+    median = {k: number(v) for k, v in frequency["median_prior_rank"].items()}
+    return {**frequency, "median_prior_rank": median, "bands": bands}
 
 
 def _cell(metric: str, cell: dict[str, Any]) -> str:
@@ -102,6 +118,8 @@ def legend(snapshot: dict[str, Any]) -> list[str]:
     facts = snapshot.get("facts") or {}
     if not facts:
         return []
+    from aslexp.recognition.retrieval_run import frequency_lines, interval_text
+
     oracle = facts["oracle_lexicon"]
     scored = "the likelihood ratio" if facts.get("likelihood") == "ratio" else "the posterior"
     glosses = "-".join(str(g) for g in (facts["test_glosses"][0], facts["test_glosses"][-1])) \
@@ -110,7 +128,7 @@ def legend(snapshot: dict[str, Any]) -> list[str]:
             f"ASL-LEX entries; properties used: {', '.join(facts['properties'])}; classifier {facts['classifier']} "
             f"(phonology scored as {scored}); {facts['splits']} gloss splits of {facts['glosses']} glosses / "
             f"{facts['clips']} clips ({glosses} test glosses, {facts['test_clips'][0]}-{facts['test_clips'][1]} test "
-            f"clips per split); mean over splits [95% t interval]. Smoothing and prior weight chosen on the validation "
+            f"clips per split); {interval_text(facts['splits'], facts.get('split_overlap'))} Smoothing and prior weight chosen on the validation "
             f"glosses by {facts['select_by']} (prior weight per split: "
             f"{', '.join(f'{w:g}' for w in facts['prior_weights_chosen'])}). Over every lexicon entry the oracle with "
             f"these properties gives recall@10 {100 * oracle['recall@10']:.1f}% and recall@50 "
@@ -128,7 +146,11 @@ def legend(snapshot: dict[str, Any]) -> list[str]:
                       f"higher/equal/lower {item['wins']}/{item['ties']}/{item['losses']}, Wilcoxon p = "
                       f"{'-' if item['wilcoxon_p'] is None else format(item['wilcoxon_p'], '.3g')}")
     paired_line = [f"Paired over the same splits: {'; '.join(paired)}.", ""] if paired else []
-    return [text, ""] + ([line, ""] if line else []) + paired_line
+    frequency = []
+    if facts.get("frequency"):
+        frequency = frequency_lines(facts["frequency"], facts.get("recall_at") or [10, 50],
+                                    facts["lexicon_entries"], facts["glosses"]) + [""]
+    return [text, ""] + ([line, ""] if line else []) + paired_line + frequency
 
 
 def render(entry: dict[str, Any], snapshot: dict[str, Any] | None,
