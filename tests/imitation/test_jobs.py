@@ -106,28 +106,59 @@ def test_a_sweep_re_evaluated_by_job_number_reports_what_training_under_that_pro
     assert {p: p.read_bytes() for p in sweep.rglob("*") if p.is_file()} == finished
 
 
-def test_tune_pd_sweep_runs_a_few_trials(tmp_path):
+def _last_log_line(run_dir: Path) -> str:
+    return (run_dir / "tune_pd.log").read_text().strip().splitlines()[-1]
+
+
+def test_tune_pd_sweep_on_a_letter_never_ends_below_the_default_controller(tmp_path):
+    """A few trials on letter A: the controller's own gains are the first trial and the objective is
+    1 - the imitation reward, so the sweep's best scores at least the default controller's reward
+    (each trial's metrics hold both, measured the same way)."""
     sweep = tmp_path / "sweep"
-    run_job("tune_pd", "-m", "+sweeps=pd_gains_1", "hydra.sweeper.n_trials=7", "tuning.random.seconds=1.0",
+    run_job("tune_pd", "-m", "+sweeps=pd_gains_1", "hydra.sweeper.n_trials=4", "tuning.motion=motions/hand/A.txt",
             f"hydra.sweep.dir={sweep}")
-    trials = sorted(p for p in sweep.iterdir() if p.is_dir() and (p / "metrics.json").is_file())
-    assert len(trials) == 7
+    trials = sorted((p for p in sweep.iterdir() if p.is_dir() and (p / "metrics.json").is_file()),
+                    key=lambda p: int(p.name))
+    assert [p.name for p in trials] == ["0", "1", "2", "3"]
     # One objective value at the end of each trial, no intermediate report: a pruner never
     # discards a finished trial (past the median pruner's 5 startup trials it would).
     study = optuna.load_study(study_name="pd_gains_1", storage=open_storage(str(sweep / "optuna.journal")))
-    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 7
+    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 4
     assert all(t.intermediate_values == {} for t in study.trials)
-    for trial in trials:
-        metrics = json.loads((trial / "metrics.json").read_text())
+    assert study.trials[0].params == {"tuning.kp": 0.22, "tuning.kd": 0.87}  # conf/controller/thesis.yaml
+    rows = [json.loads((trial / "metrics.json").read_text()) for trial in trials]
+    for trial, metrics in zip(trials, rows):
         gains = metrics["gains"]["default"]
-        assert 0 <= gains["kp"] <= 1 and 0 <= gains["kd"] <= 1 and metrics["objective"] > 0
+        assert 0 <= gains["kp"] <= 1 and 0 <= gains["kd"] <= 1 and not metrics["diverged"]
+        assert metrics["objective_kind"] == "reward" and metrics["objective"] == pytest.approx(1 - metrics["reward"])
+        assert metrics["default_controller"] == "thesis" and metrics["default_reward"] == rows[0]["default_reward"]
+        assert metrics["reward_vs_default"] == pytest.approx(metrics["reward"] - metrics["default_reward"])
+        assert f"reward {metrics['reward']:.4f}; default controller thesis" in _last_log_line(trial)
         assert (trial / "controller.yaml").is_file()
+    assert rows[0]["reward"] == rows[0]["default_reward"] > 0.9  # the first trial is the default controller
+    best = rows[study.best_trial.number]
+    assert best["reward"] == max(m["reward"] for m in rows) >= best["default_reward"] - 5e-4
 
 
 def test_tune_pd_with_thesis_gains_tracks_well(tmp_path):
-    run_job("tune_pd", "tuning.motion=motions/hand/tuning_motion.txt", f"hydra.run.dir={tmp_path}")
-    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    run_job("tune_pd", "tuning.motion=motions/hand/tuning_motion.txt", f"hydra.run.dir={tmp_path / 'thesis'}")
+    metrics = json.loads((tmp_path / "thesis" / "metrics.json").read_text())
     assert metrics["pose_error"] < 0.05 and not metrics["diverged"]
+    assert metrics["reward"] == metrics["default_reward"] and metrics["reward_vs_default"] == 0
+    assert _last_log_line(tmp_path / "thesis").endswith("AT the default controller's")
+
+
+def test_tune_pd_says_when_tuned_gains_score_below_the_default_controller(tmp_path):
+    """On letter A the unweighted objective (radians plus rad/s) prefers kp 0.13, kd 0.855 to the
+    thesis gains while the reward ranks them lower; the run says so, whatever its objective."""
+    run_job("tune_pd", "tuning.motion=motions/hand/A.txt", "tuning.objective=mean_abs", "tuning.kp=0.13",
+            "tuning.kd=0.855", f"hydra.run.dir={tmp_path}")
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["objective"] < metrics["default_objective"]  # mean_abs: better ...
+    assert metrics["reward"] < metrics["default_reward"] - 0.005  # ... the reward: worse
+    assert metrics["objective_kind"] == "mean_abs"
+    assert _last_log_line(tmp_path).endswith(f"BELOW the default controller's by {-metrics['reward_vs_default']:.4f}")
+    assert f"reward {metrics['default_reward']:.4f}" in (tmp_path / "controller.yaml").read_text().splitlines()[0]
 
 
 def test_tune_pd_measures_a_controller_with_target_options(tmp_path):

@@ -61,3 +61,15 @@ def test_bad_search_spaces_name_the_parameter(params, message) -> None:
     with pytest.raises(SearchSpaceError, match=None) as err:
         parse_search_space(params, [])
     assert message in str(err.value) and "hydra.sweeper.params" in str(err.value)
+
+
+def test_enqueued_points_must_name_swept_parameters() -> None:
+    from hydra_plugins.aslexp_optuna_sweeper._impl import _enqueued_points
+
+    space = parse_search_space({"tuning.kp": "interval(0, 1)", "tuning.kd": "interval(0, 1)"}, [])
+    points = [{"tuning.kp": 0.22, "tuning.kd": 0.87}]
+    assert _enqueued_points(points, space) == points
+    with pytest.raises(SearchSpaceError, match=r"^hydra.sweeper.enqueue\[0\]: tuning.kq not swept \(swept: tuning.kd, tuning.kp\)$"):
+        _enqueued_points([{"tuning.kq": 0.2}], space)
+    with pytest.raises(SearchSpaceError, match=r"^hydra.sweeper.enqueue: expected a list"):
+        _enqueued_points({"tuning.kp": 0.2}, space)

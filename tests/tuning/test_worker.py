@@ -136,6 +136,15 @@ def test_ask_claimed_takes_an_enqueued_trial_first(journal: str) -> None:
     assert ask_claimed(study, SPACE, worker_identity()).number == 1
 
 
+def test_an_enqueued_trial_counts_once_it_runs_so_a_budget_of_one_runs_it(journal: str) -> None:
+    study = _study(journal)
+    study.enqueue_trial({"x": 0.25})
+    assert budget_used(study.trials) == 0  # waiting: not yet part of the budget
+    settings = WorkerSettings(storage_spec=journal, study_name="unit", n_trials=1, heartbeat_interval=0)
+    summary = run_worker(study, SPACE, settings, lambda t: Outcome("complete", value=t.params["x"]))
+    assert summary.trials == [0] and [(t.state, t.params) for t in study.trials] == [(TrialState.COMPLETE, {"x": 0.25})]
+
+
 def test_a_remote_worker_is_judged_by_its_heartbeat(journal: str) -> None:
     study = _study(journal)
     trial = study.ask(SPACE)

@@ -10,7 +10,8 @@ import numpy as np
 
 from aslexp.envs.imitation import ImitationEnv
 
-OBJECTIVES = ("mean_abs", "thesis")
+# reward: 1 - the imitation reward (default); mean_abs: aslexp's earlier unweighted errors; thesis: Eq. 5.14
+OBJECTIVES = ("reward", "mean_abs", "thesis")
 
 
 @dataclass
@@ -70,13 +71,15 @@ def reference_rollout(env: ImitationEnv, steps: int, lookahead: int = 1, start_t
 
 
 def pd_tracking_error(env: ImitationEnv, steps: int | None = None, lookahead: int = 1,
-                      objective: str = "mean_abs") -> dict[str, Any]:
+                      objective: str = "reward") -> dict[str, Any]:
     """Drive the PD targets with the reference ``lookahead`` control steps ahead, from time 0.
 
-    ``objective``: ``mean_abs`` (aslexp's): mean over steps and joints of |position error| (rad)
-    plus the same of |velocity error| (rad/s); ``thesis`` (Eq. 5.14): e_p + e_v with each the
-    Eq. 5.10 sum over joints of squared errors, averaged over the steps. Returns both error parts,
-    the objective, the mean imitation reward and whether the simulation diverged.
+    ``objective`` (minimised): ``reward`` (the default): 1 - the mean imitation reward, the env's
+    own reward config (its terms, weights and scales), so the best gains are the best-scoring ones;
+    ``mean_abs``: mean over steps and joints of |position error| (rad) plus the same of |velocity
+    error| (rad/s), unweighted; ``thesis`` (Eq. 5.14): e_p + e_v with each the Eq. 5.10 sum over
+    joints of squared errors, averaged over the steps. Returns both error parts (mean |error| for
+    ``reward``), the objective, the mean imitation reward and whether the simulation diverged.
     """
     if objective not in OBJECTIVES:
         raise ValueError(f"tune_pd: tuning.objective must be one of {OBJECTIVES}, got {objective!r}")
@@ -90,6 +93,7 @@ def pd_tracking_error(env: ImitationEnv, steps: int | None = None, lookahead: in
         pose_err, vel_err = float(np.mean(np.sum(pose ** 2, axis=1))), float(np.mean(np.sum(vel ** 2, axis=1)))
     else:
         pose_err, vel_err = float(np.mean(pose)), float(np.mean(vel))
-    return {"pose_error": pose_err, "velocity_error": vel_err, "objective": pose_err + vel_err,
-            "objective_kind": objective, "reward": float(np.mean(run.rewards)), "diverged": False,
-            "steps": len(run.pose_errors)}
+    reward = run.mean_reward  # per planned step: an early end scores 0 for the rest, as evaluations
+    value = 1.0 - reward if objective == "reward" else pose_err + vel_err
+    return {"pose_error": pose_err, "velocity_error": vel_err, "objective": value,
+            "objective_kind": objective, "reward": reward, "diverged": False, "steps": len(run.pose_errors)}

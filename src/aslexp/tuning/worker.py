@@ -130,7 +130,8 @@ def is_interrupted(trial: FrozenTrial) -> bool:
 
 
 def counts_toward_budget(trial: FrozenTrial) -> bool:
-    return not is_interrupted(trial)
+    # An enqueued trial counts once it runs (asking for it takes it), not while it waits.
+    return not is_interrupted(trial) and trial.state != TrialState.WAITING
 
 
 class LaunchRefused(ConfigError):

@@ -24,7 +24,7 @@ from hydra.core.plugins import Plugins
 from hydra.core.utils import JobReturn, JobStatus
 from hydra.plugins.sweeper import Sweeper
 from hydra.types import HydraContext, TaskFunction
-from omegaconf import DictConfig, OmegaConf, open_dict
+from omegaconf import DictConfig, ListConfig, OmegaConf, open_dict
 
 from aslexp.runs.logfmt import install_float_rounding, quiet_log_write_errors
 from aslexp.tuning.algorithms import (ATTR_SAMPLER, AlgorithmSpecError, make_pruner, make_sampler,
@@ -95,6 +95,7 @@ class SweeperImpl(Sweeper):
         check_search_space: bool = True,
         worker_index: int = 0,
         continue_study: bool = False,
+        enqueue: Any = None,
     ) -> None:
         self.direction = str(direction).lower()
         self.n_trials = int(n_trials)
@@ -109,6 +110,7 @@ class SweeperImpl(Sweeper):
         self.check_search_space = bool(check_search_space)
         self.worker_index = int(worker_index)
         self.continue_study = bool(continue_study)
+        self.enqueue = _plain(enqueue) or []  # resolved: ${...} reads the job's config (its gains)
         if self.direction not in ("maximize", "minimize"):
             raise ValueError(f"hydra.sweeper.direction must be maximize or minimize, got {direction!r}")
         if self.n_trials < 1:
@@ -144,6 +146,7 @@ class SweeperImpl(Sweeper):
         install_float_rounding()
         quiet_log_write_errors()
         space = parse_search_space(self.params, list(arguments))
+        first_points = _enqueued_points(self.enqueue, space)  # checked before anything is written
         sweep_dir = Path(str(self.config.hydra.sweep.dir)).resolve()
         spec = resolve_spec(self.storage, sweep_dir)
         job_name = str(self.config.hydra.job.name)
@@ -172,6 +175,9 @@ class SweeperImpl(Sweeper):
         ), write=self.worker_index == 0, continue_study=self.continue_study)
         self.sweep_dir = sweep_dir
         register_sweep_dir(study_name, self.home)  # trial folders are recorded relative to it
+        if self.worker_index == 0 and not existing:  # a new study: its first points, once
+            for point in first_points:
+                study.enqueue_trial(point)
         if self.worker_index == 0:
             if self.home != sweep_dir:
                 log.info("%s belongs to another study (its sweep.json): study %r lives in %s",
@@ -364,9 +370,23 @@ def _stopped_state(err: BaseException) -> str | None:
 
 
 def _plain(node: Any) -> Any:
-    if isinstance(node, DictConfig):
+    if isinstance(node, (DictConfig, ListConfig)):
         return OmegaConf.to_container(node, resolve=True)
     return dict(node) if isinstance(node, dict) else node
+
+
+def _enqueued_points(points: Any, space: SearchSpace) -> list[dict[str, Any]]:
+    """``hydra.sweeper.enqueue`` checked: a list of {swept parameter: value}."""
+    if not isinstance(points, list):
+        raise SearchSpaceError(f"hydra.sweeper.enqueue: expected a list of {{parameter: value}}, got {points!r}")
+    for i, point in enumerate(points):
+        if not isinstance(point, dict) or not point:
+            raise SearchSpaceError(f"hydra.sweeper.enqueue[{i}]: expected {{parameter: value}}, got {point!r}")
+        unknown = sorted(set(point) - set(space.distributions))
+        if unknown:
+            raise SearchSpaceError(f"hydra.sweeper.enqueue[{i}]: {', '.join(unknown)} not swept "
+                                   f"(swept: {', '.join(sorted(space.distributions)) or 'nothing'})")
+    return points
 
 
 def _task_module(task_function: TaskFunction, strict: bool = True) -> str | None:
