@@ -167,8 +167,8 @@ def verdict_lines(table: Mapping[str, Any]) -> list[str]:
         for name, cell in row.items():
             theirs = cell.get("source", cell.get("reference"))
             bar = "the source's" if "source" in cell else "the reference's"
-            percent = "agreement" in name
-            shown = (lambda v: f"{100 * v:.1f}%") if percent else (lambda v: f"{v:.3f}")
+            shown = ((lambda v: f"{100 * v:.1f}%") if "agreement" in name else
+                     (lambda v: f"{v:g}") if "rank" in name else (lambda v: f"{v:.3f}"))
             lines.append(f"- {stage}: {name} {shown(cell['value'])} against {bar} {shown(theirs)}: "
                          f"{'met' if cell['met'] else 'MISSED'}")
     return lines
