@@ -20,7 +20,13 @@ from aslexp.pose.extract_cli import extract_main
 from aslexp.pose.source_frame import PARTS, frame_errors
 from aslexp.rl.evaluate import evaluate
 from aslexp.signing.keypoints import SigningSource, performance_points
-from aslexp.signing.performance import REFERENCE_STAGE, SIGNING_POSE, signing_metrics, stage_keypoints
+from aslexp.signing.performance import (
+    REFERENCE_STAGE,
+    SIGNING_POSE,
+    SIGNING_VIDEO,
+    signing_metrics,
+    stage_keypoints,
+)
 from aslexp.signing.scores import dtw_scores
 
 from .conftest import CLIP
@@ -53,9 +59,11 @@ def controller_run(env):
     return evaluate(env, lambda obs, env: env.reference_action(1), steps, record=True).trajectory
 
 
-def test_extraction_records_the_source_the_camera_and_the_retargeting_error(extraction, tmp_path):
+def test_extraction_records_the_source_the_camera_and_the_retargeting_error(extraction, videos, tmp_path):
     out, report = extraction
     assert report["source"]["keypoints"] == str((out / f"{CLIP}.npy").resolve())
+    video = videos / f"{CLIP}.mp4"  # the frames the keypoints were read from (a run draws the person on them)
+    assert report["source"]["video"] == {"path": str(video), "first_frame": 0, "bytes": video.stat().st_size}
     assert (report["source"]["width"], report["source"]["height"], report["source"]["frames"]) == (480, 320, 57)
     camera, error = report["upper_body"]["camera"], report["upper_body"]["retargeting_error"]
     assert camera["kind"] == "orthographic" and camera["scale"] > 0 and len(camera["origin"]) == 2
@@ -134,6 +142,78 @@ def test_signing_metrics_score_each_stage_and_write_a_pose_file_the_field_reads(
                                               np.ascontiguousarray(hands[1][:, k], dtype=np.float64))
                        for k in range(21)])  # fmt: skip
     assert signing["stages"]["controller"]["hands"]["dtwp"] == pytest.approx(toolkit, rel=1e-3)
+
+
+def _mp4_frames(path) -> list[np.ndarray]:
+    import imageio_ffmpeg
+
+    reader = imageio_ffmpeg.read_frames(str(path))
+    width, height = next(reader)["size"]
+    return [np.frombuffer(raw, np.uint8).reshape(height, width, 3) for raw in reader]
+
+
+def test_the_side_by_side_video_shows_the_video_the_person_the_agent_and_the_signing_hand(
+        env, controller_run, videos, tmp_path):  # fmt: skip
+    from PIL import Image
+
+    from aslexp.viz.signing_video import HEADER
+
+    signing = signing_metrics(env, controller_run, tmp_path, stage="controller", write_pose=False, video=True)
+    drawn, steps = signing["video"], signing["stages"]["controller"]["steps"]
+    assert drawn["files"] == [SIGNING_VIDEO, "signing.gif"] and drawn["video"] == str(videos / f"{CLIP}.mp4")
+    frames = _mp4_frames(tmp_path / SIGNING_VIDEO)
+    assert len(frames) == steps == drawn["frames"]  # one frame per control step of the pass
+    assert Image.open(tmp_path / "signing.gif").n_frames == (steps + 1) // 2  # every second step
+    # video | person's keypoints | agent, equal panels, then the right hand's close-ups (person | agent):
+    # the left hand is never in the source's view, so it is not a signing hand
+    panels, hands = drawn["panels"], drawn["hands"]
+    assert list(panels) == ["video", "person", "agent"] and set(hands) == {"right"}
+    panel_w, panel_h = panels["video"][2:]
+    assert [p[0] for p in panels.values()] == [0, panel_w, 2 * panel_w] and all(p[2:] == [panel_w, panel_h]
+                                                                                for p in panels.values())  # fmt: skip
+    tile = hands["right"]["person"][2]
+    assert hands["right"]["person"][:2] == [3 * panel_w, HEADER]
+    assert hands["right"]["agent"][:2] == [3 * panel_w + tile, HEADER]
+    assert drawn["size"] == [3 * panel_w + 2 * tile, HEADER + panel_h]
+    assert frames[0].shape == (HEADER + panel_h, 3 * panel_w + 2 * tile, 3)
+    # each hand (the person's, and the agent's smaller one) spans at least 128 pixels in its close-up
+    assert tile >= 128 and min(hands["right"]["person_px"], hands["right"]["agent_px"]) >= 128
+    assert hands["right"]["person_px"] <= tile and hands["right"]["agent_px"] <= tile
+    # the framing is the body's: the person's head and shoulders and the agent's hips inside the box
+    source, _ = SigningSource.for_motion(env.motion.source)
+    left, top, right, bottom = drawn["box"]
+    head = source.image.keypoints[:, [0, 11, 12], :2] * [source.camera.width, source.camera.height]
+    assert left < np.nanmin(head[..., 0]) and np.nanmax(head[..., 0]) < right and top < np.nanmin(head[..., 1])
+    assert bottom > source.camera.height * 0.9  # down to the waist: below the shoulders, near the frame's foot
+    # the video panel is the video; the agent's points are drawn where its keypoints put them
+    k = steps // 2
+    video = frames[k][HEADER:, :panel_w].astype(float)
+    assert video.std() > 15  # a picture, not a blank canvas
+    agent = stage_keypoints(env, source, controller_run["q_sim"][:steps])[k]
+    scale = panel_w / (right - left)
+    for node in (0, 11, 12, 16):  # nose, shoulders, right wrist
+        x, y = (agent[node, :2] * [source.camera.width, source.camera.height] - [left, top]) * scale
+        x, y = int(round(x + 2 * panel_w)), int(round(y + HEADER))
+        assert frames[k][y - 3:y + 4, x - 3:x + 4].max() > 170, node  # a drawn point on the dark canvas
+    assert frames[k][HEADER + 5:HEADER + 40, 2 * panel_w + 5:2 * panel_w + 40].max() < 60  # the canvas itself
+
+
+def test_without_a_known_video_the_side_by_side_video_has_the_keypoints_and_agent_panels(env, controller_run,
+                                                                                        tmp_path, caplog):  # fmt: skip
+    import dataclasses
+
+    from aslexp.signing.performance import write_signing_video
+
+    source, _ = SigningSource.for_motion(env.motion.source)
+    steps = len(controller_run["time"]) // 2
+    agent = stage_keypoints(env, source, controller_run["q_sim"][:steps])
+    times = np.arange(1, steps + 1) / env.spec_env.control_hz
+    with caplog.at_level(logging.INFO, logger="aslexp.signing"):
+        drawn = write_signing_video(tmp_path, dataclasses.replace(source, video=None), agent, times, "agent", 30.0)
+    assert "no video recorded" in drawn["no_video"] and any("no video panel" in r.getMessage() for r in caplog.records)
+    assert list(drawn["panels"]) == ["person", "agent"] and set(drawn["hands"]) == {"right"}
+    frames = _mp4_frames(tmp_path / SIGNING_VIDEO)
+    assert len(frames) == steps and [frames[0].shape[1], frames[0].shape[0]] == drawn["size"]
 
 
 def test_scores_drop_the_frames_a_part_is_missing_from(env, controller_run):

@@ -274,7 +274,8 @@ def finish(bench: Bench, policy: Callable[[Any], Any] | None, own: dict[str, Any
                     frames_every=frames_every if policy is None else 0)
     final = look if policy is None else evaluate(env, lambda obs, env: policy(obs), ppo.eval_steps,
                                                  record=True, frames_every=frames_every)
-    signing = signing_scores(env, look, final, out_dir, cfg)  # before the per-joint view replaces q_sim
+    # before the per-joint view replaces q_sim; signing.mp4/.gif where the run draws its GIF
+    signing = signing_scores(env, look, final, out_dir, cfg, video=bool(frames_every))
     joint_names = [j.name for j in env.layout.joints]
     if not env.layout.all_revolute:  # spherical joints: rotation angle and angular speed
         for run in ([final] if final is look else [final, look]):
@@ -316,19 +317,22 @@ def finish(bench: Bench, policy: Callable[[Any], Any] | None, own: dict[str, Any
     return metrics
 
 
-def signing_scores(env, look, final, out_dir: Path, cfg: dict[str, Any] | None = None) -> dict[str, Any] | None:
+def signing_scores(env, look, final, out_dir: Path, cfg: dict[str, Any] | None = None,
+                   video: bool = False) -> dict[str, Any] | None:  # fmt: skip
     """The performance against the person it imitates (aslexp.signing): the retargeted reference,
     the controller alone and (when one acted) the policy, and signing.pose; None, said in one line,
     for a motion with no source keypoint file. With ``signing.read_back.enabled`` each stage and the
-    person's clip are also read back by the recognition wing (aslexp.signing.reading)."""
+    person's clip are also read back by the recognition wing (aslexp.signing.reading). ``video``
+    (the run's render.gif): also signing.gif and (render.mp4) signing.mp4, the person beside the agent."""
     from aslexp.signing.performance import signing_metrics
 
     keypoints: dict = {}
+    drawn = {"video": video, "mp4": bool(((cfg or {}).get("render") or {}).get("mp4", True))}
     if final is look:
-        signing = signing_metrics(env, look.trajectory, out_dir, stage="controller", keypoints=keypoints)
+        signing = signing_metrics(env, look.trajectory, out_dir, stage="controller", keypoints=keypoints, **drawn)
     else:
         signing = signing_metrics(env, final.trajectory, out_dir, stage="policy", others={"controller": look.trajectory},
-                                  keypoints=keypoints)
+                                  keypoints=keypoints, **drawn)
     settings = ((cfg or {}).get("signing") or {}).get("read_back") or {}
     if signing is not None and settings.get("enabled"):
         signing["read_back"] = _read_back(signing, keypoints, tuple(settings.get("overrides") or ()),

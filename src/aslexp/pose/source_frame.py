@@ -293,6 +293,21 @@ def load_source_image(path: str | os.PathLike, frame_size: tuple[int, int] | Non
                     "beside it, or a MediaPipe Pose array with its frame size")  # fmt: skip
 
 
+def source_video(keypoints: str | os.PathLike) -> dict | None:
+    """The video an extraction's keypoints came from, from ``status/<id>.json`` beside them (an
+    ``aslexp extract`` output folder's ``<id>.npy`` or ``<id>.pose``): its path, the video frame
+    (0-based) of the keypoints' first and its byte size then; None for keypoints no extraction
+    of a video made (a MediaPipe Pose array, a .pose from elsewhere)."""
+    path = Path(keypoints)
+    status = path.parent / "status" / f"{path.stem}.json"
+    try:
+        values = json.loads(status.read_text())
+        return {"path": str(values["video"]), "first_frame": int((values.get("frame_range") or [0])[0]),
+                "bytes": values.get("video_size")}  # fmt: skip
+    except (OSError, ValueError, KeyError, TypeError, IndexError):
+        return None
+
+
 def source_record(motion_frames: np.ndarray, source: SourceImage, kinematics: Kinematics) -> dict:
     """What a motion's report records of its source (``source``): the keypoint file, its size, the
     camera that puts the model in its image (``camera``) and the retargeting error (``error``:
@@ -328,6 +343,9 @@ def record_source(result: dict, keypoints: str | os.PathLike, out_dir: str | os.
         result["source"] = {"keypoints": str(image.path.resolve()), "width": image.width, "height": image.height,
                             "fps": image.fps, "frames": len(image.keypoints),
                             **({"size_from": size_from} if size_from else {})}  # fmt: skip
+        video = source_video(image.path)
+        if video is not None:  # the frames the keypoints were read from: a run draws the person on them
+            result["source"]["video"] = video
         if upper.get("status") == "ok":
             frames = load_motion(upper["path"]).frames
             record = source_record(frames, image, upper_body_kinematics(data_root))

@@ -32,6 +32,7 @@ from aslexp.pose.source_frame import (
     link_poses_in_body_frame,
     load_source_image,
     model_points,
+    source_video,
 )
 
 NEEDED_JOINTS = ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist",
@@ -86,6 +87,7 @@ class SigningSource:
     image: SourceImage
     camera: SourceCamera
     retargeting_error: dict
+    video: dict | None = None  # the source video (source_frame.source_video's record), when one is known
 
     @classmethod
     def for_motion(cls, motion_path: str | os.PathLike | None) -> tuple["SigningSource | None", str]:
@@ -116,4 +118,5 @@ class SigningSource:
             camera = SourceCamera.from_dict(upper["camera"], f"{report}: upper_body")
         except DataError as error:
             return None, str(error)
-        return cls(motion, report, image, camera, dict(upper.get("retargeting_error") or {})), ""
+        video = source.get("video") or source_video(keypoints)  # a report from before it was recorded: the status
+        return cls(motion, report, image, camera, dict(upper.get("retargeting_error") or {}), video), ""

@@ -26,6 +26,7 @@ from aslexp.signing.scores import dtw_scores
 log = logging.getLogger(__name__)
 
 SIGNING_POSE = "signing.pose"
+SIGNING_VIDEO = "signing.mp4"  # and signing.gif: the person and the agent side by side
 REFERENCE_STAGE = "reference"  # the retargeted reference played kinematically: what retargeting keeps
 
 
@@ -54,9 +55,84 @@ def score_trajectory(env: Any, trajectory: Mapping[str, np.ndarray], source: Sig
     return {**scores, "steps": len(steps)}, keypoints
 
 
+def body_layout():
+    """What the side-by-side video draws of aslexp's 75 Holistic points (aslexp.viz.signing_video)."""
+    from aslexp.keypoints import holistic as H
+    from aslexp.viz.signing_video import BodyLayout
+
+    names = H.POSE_NAMES
+    drawn = tuple(i for i, n in enumerate(names) if i <= names.index("right_hip")) + H.HAND_NODES  # no legs
+    hands = {side: tuple(range(offset, offset + H.NUM_HAND))
+             for side, offset in (("left", H.LEFT_HAND_OFFSET), ("right", H.RIGHT_HAND_OFFSET))}  # fmt: skip
+    arm = ("shoulder", "elbow", "wrist", "pinky", "index", "thumb")
+    sides = {side: tuple(names.index(f"{side}_{point}") for point in arm) + hands[side] for side in hands}
+    # the face apart from the shoulders, as MediaPipe draws it (aslexp's links from the nose make a tent)
+    nose_links = {(names.index("nose"), names.index(f"{side}_shoulder")) for side in hands}
+    return BodyLayout(
+        edges=tuple((i, j) for i, j in H.EDGES if i in drawn and j in drawn and (i, j) not in nose_links),
+        drawn=drawn,
+        face=tuple(range(names.index("mouth_right") + 1)), ears=(names.index("left_ear"), names.index("right_ear")),
+        shoulders=(names.index("left_shoulder"), names.index("right_shoulder")),
+        hips=(names.index("left_hip"), names.index("right_hip")), sides=sides, hands=hands,
+        body_hands={side: tuple(names.index(f"{side}_{point}") for point in ("wrist", "pinky", "index", "thumb"))
+                    for side in hands},
+    )
+
+
+def _readable_video(source: SigningSource) -> tuple[tuple[Path, int] | None, str]:
+    """(the source video, the video frame of the keypoints' first) when it is there as extracted,
+    else None and why there is no video panel."""
+    video = source.video
+    if not video:
+        return None, f"{source.image.path}: no video recorded (keypoints not extracted by `aslexp extract VIDEO`)"
+    path = Path(video["path"])
+    if not path.is_file():
+        return None, f"{source.report}: its source video {path} is not there any more"
+    if video.get("bytes") is not None and path.stat().st_size != int(video["bytes"]):
+        return None, f"{path}: changed since its keypoints were extracted ({video['bytes']} bytes then)"
+    return (path, int(video.get("first_frame") or 0)), ""
+
+
+def write_signing_video(run_dir: str | os.PathLike, source: SigningSource, agent: np.ndarray, times: np.ndarray,
+                        label: str, control_hz: float, mp4: bool = True) -> dict:  # fmt: skip
+    """``signing.mp4`` (where an encoder exists) and ``signing.gif``: the person (video frame, when
+    known; keypoints) beside ``agent`` (T, 75, 4) image keypoints, at the control rate: output frame
+    k is the agent's step k, at ``times[k]`` seconds from the episode's start, beside the person's
+    frame nearest that time (the source's frames held or skipped)."""
+    from aslexp.viz.signing_video import side_by_side
+    from aslexp.viz.video import save_gif, save_mp4
+
+    started = time.perf_counter()
+    video, why = _readable_video(source)
+    if video is None:
+        log.info("signing video: no video panel: %s", why)
+    source_index = np.round(np.asarray(times, dtype=float) * source.image.fps).astype(int)
+    args = (source.image.keypoints, agent, source.camera.width, source.camera.height, source_index, body_layout())
+    try:
+        try:
+            drawn = side_by_side(*args, video=video, agent_label=label)
+        except (OSError, RuntimeError, ImportError) as error:  # a video ffmpeg cannot read: the keypoints alone
+            if video is None:
+                raise
+            video, why = None, f"{video[0]}: not readable ({error})"
+            log.info("signing video: no video panel: %s", why)
+            drawn = side_by_side(*args, video=None, agent_label=label)
+    except ValueError as error:  # nothing of either signer to draw (a blown-up agent and no person)
+        log.info("signing video: not written: %s", error)
+        return {"error": str(error)}
+    # the GIF at every second step (as imitation.gif): half the size and the encoding time
+    files = [save_gif(drawn.frames[::2], Path(run_dir) / "signing.gif", fps=control_hz / 2).name]
+    if mp4 and save_mp4(drawn.frames, Path(run_dir) / SIGNING_VIDEO, control_hz) is not None:
+        files.insert(0, SIGNING_VIDEO)
+    return {"files": files, "fps": control_hz, "video": str(video[0]) if video else None,
+            **({"no_video": why} if video is None else {}), **drawn.describe(),
+            "seconds": round(time.perf_counter() - started, 3)}  # fmt: skip
+
+
 def signing_metrics(env: Any, trajectory: Mapping[str, np.ndarray], run_dir: str | os.PathLike,
                     stage: str = "policy", others: Mapping[str, Mapping[str, np.ndarray]] | None = None,
-                    write_pose: bool = True, keypoints: dict[str, np.ndarray] | None = None) -> dict | None:  # fmt: skip
+                    write_pose: bool = True, keypoints: dict[str, np.ndarray] | None = None,
+                    video: bool = False, mp4: bool = True) -> dict | None:  # fmt: skip
     """The ``signing`` entry of metrics.json, and ``<run_dir>/signing.pose`` (``trajectory``'s
     simulated body, at the control rate, in the source's image frame); None, with one log line
     saying why, for a motion without source keypoints or a body without the upper body's points.
@@ -64,7 +140,8 @@ def signing_metrics(env: Any, trajectory: Mapping[str, np.ndarray], run_dir: str
     Stages: ``reference`` (``trajectory``'s ``q_ref`` played kinematically), ``stage`` (its ``q_sim``)
     and each of ``others`` (name -> trajectory: e.g. the controller alone on the reference).
     ``keypoints``, when given, receives each stage's (T, 75, 4) image keypoints by stage name (a
-    read-back reads them: aslexp.signing.reading)."""
+    read-back reads them: aslexp.signing.reading). ``video``: also ``signing.gif`` and, with ``mp4``,
+    ``signing.mp4``, the person beside ``stage`` (:func:`write_signing_video`)."""
     started = time.perf_counter()
     source, why = SigningSource.for_motion(getattr(env.motion, "source", None))
     if source is None:
@@ -93,4 +170,9 @@ def signing_metrics(env: Any, trajectory: Mapping[str, np.ndarray], run_dir: str
                                    source.camera.width, source.camera.height)  # fmt: skip
         out["pose_file"] = path.name
     out["seconds"] = round(time.perf_counter() - started, 3)
+    if video:  # after the scores' own cost
+        hz = float(env.spec_env.control_hz)
+        times = np.asarray(trajectory["time"], dtype=float)
+        times = times[one_pass(trajectory, float(env.reference.duration), 1.0 / hz)] - (times[0] - 1.0 / hz)
+        out["video"] = write_signing_video(run_dir, source, points[stage], times, f"agent ({stage})", hz, mp4)
     return out
