@@ -68,8 +68,7 @@ def test_the_catalogue_covers_the_thesis_tables_and_the_headlines_the_issue_name
 # Overlays that are not a result: the debug slice and the bases the result overlays build on.
 NOT_RESULTS = {"debug": "a tiny slice for trying things", "thesis_ch3_protocol": "thesis_ch3's base, for +sweeps",
                "thesis_ch4_protocol": "thesis_ch4's base, for +sweeps",
-               "signs_free_residual": "the base of signs_free_residual_anneal_quiet_328k",
-               "signs_unseen": "one policy for signs it never saw: no fold trained yet"}
+               "signs_free_residual": "the base of signs_free_residual_anneal_quiet_328k"}
 
 
 def test_every_overlay_of_the_catalogue_is_a_result_on_the_page_or_a_named_base():

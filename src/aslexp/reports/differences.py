@@ -104,10 +104,15 @@ def facts(cfg: dict[str, Any]) -> dict[str, str]:
         return out
     out["policy"] = "learned (PPO)"
     pool = cfg.get("train_motions")  # one policy of many motions (aslexp.envs.motion_pool)
-    out["trained on"] = ("the evaluated motion" if not pool else
-                         f"a pool ({pool.get('name')}): {', '.join(map(str, pool.get('motions') or [])) or 'no listed motion'}"
-                         f"{' but the evaluated one' if pool.get('hold_out_evaluated', True) else ''} and "
-                         f"{(pool.get('generated') or {}).get('count', 0)} generated motions")
+    if not pool:
+        out["trained on"] = "the evaluated motion"
+    elif pool.get("folder"):  # real signs in folds by gloss (aslexp.envs.sign_folds)
+        out["trained on"] = (f"a pool ({pool.get('name')}): the motions of {pool['folder']} outside the evaluated "
+                             f"sign's gloss fold ({pool.get('folds')} folds by gloss, seed {pool.get('seed')})")
+    else:
+        out["trained on"] = (f"a pool ({pool.get('name')}): {', '.join(map(str, pool.get('motions') or [])) or 'no listed motion'}"
+                             f"{' but the evaluated one' if pool.get('hold_out_evaluated', True) else ''} and "
+                             f"{(pool.get('generated') or {}).get('count', 0)} generated motions")
     num_envs, batch = int(ppo.get("num_envs", 1)), int(ppo.get("steps_per_rollout", 0))
     out["update"] = f"{num_envs} environment{'s' if num_envs != 1 else ''} x {math.ceil(batch / max(num_envs, 1)):,} steps = {batch:,} per update"
     out["learner"] = (f"{' x '.join(str(h) for h in ppo.get('hidden_sizes') or [])} MLP, lr {ppo.get('learning_rate')}, "
