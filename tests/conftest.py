@@ -8,6 +8,9 @@
   cores for it), instead of two workers waiting at once with a core idle.
 * Extraction: the MediaPipe extraction of the six videos (session fixtures ``extracted`` and
   ``wlasl6``, ~25 s each) is made once, on the worker that runs every test reading it.
+* A module's own module-scoped fixture (a trained model, a finished run) is made once per worker that
+  runs a test asking for it: the tests asking for one run on one worker (their group is the module),
+  so it is made once (three workers made test_read_back.py's models three times, 10 s each).
 A file whose tests depend on each other's files marks itself (``pytestmark = xdist_group``).
 """
 
@@ -33,6 +36,15 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.xdist_group("waiting"))
         elif _EXTRACTION_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.xdist_group("extraction"))
+        elif _uses_a_module_fixture_of_its_own(item):
+            item.add_marker(pytest.mark.xdist_group(item.nodeid.split("::")[0].removeprefix("tests/")))
+
+
+def _uses_a_module_fixture_of_its_own(item: pytest.Item) -> bool:
+    """Whether the test asks (itself or through its fixtures) for a module-scoped fixture its module defines."""
+    module = item.nodeid.split("::")[0]
+    definitions = getattr(getattr(item, "_fixtureinfo", None), "name2fixturedefs", {})
+    return any(defs and defs[-1].scope == "module" and defs[-1].baseid == module for defs in definitions.values())
 
 
 @pytest.hookimpl(trylast=True)

@@ -17,6 +17,7 @@ from aslexp.pose.extract import ExtractionError, ExtractOptions, VideoJob, extra
 
 CLIP = "63185"  # "whistle": 57 frames, 480x320, the right hand at the mouth, the left out of view
 TITLE_CARD = "70212"  # frames 18..68 show only the word PENCIL: no person
+POSE_DIR = "keypoints/wlasl-mediapipe-pose"
 
 
 @pytest.fixture(scope="session")
@@ -101,21 +102,39 @@ def short_wlasl_json(path: Path) -> Path:
     return path
 
 
+@pytest.fixture(scope="session")  # xdist interleaves modules: a module fixture would be made twice
+def ws(data_root, tmp_path_factory) -> dict:
+    """The folder the how-to pages' commands run in (tests/extraction/test_howto_commands.py), the
+    environment, the short WLASL JSON and the DIR folders."""
+    from aslexp.data.wlasl import load_wlasl
+
+    tmp = tmp_path_factory.mktemp("howto")
+    short = short_wlasl_json(tmp / "wlasl_short.json")
+    # pose=mediapipe_pose with names=gloss: the 291 shared clips as <gloss>_<n>.npy.
+    by_gloss = tmp / "by_gloss"
+    by_gloss.mkdir()
+    by_id, count = load_wlasl(data_root).by_video_id(), {}
+    for path in sorted((data_root / POSE_DIR).glob("*.npy")):
+        gloss = by_id[path.stem].gloss.replace(" ", "_")
+        count[gloss] = count.get(gloss, 0) + 1
+        shutil.copy(path, by_gloss / f"{gloss}_{count[gloss]}.npy")
+    env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "MPLBACKEND": "Agg",
+           "ASLEXP_CACHE_DIR": str(tmp / "cache")}
+    return {"tmp": tmp, "env": env, "data": data_root, "short_json": short,
+            "dirs": {"mediapipe_pose": by_gloss, "mediapipe_hands": tmp / "hands"}}
+
+
 @pytest.fixture(scope="session")
-def wlasl6(worker_env, videos, tmp_path_factory):
-    """`aslexp extract --wlasl JSON --videos DIR --workers 2 --format pose` on ten frames of each
-    of the six clips: (out_dir, printed summary)."""
-    import contextlib
-    import io
+def wlasl6(worker_env, ws):
+    """docs/howto_keypoints.md's `aslexp extract --wlasl JSON --videos DIR --out outputs/keypoints/wlasl6
+    --workers 2 --format pose`, run in the how-to folder as tests/extraction/test_howto_commands.py runs
+    the page's commands (ten frames of each of the six clips, SHORT_RANGES): (out_dir, printed summary).
+    Made once: that test takes it as the page's step, and the tests here read its files."""
+    import shlex
 
-    from aslexp.pose.extract_cli import extract_main
+    from .test_howto_commands import KEYPOINTS, documented, run  # that test's reading of the page and its runner
 
-    base = tmp_path_factory.mktemp("wlasl6")
-    wlasl_json = short_wlasl_json(base / "wlasl_short.json")
-    out = base / "keypoints"
-    printed = io.StringIO()
-    with contextlib.redirect_stdout(printed):
-        rc = extract_main(["--wlasl", str(wlasl_json), "--videos", str(videos), "--out", str(out),
-                           "--workers", "2", "--format", "pose", "--quiet"])  # fmt: skip
-    assert rc == 0, printed.getvalue()
-    return out, printed.getvalue()
+    command = next(c for c in documented(KEYPOINTS) if c.startswith("aslexp extract --wlasl"))
+    words = shlex.split(command)
+    proc = run(command, ws)
+    return ws["tmp"] / words[words.index("--out") + 1], proc.stdout

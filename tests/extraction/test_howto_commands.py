@@ -2,12 +2,13 @@
 
 docs/howto_keypoints.md, docs/howto_imitate.md and README.md are read from their ```bash blocks, so
 a command that stops working, or a new one, is caught here. The commands run in one folder, in page
-order (the imitate page retargets a `.pose` file the keypoints page extracted), with small budgets:
+order (the imitate page retargets a `.pose` file the keypoints page extracted; that `--wlasl`
+extraction is made first, once, by conftest's wlasl6, which the extraction tests read too), with small budgets:
 ten frames a clip (the WLASL JSON cut as in conftest.SHORT_RANGES, `--frames` on a video, one
 video of a folder), one epoch, two model seeds where an overlay asks for ten (thesis_ch3),
 a few hundred PPO steps, an overlay's swept lists cut to one cell with plain overrides, small
-SL-GCN channels, the CPU where a GPU is named but absent. `DIR` is a folder made here for the
-source the command names; the README's `<date>/<time>` folder is the one its runs were written
+SL-GCN channels, the CPU where a GPU is named but absent. `DIR` is a folder made (conftest's ws) for
+the source the command names; the README's `<date>/<time>` folder is the one its runs were written
 to. The sweep and run-folder commands (`+sweeps=`, `aslexp sweep`, `aslexp runs`) are run by
 tests/tuning/test_docs_commands.py.
 """
@@ -15,9 +16,7 @@ tests/tuning/test_docs_commands.py.
 from __future__ import annotations
 
 import json
-import os
 import shlex
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -29,16 +28,15 @@ from doc_commands import bash_lines
 
 from aslexp.keypoints import holistic as H
 
-from .conftest import short_wlasl_json
-
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 KEYPOINTS = PROJECT_ROOT / "docs" / "howto_keypoints.md"
 IMITATE = PROJECT_ROOT / "docs" / "howto_imitate.md"
 README = PROJECT_ROOT / "README.md"
-POSE_DIR = "keypoints/wlasl-mediapipe-pose"
 
+# One worker: the pages share one folder (conftest's ws), with the extraction tests that read the
+# page's `--wlasl` extraction (conftest's wlasl6, made there once).
 pytestmark = [pytest.mark.usefixtures("worker_env"), pytest.mark.slow,  # about 4 + 1 min on 2 busy cores
-              pytest.mark.xdist_group("howto")]  # one worker: the pages share one folder (ws)
+              pytest.mark.xdist_group("extraction")]
 
 
 def documented(path: Path) -> list[str]:
@@ -117,27 +115,6 @@ def run(command: str, ws: dict) -> subprocess.CompletedProcess:
     return proc
 
 
-@pytest.fixture(scope="session")  # xdist interleaves modules: a module fixture would be made twice
-def ws(data_root, tmp_path_factory) -> dict:
-    """The folder the commands run in, the environment, the short WLASL JSON and the DIR folders."""
-    from aslexp.data.wlasl import load_wlasl
-
-    tmp = tmp_path_factory.mktemp("howto")
-    short = short_wlasl_json(tmp / "wlasl_short.json")
-    # pose=mediapipe_pose with names=gloss: the 291 shared clips as <gloss>_<n>.npy.
-    by_gloss = tmp / "by_gloss"
-    by_gloss.mkdir()
-    by_id, count = load_wlasl(data_root).by_video_id(), {}
-    for path in sorted((data_root / POSE_DIR).glob("*.npy")):
-        gloss = by_id[path.stem].gloss.replace(" ", "_")
-        count[gloss] = count.get(gloss, 0) + 1
-        shutil.copy(path, by_gloss / f"{gloss}_{count[gloss]}.npy")
-    env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "MPLBACKEND": "Agg",
-           "ASLEXP_CACHE_DIR": str(tmp / "cache")}
-    return {"tmp": tmp, "env": env, "data": data_root, "short_json": short,
-            "dirs": {"mediapipe_pose": by_gloss, "mediapipe_hands": tmp / "hands"}}
-
-
 def _hands_from(keypoints: Path, out: Path) -> None:
     """pose=mediapipe_hands' DIR: <id>.npy (T, 126), both hands of the extracted Holistic arrays,
     missing = 0 as hand-only pipelines write them."""
@@ -147,24 +124,23 @@ def _hands_from(keypoints: Path, out: Path) -> None:
         np.save(out / path.name, hands.reshape(len(hands), 126))
 
 
-def test_every_keypoints_howto_command_runs(ws):
+def test_every_keypoints_howto_command_runs(ws, wlasl6):
     commands = documented(KEYPOINTS)
     assert any(c.startswith("aslexp extract --wlasl") for c in commands) and len(commands) >= 8, commands
     for command in commands:
-        run(command, ws)
-        if command.startswith("aslexp extract --wlasl"):
-            _hands_from(ws["tmp"] / "outputs" / "keypoints" / "wlasl6", ws["dirs"]["mediapipe_hands"])
+        if command.startswith("aslexp extract --wlasl"):  # run by conftest's wlasl6, in this folder
+            out, printed = wlasl6
+            assert out == ws["tmp"] / "outputs" / "keypoints" / "wlasl6" and "6 extracted" in printed, printed
+            _hands_from(out, ws["dirs"]["mediapipe_hands"])
+        else:
+            run(command, ws)
     runs = [json.loads(p.read_text()) for p in (ws["tmp"] / "outputs").rglob("run.json")]
     assert runs and {r["status"] for r in runs} == {"completed"}
     # The grid is 6 runs; each other recognize command (the overlays cut to one cell) one.
     assert len(runs) == 6 + sum(c.startswith("aslexp recognize") for c in commands) - 1
 
 
-def test_every_imitate_howto_command_runs(ws):
-    if not (ws["tmp"] / "outputs" / "keypoints" / "wlasl6" / "63185.pose").is_file():
-        # The imitate page reads the .pose file the keypoints page extracts: make it if that test
-        # has not run here first (alone, or scheduled after this one).
-        run(next(c for c in documented(KEYPOINTS) if c.startswith("aslexp extract --wlasl")), ws)
+def test_every_imitate_howto_command_runs(ws, wlasl6):  # the page retargets wlasl6's 63185.pose
     commands = documented(IMITATE)
     assert any("motion.file=" in c for c in commands) and any("--motions" in c for c in commands), commands
     before = set((ws["tmp"] / "outputs").rglob("metrics.json"))

@@ -19,7 +19,7 @@ def cache_dir(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("cache")
 
 
-@pytest.fixture()
+@pytest.fixture(scope="session")  # a stateless runner: module fixtures run their jobs with it too
 def aslexp(cache_dir):
     """Run `aslexp ARGS...` in a subprocess from the project root; returns CompletedProcess."""
 

@@ -4,18 +4,27 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 
 import numpy as np
+import pytest
 import yaml
 from platform_helpers import error_lines, folder_hashes
 
 FAST = ["experiment=debug", "classifier=logreg", "classifier.params.max_iter=200"]
 
 
-def test_single_run_writes_its_whole_directory(aslexp, tmp_path):
-    run_dir = tmp_path / "run"
+@pytest.fixture(scope="module")
+def finished_run(aslexp, tmp_path_factory):
+    """A finished FAST run (seed 3): its folder is checked whole, and a copy of it is run over (one job
+    for both: tests/conftest.py runs the tests of a module fixture on one worker)."""
+    run_dir = tmp_path_factory.mktemp("recognize_job") / "run"
     aslexp("recognize", *FAST, "seed=3", f"hydra.run.dir={run_dir}")
+    return run_dir
 
+
+def test_single_run_writes_its_whole_directory(finished_run):
+    run_dir = finished_run
     for name in ("run.json", "metrics.json", "per_class.csv", "predictions.csv",
                  "confusion_matrix.png", "learning_curves.png", "recognize.log",
                  ".hydra/config.yaml", ".hydra/overrides.yaml", ".hydra/hydra.yaml"):
@@ -43,10 +52,10 @@ def test_single_run_writes_its_whole_directory(aslexp, tmp_path):
     assert "seed=3" in overrides
 
 
-def test_a_refused_rerun_leaves_the_finished_run_byte_identical(aslexp, tmp_path):
+def test_a_refused_rerun_leaves_the_finished_run_byte_identical(aslexp, finished_run, tmp_path):
     """The refusal comes before Hydra writes .hydra/*.yaml or the log."""
     run_dir = tmp_path / "run"
-    aslexp("recognize", *FAST, f"hydra.run.dir={run_dir}")
+    shutil.copytree(finished_run, run_dir)  # the run as it finished, in a folder of this test's
     before = folder_hashes(run_dir)
     assert ".hydra/config.yaml" in before and "recognize.log" in before
     again = aslexp("recognize", "experiment=debug", "classifier=majority", "property=flexion",
