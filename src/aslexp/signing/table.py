@@ -63,7 +63,9 @@ def keypoint_errors(records: Sequence[Mapping[str, Any]], stage: str, part: str 
 
 
 def rewards(records: Sequence[Mapping[str, Any]], stage: str) -> np.ndarray:
-    return np.asarray([float(((r.get("rewards") or {}).get(stage)) or math.nan) for r in records])
+    """Per clip the stage's mean reward over its pass (NaN where the stage did not run)."""
+    values = [(r.get("rewards") or {}).get(stage) for r in records]
+    return np.asarray([math.nan if v is None else float(v) for v in values])
 
 
 def lexicon_ranks(records: Sequence[Mapping[str, Any]], reading: str) -> list[float]:
