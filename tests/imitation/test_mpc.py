@@ -97,7 +97,8 @@ def test_the_imitate_job_scores_a_planner_beside_the_baselines(tmp_path):
 def test_the_results_page_shows_a_planner_s_runs_as_a_ceiling(tmp_path):
     """A planner's run folder on the results page: the ceiling column beside the baselines, the learned
     cell saying nothing was trained, and its rows as a ceiling of another entry (options.ceiling_folders)."""
-    from aslexp.reports import results_page
+    from aslexp.results.render import render_entry
+    from aslexp.results.snapshots import build_snapshot
 
     run = tmp_path / "planned" / "0"
     done = job_process.run([sys.executable, "-m", "aslexp.cli", "imitate", "planner=mpc", "engine=mujoco", "motion=B",
@@ -110,10 +111,10 @@ def test_the_results_page_shows_a_planner_s_runs_as_a_ceiling(tmp_path):
              "overlay": "letters_mpc", "command": "aslexp imitate -m experiment=letters_mpc", "engine": "mujoco",
              "reward": "hand_thesis", "options": {"row_name": "letter"}, "runs": [{"folders": ["planned"]}],
              "earlier": {"link": "docs/imitation.md", "section": "s"}}
-    snapshot = results_page.build_snapshot(entry, tmp_path, {"thesis": results_page.imitation_summary})
+    snapshot = build_snapshot(entry, tmp_path)
     ceiling = snapshot["rows"][0]["ceiling"]
     assert ceiling["n"] == 1 and ceiling["label"].startswith("MPC (predictive sampling, horizon 1, 3 samples) on ")
-    page = "\n".join(results_page.render_entry(entry, snapshot))
+    page = "\n".join(render_entry(entry, snapshot))
     assert "| ceiling: MPC (predictive sampling" in page and "nothing trained: a planner's ceiling" in page
     assert "policy: none: model-predictive control" not in page  # no thesis setting named: no differences
     # another entry's rows (here a run that measured its baselines only) take the ceiling of the
@@ -124,9 +125,9 @@ def test_the_results_page_shows_a_planner_s_runs_as_a_ceiling(tmp_path):
                            "plots=false", f"hydra.run.dir={plain}"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
     other = {**entry, "runs": [{"folders": ["plain"]}], "options": {"ceiling_folders": ["planned"]}}
-    row = results_page.build_snapshot(other, tmp_path, {"thesis": results_page.imitation_summary})["rows"][0]
+    row = build_snapshot(other, tmp_path)["rows"][0]
     assert row["ceiling"] == ceiling and row["learned"]["mean"] is None
-    alone = results_page.build_snapshot({**other, "options": {}}, tmp_path, {"thesis": results_page.imitation_summary})
+    alone = build_snapshot({**other, "options": {}}, tmp_path)
     assert "ceiling" not in alone["rows"][0]
 
 

@@ -6,8 +6,9 @@ import csv
 import json
 from pathlib import Path
 
-from aslexp.reports.report import seeds_on_common_steps, summarize_letters
+from aslexp.reports.report import summarize_letters
 from aslexp.reports.upper_body_report import summarize_signs
+from aslexp.viz.imitation import seeds_on_common_steps
 
 
 def _run(folder: Path, motion: str, seed: int, evals: list[tuple[int, float, float]], strong: float | None = None):

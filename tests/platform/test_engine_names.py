@@ -51,7 +51,7 @@ def test_what_a_row_says_about_an_engine_is_its_yamls_report():
     """A results row's engine sentence comes from ``report:`` (conf/engine/<name>.yaml), filled from the
     run's engine section; an engine without one (the tests') is said by its name."""
     from aslexp.compose import group
-    from aslexp.reports.differences import engine_text
+    from aslexp.results.differences import engine_text
 
     for name in ("pybullet", "mujoco"):
         assert "report" in group("engine", name), f"conf/engine/{name}.yaml has no report:"

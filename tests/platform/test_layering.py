@@ -14,12 +14,12 @@ imports only rooms on a lower level (and itself). Two rooms on one level do not 
 from __future__ import annotations
 
 import ast
-from collections import defaultdict
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[2] / "src" / "aslexp"
 
-# cli -> jobs -> (recognition, envs, rl, tuning, runs) -> (data, pose, sim, keypoints) -> foundation
+# cli -> jobs -> results -> (runs, reports) -> (recognition, envs, rl, tuning) -> (data, pose, sim, keypoints)
+# -> foundation
 LEVELS: dict[str, int] = {
     # foundation: leaf modules any room may use
     "errors": 0, "files": 0, "paths": 0, "process": 0, "quaternion": 0, "seeding": 0,
@@ -27,7 +27,7 @@ LEVELS: dict[str, int] = {
     "compose": 1,        # errors, paths: group names composed by Hydra's loader as the jobs compose them
     "plugins": 1,        # errors: entry points and registering modules, for every registry
     "runfile": 1,        # files: run.json's name, time stamps, marking a run interrupted
-    "viz": 1,            # files: plots and videos
+    "viz": 1,            # files: plots and videos, the only room that imports matplotlib
     # the ground floor
     "keypoints": 2,      # the bottom room
     "data": 3,           # keypoints
@@ -39,9 +39,10 @@ LEVELS: dict[str, int] = {
     "rl": 5,             # imports no environment: evaluation takes any env with ImitationEnv's interface
     "tuning": 5,         # a sweep reads run.json through runfile, not through runs
     "signing": 6,        # a performance in its source's keypoints, scored (pose, keypoints) and read back (recognition); takes any env
-    "runs": 6,           # run records and tools; the sweep tools read studies (tuning)
-    "reports": 6,        # reports read run folders: nothing of envs, sim or rl (recognition's metrics and resplits)
+    "runs": 6,           # run records and readers, runs list/diff, sweep reports, the folder report (recognition)
+    "reports": 6,        # the imitation sweep tables: they read run folders, nothing of envs, sim or rl
     "measure": 7,        # what simulates and learns nothing (baselines, engine agreement): envs, rl; run configs via reports
+    "results": 7,        # the results page: reads run folders (runs) and the wings' tables (reports, recognition)
     "control": 6,        # planners (model-predictive control): build batched envs (envs)
     # the edge
     "jobs": 8,
@@ -211,12 +212,12 @@ def test_the_checks_catch_the_seams_they_were_written_for():
         "aslexp.envs.batched:118", "aslexp.rl.evaluate:19", "aslexp.tuning.worker:59"]
 
 
-def test_reports_only_read_run_folders():
-    """A report reads what its runs measured; nothing under reports/ builds an
+def test_reports_and_the_results_page_only_read_run_folders():
+    """A report reads what its runs measured; nothing under reports/ or results/ builds an
     environment, an engine or a learner (what simulates lives in measure/ and runs with the job)."""
     simulating = ("envs", "sim", "rl", "measure", "control")
     found = [f"{module}:{line} imports {target}" for module, targets in import_graph().items()
-             if module.startswith("aslexp.reports") for target, line in targets.items()
+             if module.startswith(("aslexp.reports", "aslexp.results")) for target, line in targets.items()
              if target.split(".")[1] in simulating]
     assert not found, "\n".join(found)
 
@@ -241,3 +242,10 @@ def test_hydra_composes_at_the_edge_and_in_one_composer():
     found = [where for where in _third_party_imports("hydra") if not where.startswith(allowed)]
     assert not found, "Hydra imported outside the jobs and aslexp.compose:\n" + "\n".join(found)
     assert not (PACKAGE / "envs" / "config.py").exists()
+
+
+def test_matplotlib_is_imported_only_in_viz():
+    """Every plot is drawn in aslexp.viz: the wings compute what a plot shows and hand it over, so a
+    node without matplotlib runs every job and report that draws nothing."""
+    found = [where for where in _third_party_imports("matplotlib") if not where.startswith("aslexp.viz")]
+    assert not found, "matplotlib imported outside aslexp.viz:\n" + "\n".join(found)

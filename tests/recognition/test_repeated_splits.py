@@ -12,7 +12,7 @@ from aslexp.data.splits import SplitOptions
 from aslexp.recognition.experiment import split_views
 from aslexp.recognition.experiment import run_recognition
 from aslexp.recognition.metrics import mean_interval
-from aslexp.tools.report import plot_comparisons, plot_validation_curves
+from aslexp.viz.recognition import plot_comparisons, plot_validation_curves
 from aslexp.recognition.report import (
     BELOW_BASELINE,
     collect_table,

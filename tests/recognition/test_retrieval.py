@@ -270,7 +270,7 @@ def _check_frequency(metrics: dict, rows: list[dict]) -> None:
 
 def _check_results_entry(folder: Path) -> None:
     """The results page's entry of this run: no interval from 2 splits, the overlap and the bands."""
-    from aslexp.reports import results_retrieval
+    from aslexp.results import retrieval as results_retrieval
 
     snapshot = results_retrieval.results_summary({}, [folder])
     assert snapshot["facts"]["splits"] == 2 and snapshot["facts"]["split_overlap"]["test_slots"] == 14

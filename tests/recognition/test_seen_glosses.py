@@ -67,7 +67,9 @@ def _cli(args: list[str], cache: Path) -> subprocess.CompletedProcess:
 
 @needs_data
 def test_the_documented_commands_run_and_the_results_entry_is_made_from_the_folder(tmp_path):
-    from aslexp.reports import results_page, results_seen_glosses
+    from aslexp.results import seen_glosses as results_seen_glosses
+    from aslexp.results.catalogue import load_catalogue
+    from aslexp.results.snapshots import build_snapshot
 
     commands = _documented()
     assert commands, "docs/recognition.md documents `aslexp glosses`"
@@ -108,11 +110,11 @@ def test_the_documented_commands_run_and_the_results_entry_is_made_from_the_fold
         assert len(rows) == 3 * sum(s["clips"]["test"] for s in metrics["per_split"])  # 3 scored models per clip
         assert "split 2/2" in proc.stderr + (run_dir / "glosses.log").read_text()  # progress with ETA
         # the results page's entry, from this folder alone
-        entry = next(e for e in results_page.load_catalogue() if e["report"] == results_seen_glosses.REPORT)
+        entry = next(e for e in load_catalogue() if e["report"] == results_seen_glosses.REPORT)
         entry = {**entry, "runs": [{"folders": [folder.name], "machine": "this test's"}]}
-        snapshot = results_page.build_snapshot(entry, tmp_path, {entry["report"]: results_seen_glosses.results_summary})
+        snapshot = build_snapshot(entry, tmp_path)
         assert [r["key"] for r in snapshot["rows"]] == list(metrics["methods"])
-        lines = results_seen_glosses.render(entry, snapshot, results_page.render_entry)
+        lines = results_seen_glosses.render(entry, snapshot)
         assert any(line.startswith("| gloss head + 2 property heads (auxiliary) | ") for line in lines)
         assert any(line.startswith("Kezar et al.'s question") for line in lines)
 

@@ -17,12 +17,14 @@ import numpy as np
 import pytest
 import job_process
 
+from aslexp.recognition import intervals as ri
 from aslexp.recognition.metrics import accuracy_ci
-from aslexp.reports import results_page
-from aslexp.reports import results_recognition as rr
+from aslexp.results import recognition as rr
+from aslexp.results.catalogue import load_catalogue
+from aslexp.results.snapshots import write_snapshot
 
 ROOT = Path(__file__).resolve().parents[2]
-CATALOGUE = {e["id"]: e for e in results_page.load_catalogue(ROOT / "conf" / "results.yaml")}
+CATALOGUE = {e["id"]: e for e in load_catalogue(ROOT / "conf" / "results.yaml")}
 SNAPSHOTS = ROOT / "docs" / "results"
 RECOGNITION = [i for i, e in CATALOGUE.items() if e["report"] == "recognition" and (SNAPSHOTS / f"{i}.json").is_file()]
 
@@ -44,24 +46,24 @@ def test_the_wilson_interval_is_the_hand_computed_one():
     # 18 of 33 (phoneme sign_type's chosen model): z = 1.959964, z^2 = 3.841459
     # centre = (18/33 + z^2/66) / (1 + z^2/33) = 0.603658 / 1.116408 = 0.540716
     # half = z * sqrt((18/33)(15/33)/33 + z^2/(4*33^2)) / 1.116408 = 0.160855
-    low, high = rr.wilson(18 / 33, 33)
+    low, high = ri.wilson(18 / 33, 33)
     assert low == pytest.approx(0.540716 - 0.160855, abs=2e-6) and high == pytest.approx(0.540716 + 0.160855, abs=2e-6)
     # the textbook case where Wald fails: 0 of 10 gives Wald [0, 0] and Wilson [0, 0.2775]
-    assert rr.wilson(0.0, 10) == (0.0, pytest.approx(0.27754, abs=1e-5))
+    assert ri.wilson(0.0, 10) == (0.0, pytest.approx(0.27754, abs=1e-5))
     assert accuracy_ci(0, 10)[1:] == (0.0, 0.0)
     # 3 of 5 (Table 3.4's sign type test set): wider than the Wald interval, inside [0, 1]
-    low, high = rr.wilson(0.6, 5)
+    low, high = ri.wilson(0.6, 5)
     assert (round(low, 4), round(high, 4)) == (0.2307, 0.8824)
 
 
 def test_n_is_recovered_from_a_stored_wald_half_width_and_refused_where_it_cannot_be():
     for correct, n in ((18, 33), (4, 15), (29, 39), (3, 6)):
         p, low, high = accuracy_ci(correct, n)
-        assert rr.recover_n(p, (high - low) / 2) == n
-    assert rr.recover_n(0.6, 0.1) is None          # n = 92.2: not an integer
-    assert rr.recover_n(1.0, 0.0) is None          # p = 1: the Wald width is 0 and says nothing
+        assert ri.recover_n(p, (high - low) / 2) == n
+    assert ri.recover_n(0.6, 0.1) is None          # n = 92.2: not an integer
+    assert ri.recover_n(1.0, 0.0) is None          # p = 1: the Wald width is 0 and says nothing
     p, low, high = accuracy_ci(1, 10)              # clipped at 0: the half-width is not the Wald one
-    assert rr.recover_n(p, (high - low) / 2) is None
+    assert ri.recover_n(p, (high - low) / 2) is None
 
 
 @pytest.mark.parametrize("entry_id", RECOGNITION)
@@ -72,12 +74,12 @@ def test_every_committed_recognition_row_has_its_test_clips_consistent_with_what
         learned = row["learned"]
         assert isinstance(row["n_test"], int) and row["n_all"] >= row["n_test"] and row["n_test_source"], row["key"]
         if "Wald" in learned["spread_kind"]:  # the recovered n is the stored one
-            assert rr.recover_n(learned["mean"], learned["spread"]) == row["n_test"], row["key"]
+            assert ri.recover_n(learned["mean"], learned["spread"]) == row["n_test"], row["key"]
             assert "Wald half-width implies the same n" in row["n_test_source"]
-        if metric in rr.PROPORTIONS and learned["unit"] == "seeds":
+        if metric in ri.PROPORTIONS and learned["unit"] == "seeds":
             k = learned["mean"] * row["n_test"]  # a count of clips
             assert k == pytest.approx(round(k), abs=1e-6), row["key"]
-            assert learned["interval"]["low"] == pytest.approx(rr.wilson(learned["mean"], row["n_test"])[0])
+            assert learned["interval"]["low"] == pytest.approx(ri.wilson(learned["mean"], row["n_test"])[0])
         if metric == "mcc" and learned["n"] == 1:
             assert learned["interval"] is None and "not valid" in learned["interval_none"]
 
@@ -98,10 +100,10 @@ def test_mcc_from_a_confusion_matrix_is_sklearns_and_its_bootstrap_is_seeded():
     p[:25] = y[:25]
     matrix = np.zeros((4, 4), dtype=int)
     np.add.at(matrix, (y, p), 1)
-    assert rr.mcc_from_confusion(matrix) == pytest.approx(matthews_corrcoef(y, p))
-    low, high = rr.mcc_bootstrap(matrix)
-    assert low < rr.mcc_from_confusion(matrix) < high and (low, high) == rr.mcc_bootstrap(matrix)
-    assert rr.mcc_from_confusion([[5, 0], [3, 0]]) == 0.0  # constant prediction
+    assert ri.mcc_from_confusion(matrix) == pytest.approx(matthews_corrcoef(y, p))
+    low, high = ri.mcc_bootstrap(matrix)
+    assert low < ri.mcc_from_confusion(matrix) < high and (low, high) == ri.mcc_bootstrap(matrix)
+    assert ri.mcc_from_confusion([[5, 0], [3, 0]]) == 0.0  # constant prediction
 
 
 # --------------------------------------------------------------------------- the split, from the data
@@ -111,7 +113,7 @@ def test_the_test_clips_are_those_the_codes_own_split_gives_on_the_real_data():
     if not (_data_root() / "keypoints" / "wlasl-mediapipe-pose").is_dir():
         pytest.skip("the shared MediaPipe Pose keypoints are not here")
     entry, snapshot = CATALOGUE["table_4_3"], _snapshot("table_4_3")
-    facts = rr.split_facts(rr.row_config(entry, snapshot, "gloss/minor_location"))
+    facts = ri.split_facts(rr.row_config(entry, snapshot, "gloss/minor_location"))
     [row] = [r for r in snapshot["rows"] if r["key"] == "gloss/minor_location"]
     assert (facts["n_test"], facts["n_all"]) == (row["n_test"], row["n_all"]) == (41, 155)
     assert facts["majority"] == pytest.approx(row["majority"]["value"]) == pytest.approx(33 / 41)
@@ -183,7 +185,7 @@ def test_the_committed_cells_show_the_wilson_interval_and_the_test_clips():
 
 def test_the_differences_line_follows_the_snapshot():
     entry, snapshot = CATALOGUE["table_4_2"], _snapshot("table_4_2")
-    line = rr.differences(entry, snapshot)
+    line = "\n".join(rr.differences(entry, snapshot))
     assert "32-34 test clips of 214-218 per property and split (the thesis: 1,503 (phoneme split) test clips of 10,017)" in line
     assert "13 of SL-GCN's 27 points (7 exact, 6 approximate; 14 absent, no fingertips)" in line
     assert "phoneme, minor_location: Other (2 clips), TorsoTop (2 clips)" in line
@@ -192,12 +194,13 @@ def test_the_differences_line_follows_the_snapshot():
     changed["rows"][0]["n_test"], changed["rows"][0]["n_all"] = 1500, 10000
     changed["rows"][0]["rare_dropped"]["classes"] = {"Rare": 1}
     changed["rows"][0]["keypoints"]["nodes"] += ["left_hand_index_tip"]
-    other = rr.differences(entry, changed)
+    other = "\n".join(rr.differences(entry, changed))
     assert "32-1500 test clips of 214-10000" in other and "Rare (1 clip)" in other
     # the changed row's keypoints are a second group: with a fingertip, which Pose does not give
     assert "`mediapipe_pose_slgcn27`: 14 of SL-GCN's 27 points (7 exact, 6 approximate; 13 absent)" in other
     tuned = {**entry, "command": entry["command"] + " +sweeps=classifier_gru_thesis_ch4"}
-    assert "models tuned by the command's sweep (+sweeps=classifier_gru_thesis_ch4)" in rr.differences(tuned, snapshot)
+    tuned_lines = "\n".join(rr.differences(tuned, snapshot))
+    assert "models tuned by the command's sweep (+sweeps=classifier_gru_thesis_ch4)" in tuned_lines
 
 
 def test_the_catalogues_thesis_sizes_are_thesis_mds():
@@ -219,7 +222,7 @@ def test_the_catalogues_thesis_sizes_are_thesis_mds():
 
 
 def test_the_summarizer_stores_the_test_clips_and_the_interval_of_a_real_run(tmp_path):
-    from aslexp.tools.report import results_summary
+    from aslexp.results.recognition import results_summary
 
     env = {**os.environ, "MPLBACKEND": "Agg"}
     proc = job_process.run([sys.executable, "-m", "aslexp.jobs.recognize", "-m", "experiment=debug",
@@ -232,14 +235,14 @@ def test_the_summarizer_stores_the_test_clips_and_the_interval_of_a_real_run(tmp
     for metric in ("accuracy", "mcc"):
         [row] = results_summary({**base, "options": {"metric": metric, "spread": "ci95"}}, [tmp_path / "runs"])["rows"]
         assert row["n_test"] == metrics["split_sizes"]["test"] == metrics["test_per_seed"][0]["n"]
-        assert row["n_all"] == metrics["context"]["num_clips"] and row["n_test_source"] == rr.FROM_RUN
+        assert row["n_all"] == metrics["context"]["num_clips"] and row["n_test_source"] == ri.FROM_RUN
         interval = row["learned"]["interval"]
         if metric == "accuracy":
-            assert (interval["low"], interval["high"]) == rr.wilson(metrics["test"]["accuracy"], row["n_test"])
+            assert (interval["low"], interval["high"]) == ri.wilson(metrics["test"]["accuracy"], row["n_test"])
             assert row["majority"]["value"] == pytest.approx(metrics["baselines"]["majority"]["test"]["accuracy"])
         else:  # one test set with its confusion matrix: the bootstrap over its clips
             assert "bootstrap" in interval["kind"] and interval["low"] <= metrics["test"]["mcc"] <= interval["high"]
-            assert math.isclose(rr.mcc_from_confusion(metrics["test_per_seed"][0]["confusion_matrix"]),
+            assert math.isclose(ri.mcc_from_confusion(metrics["test_per_seed"][0]["confusion_matrix"]),
                                 metrics["test"]["mcc"], abs_tol=1e-9)
 
 
@@ -256,7 +259,7 @@ def test_the_cli_adds_the_test_clips_to_bare_snapshots_from_the_real_data_as_com
                 row.pop(key)
             row["learned"].pop("interval")
             row["learned"].pop("interval_none", None)
-        results_page.write_snapshot(tmp_path / "snapshots" / f"{entry_id}.json", bare)
+        write_snapshot(tmp_path / "snapshots" / f"{entry_id}.json", bare)
     assert report_main(["--results", "--render-only", "--add-test-clips", "--snapshots", str(tmp_path / "snapshots"),
                         "--page", str(tmp_path / "results.md")]) == 0
     for entry_id in ("table_4_3", "table_c_2"):
@@ -266,10 +269,10 @@ def test_the_cli_adds_the_test_clips_to_bare_snapshots_from_the_real_data_as_com
 
 def test_a_stored_spread_over_splits_gives_a_t_interval_and_one_over_seeds_a_wilson_interval():
     over_splits = {"mean": 0.5, "spread": 0.1, "spread_kind": "std over splits", "n": 10, "unit": "splits"}
-    interval, none = rr._stored_interval("accuracy", over_splits, 6)
+    interval, none = ri.stored_interval("accuracy", over_splits, 6)
     assert none is None and interval["high"] - 0.5 == pytest.approx(2.262157 * 0.1 / math.sqrt(10), abs=1e-6)
     seeds = {"mean": 0.6, "spread": 1e-16, "spread_kind": "std over seeds", "n": 10, "unit": "seeds"}
-    interval, _ = rr._stored_interval("f1_micro", seeds, 5)
-    assert (interval["low"], interval["high"]) == rr.wilson(0.6, 5) and "at the mean" not in interval["kind"]
-    interval, _ = rr._stored_interval("f1_micro", {**seeds, "spread": 0.05}, 5)
+    interval, _ = ri.stored_interval("f1_micro", seeds, 5)
+    assert (interval["low"], interval["high"]) == ri.wilson(0.6, 5) and "at the mean" not in interval["kind"]
+    interval, _ = ri.stored_interval("f1_micro", {**seeds, "spread": 0.05}, 5)
     assert interval["kind"].endswith("at the mean over seeds")

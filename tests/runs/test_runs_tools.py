@@ -164,7 +164,7 @@ def test_runs_diff_does_not_rank_runs_measured_on_different_splits(tmp_path: Pat
 
 
 def test_bars_of_one_run_claim_no_interval() -> None:
-    from aslexp.tools.report import interval_label
+    from aslexp.viz.recognition import interval_label
 
     assert interval_label([1, 1]) == "one unit: no interval"
     assert interval_label([10, 10]) == "95% CI"

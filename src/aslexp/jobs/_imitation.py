@@ -264,7 +264,7 @@ def finish(bench: Bench, policy: Callable[[Any], Any] | None, own: dict[str, Any
     ``own`` (the purpose's keys; ``action_rms`` becomes ``last_eval_action_rms``)."""
     import math
 
-    from aslexp.reports import report
+    from aslexp.reports.report import per_joint_trajectory
     from aslexp.rl.evaluate import evaluate
 
     cfg, ppo, env, out_dir = bench.cfg, bench.ppo, bench.eval_env, bench.out_dir
@@ -279,18 +279,20 @@ def finish(bench: Bench, policy: Callable[[Any], Any] | None, own: dict[str, Any
     joint_names = [j.name for j in env.layout.joints]
     if not env.layout.all_revolute:  # spherical joints: rotation angle and angular speed
         for run in ([final] if final is look else [final, look]):
-            run.trajectory = report.per_joint_trajectory(run.trajectory, env.layout)
+            run.trajectory = per_joint_trajectory(run.trajectory, env.layout)
     name = cfg["motion"]["name"]
     if cfg.get("plots", True):
-        report.plot_tracking(final.trajectory, joint_names, out_dir / "tracking.png",
-                             f"{name}: {shown or 'the policy'} from phase 0 (reward {final.mean_reward:.3f})")
+        from aslexp.viz.imitation import plot_reward_curve, plot_tracking
+
+        plot_tracking(final.trajectory, joint_names, out_dir / "tracking.png",
+                      f"{name}: {shown or 'the policy'} from phase 0 (reward {final.mean_reward:.3f})")
         # This run's controller driven by the reference one step ahead (the thesis-controller
         # baselines in metrics.json are the bar; with controller options they differ).
-        report.plot_tracking(look.trajectory, joint_names, out_dir / "tracking_baseline.png",
-                             f"{name}: reference one step ahead, controller {_controller_name(cfg)} "
-                             f"(reward {look.mean_reward:.3f})")
+        plot_tracking(look.trajectory, joint_names, out_dir / "tracking_baseline.png",
+                      f"{name}: reference one step ahead, controller {_controller_name(cfg)} "
+                      f"(reward {look.mean_reward:.3f})")
         if history is not None and curve:
-            report.plot_reward_curve(history, bench.base, out_dir / "reward_curve.png", f"{name} (seed {cfg.get('seed')})")
+            plot_reward_curve(history, bench.base, out_dir / "reward_curve.png", f"{name} (seed {cfg.get('seed')})")
     if frames_every and "frames" in final.trajectory:
         from aslexp.viz.video import save_gif, save_mp4
 

@@ -35,7 +35,7 @@ def performing_config(cfg: dict[str, Any], keep: tuple[str, ...] = ()) -> tuple[
     if not theirs.get("engine"):  # a run from before engines were a group: this command's (the default)
         performing["engine"], chosen_by = cfg.get("engine"), "this command (the policy's run records none)"
     # what the policy trained on: its pool (the motion it held out) or its run's motion
-    from aslexp.reports.job_table import read_json
+    from aslexp.runs.completed import read_json
 
     pool = (read_json(run_dir / "metrics.json") or {}).get("train_motions") if (run_dir / "metrics.json").is_file() else None
     record = {"run": str(run_dir), "checkpoint": str(checkpoint),

@@ -1,5 +1,5 @@
-"""Reports of the imitation wing, above both ``envs`` and ``rl``: tables and curves of imitation
-sweeps (``report``: the letters; ``thesis_report``, ``upper_body_report``, ``residual_report``),
-the no-learning baselines they rebuild environments for, the two engines side by side
-(``engine_agreement``) and what exploration noise costs a trained policy (``noise_cost``).
-Each runs as ``python -m aslexp.reports.<name> ...``; the imitate job writes the tables after a sweep."""
+"""The imitation wing's sweep tables, read from run folders only (nothing of envs, sim or rl): the
+letters (``report``), beside the thesis (``thesis_report``), the upper body's signs
+(``upper_body_report``) and the residual setting (``residual_report``); their curves are drawn by
+:mod:`aslexp.viz.imitation`. Each runs as ``python -m aslexp.reports.<name> FOLDER``; the imitate
+job writes the tables after a sweep."""

@@ -1,4 +1,5 @@
-"""Figures and tables of imitation runs: tracking plots, reward curves, GIFs, letter summaries.
+"""Tables of imitation runs: reading a sweep's runs and their configs, the letter summaries (their
+curves drawn by :mod:`aslexp.viz.imitation`), a spherical joint's trajectory as one column per joint.
 
 Reads and writes plain files only (run folders: ``progress.csv``, ``metrics.json``,
 ``.hydra/config.yaml``), so it works the same after a run, after a sweep, or from a notebook.
@@ -17,20 +18,12 @@ from typing import Any
 import numpy as np
 
 from aslexp.quaternion import IDENTITY as IDENTITY_WXYZ, angle as quat_angle
-from aslexp.files import naming_errors
-
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def per_joint_trajectory(trajectory: dict[str, np.ndarray], layout) -> dict[str, np.ndarray]:
-    """One column per joint for :func:`plot_tracking`: a revolute joint's angle and speed, a
-    spherical joint's rotation angle from the identity, 2 acos|w| (rad), and angular speed |w|."""
+    """One column per joint for :func:`aslexp.viz.imitation.plot_tracking`: a revolute joint's angle
+    and speed, a spherical joint's rotation angle from the identity, 2 acos|w| (rad), and angular
+    speed |w|."""
     out = dict(trajectory)
     for q_key, v_key in (("q_sim", "qd_sim"), ("q_ref", "qd_ref")):
         q, qd = np.asarray(trajectory[q_key]), np.asarray(trajectory[v_key])
@@ -46,58 +39,6 @@ def per_joint_trajectory(trajectory: dict[str, np.ndarray], layout) -> dict[str,
                 offset, voffset = offset + 4, voffset + 3
         out[q_key], out[v_key] = np.stack(pos, axis=1), np.stack(vel, axis=1)
     return out
-
-
-def plot_tracking(trajectory: dict[str, np.ndarray], joint_names: list[str], path: str | Path,
-                  title: str = "") -> Path:
-    """Per-joint reference vs simulated position and velocity (thesis figures 5.6 and 5.10)."""
-    plt = _pyplot()
-    n = len(joint_names)
-    fig, axes = plt.subplots(n, 2, figsize=(10, 1.6 * n), sharex=True, squeeze=False)
-    t = trajectory["time"]
-    for j, name in enumerate(joint_names):
-        for col, (sim_key, ref_key, unit) in enumerate((("q_sim", "q_ref", "rad"), ("qd_sim", "qd_ref", "rad/s"))):
-            ax = axes[j, col]
-            ax.plot(t, trajectory[ref_key][:, j], color="tab:blue", lw=1, label="reference")
-            ax.plot(t, trajectory[sim_key][:, j], color="tab:orange", lw=1, label="simulation")
-            ax.set_ylabel(f"{name}\n{unit}", fontsize=7)
-            ax.tick_params(labelsize=6)
-    axes[0, 0].set_title("position", fontsize=9)
-    axes[0, 1].set_title("velocity", fontsize=9)
-    axes[0, 0].legend(fontsize=6, loc="upper right")
-    axes[-1, 0].set_xlabel("time (s)")
-    axes[-1, 1].set_xlabel("time (s)")
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    with naming_errors(path):  # a full disk names the file
-        fig.savefig(path, dpi=80)
-    plt.close(fig)
-    return Path(path)
-
-
-def plot_reward_curve(history: list[dict[str, Any]], baselines: dict[str, float], path: str | Path,
-                      title: str = "") -> Path:
-    """Evaluation (and training) reward against environment steps, with the baselines as lines."""
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(6, 3.5))
-    ev = [(h["step"], h["eval_reward"]) for h in history if "eval_reward" in h]
-    tr = [(h["step"], h["train_reward"]) for h in history if "train_reward" in h]
-    if tr:
-        ax.plot(*zip(*tr), color="tab:gray", lw=1, alpha=0.6, label="training (stochastic)")
-    if ev:
-        ax.plot(*zip(*ev), color="tab:green", marker="o", ms=3, label="evaluation (deterministic)")
-    for (name, value), style in zip(baselines.items(), ("--", ":", "-.")):
-        ax.axhline(value, color="black", ls=style, lw=1, label=f"baseline: {name} ({value:.3f})")
-    ax.set_xlabel("environment steps")
-    ax.set_ylabel("mean reward per step")
-    ax.set_title(title)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    with naming_errors(path):  # a full disk names the file
-        fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return Path(path)
 
 
 def read_progress(run_dir: str | Path) -> list[dict[str, float]]:
@@ -195,52 +136,6 @@ def learned(metrics: dict[str, Any]) -> bool:
     return metrics.get("steps", 0) > 0
 
 
-def seeds_on_common_steps(curves: list[list[tuple[int, float]]]) -> tuple[np.ndarray, np.ndarray]:
-    """(steps, values: seeds x steps) of several seeds' (step, evaluation) curves, to average.
-    Seeds evaluate on one schedule (every eval_interval steps) plus once where each stopped or
-    resumed: the steps every seed evaluated at, not evaluation indices, which would pair a stop's
-    evaluation with another seed's scheduled one. Schedules that share under half their points
-    (different intervals) fall back to indices, up to the shortest curve."""
-    by_step = [dict(c) for c in curves]
-    common = sorted(set.intersection(*(set(d) for d in by_step)))
-    if len(common) >= min(len(c) for c in curves) / 2:
-        return np.asarray(common), np.asarray([[d[s] for s in common] for d in by_step])
-    length = min(len(c) for c in curves)
-    return (np.asarray([s for s, _ in curves[0][:length]]),
-            np.asarray([[v for _, v in c[:length]] for c in curves]))
-
-
-def plot_curves(runs: dict[str, list[dict[str, Any]]], path: Path, title: str,
-                lines: dict[str, dict[str, float]] | None = None) -> Path:
-    """Mean ± std evaluation reward per motion over seeds; a run with one evaluation is a point.
-    ``lines``: per motion, named horizontal lines (baselines, the thesis' number)."""
-    plt = _pyplot()
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
-    styles = ("--", ":", "-.", (0, (1, 3)), (0, (5, 2, 1, 2)))  # the first line (the bar) dashed
-    for i, (motion, items) in enumerate(sorted(runs.items())):
-        color = f"C{i % 10}"
-        curves = [[(p["step"], p["eval_reward"]) for p in m["progress"] if "eval_reward" in p] for m in items]
-        curves = [c for c in curves if c]
-        if curves:
-            steps, values = seeds_on_common_steps(curves)
-            length = len(steps)
-            mean, std = values.mean(0), values.std(0)
-            ax.plot(steps, mean, color=color, marker="o", ms=3 if length > 1 else 6,
-                    label=f"{motion} (n={len(curves)})")
-            ax.fill_between(steps, mean - std, mean + std, color=color, alpha=0.2)
-        for (name, value), style in zip((lines or {}).get(motion, {}).items(), styles):
-            ax.axhline(value, color=color, ls=style, lw=1)
-    ax.set_xlabel("environment steps")
-    ax.set_ylabel("evaluation reward (mean ± std over seeds)")
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    with naming_errors(path):  # a full disk names the file
-        fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
-
-
 def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None,
                       targets: float | dict[str, float] | str | None = LETTERS_TARGET,
                       stem: str = "letters", lines: tuple[str, ...] | None = None) -> dict[str, Any]:
@@ -282,6 +177,8 @@ def summarize_letters(sweep_dir: str | Path, out_dir: str | Path | None = None,
     drawn = {m: {k: float(np.mean([r["baselines"][k] for r in items if k in r["baselines"]]))
                  for k in (lines or list(dict.fromkeys(k for r in items for k in r["baselines"]))[:3])}
              for m, items in runs.items()}
+    from aslexp.viz.imitation import plot_curves
+
     plot_curves(runs, out_dir / f"{stem}_curves.png",
                 f"evaluation reward per motion (lines: no-learning baselines{', ' + ', '.join(lines) if lines else ''})",
                 drawn)

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.reports.report import best_so_far, learned, mean_std, plot_curves, read_runs, run_config, write_table
+from aslexp.reports.report import best_so_far, learned, mean_std, read_runs, run_config, write_table
 from aslexp.reports.thesis_report import GLOSSES
 
 
@@ -114,6 +114,8 @@ def summarize_residual(sweep_dir: str | Path, out_dir: str | Path | None = None)
                          **({f"smoothed, alpha {best_alpha}": smoothed[best_alpha]} if best_alpha else {}),
                          **({"pinned": compare} if compare is not None else {})}
     (out_dir / "residual_baselines.json").write_text(json.dumps(everything, indent=1))
+    from aslexp.viz.imitation import plot_curves
+
     plot_curves(runs, out_dir / "residual_curves.png",
                 "every evaluation, mean ± std over seeds\n(dashed: controller, dotted: best smoothed "
                 "reference, dash-dot: pinned base)",

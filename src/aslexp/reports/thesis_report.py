@@ -19,9 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from aslexp.reports.report import (_pyplot, best_so_far, ended_early, learned, mean_std, read_runs, run_config,
-                                   write_table)
-from aslexp.files import naming_errors
+from aslexp.reports.report import best_so_far, ended_early, learned, mean_std, read_runs, run_config, write_table
 
 # Thesis Table 6.7 (THESIS.md 4.8): sign -> (Run 1 mean, std, Run 2 mean, std), 10 seeds, 50 M steps.
 THESIS_TABLE_6_7 = {"00433": (0.827, 0.020, 0.868, 0.007), "52861": (0.832, 0.022, 0.853, 0.017),
@@ -72,55 +70,6 @@ def baseline_column(row: dict[str, Any]) -> str:
     return f"{'aslexp: ' if row['aslexp'] else ''}{row['label']}, {where}"
 
 
-def plot_panels(runs: dict[str, list[dict[str, Any]]], lines: dict[str, dict[str, float]], path: Path,
-                title: str) -> Path:
-    """One panel per motion: the evaluation curve over seeds (mean ± std; a run's step-0 evaluation is
-    the untrained level, marked) and every named line (the thesis' number, each baseline) labelled."""
-    plt = _pyplot()
-    motions = sorted(runs)
-    columns = min(len(motions), 3)
-    rows = -(-len(motions) // columns)
-    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 3.2 * rows), squeeze=False)
-    styles = ("--", ":", "-.", (0, (1, 3)), (0, (5, 2, 1, 2)), (0, (3, 1, 1, 1, 1, 1)), (0, (6, 2)))
-    for ax, motion in zip(axes.flat, motions):
-        curves = [[(p["step"], p["eval_reward"]) for p in m["progress"] if "eval_reward" in p] for m in runs[motion]]
-        curves = [c for c in curves if c]
-        if curves:
-            length = min(len(c) for c in curves)
-            steps = np.asarray([st for st, _ in curves[0][:length]], dtype=float)
-            values = np.asarray([[v for _, v in c[:length]] for c in curves], dtype=float)
-            mean, std = values.mean(0), values.std(0)
-            ax.plot(steps, mean, color="k", marker="o", ms=3, label=f"PPO evaluations, mean ± std (n={len(curves)} seed{'s' if len(curves) != 1 else ''})")
-            ax.fill_between(steps, mean - std, mean + std, color="k", alpha=0.15)
-            if steps[0] == 0:
-                ax.plot([0], [mean[0]], marker="s", ms=7, color="C3", ls="none", label="untrained policy")
-        for k, ((name, value), style) in enumerate(zip(lines.get(motion, {}).items(), styles)):
-            ax.axhline(value, color=f"C{k % 10}", ls=style, lw=1.2, label=name)
-        ax.set_ylim(0, 1.02)
-        ax.set_title(motion, fontsize=9)
-        ax.set_xlabel("environment steps", fontsize=8)
-        ax.set_ylabel("mean reward per step", fontsize=8)
-        ax.tick_params(labelsize=7)
-    # One legend for all panels (the same lines in each; their values are in the table), in a spare
-    # panel when there is one, else below the panels.
-    handles, labels = axes.flat[0].get_legend_handles_labels()
-    spare = list(axes.flat)[len(motions):]
-    for ax in spare:
-        ax.axis("off")
-    if spare:
-        spare[0].legend(handles, labels, fontsize=7, loc="center")
-        fig.suptitle(title, fontsize=9)
-        fig.tight_layout()
-    else:
-        fig.suptitle(title, fontsize=9)
-        fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=2)
-        fig.tight_layout(rect=(0, 0.06 + 0.035 * (len(labels) // 2), 1, 1))
-    with naming_errors(path):
-        fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
-
-
 SATURATED = 0.005  # a ceiling this close to the controller it plans on leaves nothing to learn
 
 
@@ -147,35 +96,6 @@ def ceiling_columns(planned: list[dict[str, Any]]) -> dict[str, Any]:
             "its controller alone": round(found["controller_alone"], 4),
             "ceiling - controller": f"{found['gain']:+.4f}" + (" (saturated)" if found["saturated"] else ""),
             "s per control step": round(found["seconds_per_step"], 3)}
-
-
-def plot_levels(lines: dict[str, dict[str, float]], path: Path, title: str) -> Path:
-    """One row per motion, one marker per named level (each baseline, the ceiling): differences of a
-    few thousandths stay visible, which a panel from 0 to 1 hides."""
-    plt = _pyplot()
-    motions = sorted(lines)
-    names = list(dict.fromkeys(name for motion in motions for name in lines[motion]))
-    values = [v for motion in motions for v in lines[motion].values()]
-    fig, ax = plt.subplots(figsize=(9.5, 1.0 + 0.55 * len(motions) + 0.22 * len(names)))
-    markers = "osD^v<>p*hX"
-    for k, name in enumerate(names):
-        ys = [i for i, motion in enumerate(motions) if name in lines[motion]]
-        xs = [lines[motions[i]][name] for i in ys]
-        ax.plot(xs, ys, ls="none", marker=markers[k % len(markers)], ms=7 if "ceiling" in name else 5,
-                color="k" if "ceiling" in name else f"C{k % 10}", label=name, alpha=0.85)
-    ax.set_yticks(range(len(motions)), motions)
-    ax.invert_yaxis()
-    ax.set_xlim(max(0.0, min(values) - 0.01), min(1.0, max(values) + 0.005) + 0.001)
-    ax.set_xlabel("mean reward per step", fontsize=8)
-    ax.grid(axis="x", alpha=0.3)
-    ax.set_title(title, fontsize=9)
-    ax.tick_params(labelsize=7)
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.18 - 0.04 * len(motions)), ncol=2)
-    fig.tight_layout()
-    with naming_errors(path):
-        fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
 
 
 def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -> dict[str, Any]:
@@ -220,6 +140,8 @@ def summarize_thesis(sweep_dir: str | Path, out_dir: str | Path | None = None) -
                          **{baseline_column(b): b["reward"] for b in scored},  # diverged rows: the table marks them
                          **({"ceiling (MPC)": ceiling(planned)["mean"]} if planned else {})}
     (out_dir / "thesis_baselines.json").write_text(json.dumps(all_baselines, indent=1))
+    from aslexp.viz.imitation import plot_levels, plot_panels
+
     if any(learned(m) for items in runs.values() for m in items) or not any(
             m.get("planner") for items in runs.values() for m in items):
         plot_panels(runs, lines, out_dir / "thesis_curves.png",

@@ -1,7 +1,7 @@
 """What a sweep did: ``aslexp sweep status|best|report|dashboard SWEEP_DIR``.
 
 status: trial counts by state against the budget; best: the best trial and a command line
-that re-runs exactly it; report: Optuna's matplotlib plots as PNG plus a CSV of all trials;
+that re-runs exactly it; report: Optuna's plots as PNG (:mod:`aslexp.viz.study`) plus a CSV of all trials;
 dashboard: the study in optuna-dashboard (a web UI) on loopback.
 """
 
@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import logging
 import shlex
-import warnings
 from pathlib import Path
 from typing import Any
 
@@ -125,19 +124,14 @@ def failed_trials(study: optuna.Study) -> list[dict[str, Any]]:
 
 
 def write_report(study: optuna.Study, sweep_dir: Path, out_dir: Path | None = None) -> list[Path]:
-    """Save the study's plots as PNG (and trials.csv); returns the files written.
+    """Save the study's plots as PNG (:func:`aslexp.viz.study.plot_study`) and trials.csv; returns the
+    files written.
 
     Plots that need more than the study has (e.g. importances with fewer than two completed
     trials) are skipped with a log line saying why.
     """
-    import matplotlib
+    from aslexp.viz.study import plot_study
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from optuna.visualization import matplotlib as ovm
-
-    # choice() values reach matplotlib as strings; it logs one INFO line per such axis.
-    logging.getLogger("matplotlib.category").setLevel(logging.WARNING)
     out_dir = Path(out_dir) if out_dir else Path(sweep_dir) / REPORT_DIR
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
@@ -145,37 +139,7 @@ def write_report(study: optuna.Study, sweep_dir: Path, out_dir: Path | None = No
     csv_path = out_dir / "trials.csv"
     frame.to_csv(csv_path, index=False)
     written.append(csv_path)
-
-    completed = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-    with_steps = [t for t in study.get_trials(deepcopy=False) if t.intermediate_values]
-    plots = {
-        "optimization_history": (ovm.plot_optimization_history, 1),
-        "param_importances": (ovm.plot_param_importances, 2),
-        "parallel_coordinate": (ovm.plot_parallel_coordinate, 1),
-        "slice": (ovm.plot_slice, 1),
-    }
-    if with_steps:
-        plots["intermediate_values"] = (ovm.plot_intermediate_values, 0)
-    for name, (plot, needed) in plots.items():
-        if len(completed) < needed:
-            log.info("report: %s skipped (needs %d completed trials, has %d)", name, needed,
-                     len(completed))
-            continue
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")  # Optuna marks these plots experimental
-                result = plot(study)
-        except (ValueError, RuntimeError, ZeroDivisionError) as err:
-            log.info("report: %s skipped: %s", name, err)
-            continue
-        axes = result.flatten()[0] if hasattr(result, "flatten") else result
-        figure = axes.get_figure()
-        figure.set_size_inches(max(figure.get_size_inches()[0], 8), max(figure.get_size_inches()[1], 5))
-        path = out_dir / f"{name}.png"
-        figure.savefig(path, dpi=100, bbox_inches="tight")
-        plt.close(figure)
-        written.append(path)
-    return written
+    return written + plot_study(study, out_dir)
 
 
 def check_trial_files(study: optuna.Study) -> int:

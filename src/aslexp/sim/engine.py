@@ -64,7 +64,7 @@ DEFAULT_CAMERA = {"distance": 0.5, "yaw": 90.0, "pitch": -10.0}
 @dataclass(frozen=True)
 class EngineReport(Section):
     """``report:`` of ``conf/engine/<name>.yaml``: what a results row says about the engine (its
-    "Differences from the thesis" line, :mod:`aslexp.reports.differences`, which names no engine).
+    "Differences from the thesis" line, :mod:`aslexp.results.differences`, which names no engine).
 
     ``text`` is the sentence, its ``{field}`` filled from ``parts`` and from the engine section's own
     values (``{motor_gain_scale:g}``). A part is chosen by one value: ``by`` names it (an engine key,

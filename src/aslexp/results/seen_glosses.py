@@ -1,17 +1,17 @@
-"""The seen-gloss entry of the results page (``report: seen_glosses``, docs/results.md): the table of an
-``aslexp glosses`` run folder, one row per method (chance, the majority baseline, the simple feature
-baseline, the gloss network alone, the gloss network with auxiliary phonology heads), top-k accuracy
-as the mean over splits with its 95% t interval, and the paired differences, as the run's
-metrics.json holds them. :func:`results_summary` makes the snapshot's rows from the run folder;
-:func:`render` draws the table (the entry's other lines are results_page's)."""
+"""The seen-gloss entry of the results page (``report: seen_glosses``): an ``aslexp glosses`` run's
+table, one row per method (chance, the majority baseline, the simple feature baseline, the gloss
+network alone and with auxiliary phonology heads): top-k accuracy, the mean over splits with its
+95% t interval, and the paired differences."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from aslexp.reports.job_table import find_runs, latest, number, render_with_table
+from aslexp.results.kinds import ReportKind, register_report
+from aslexp.results.render import render_entry, with_table
+from aslexp.results.snapshots import number
+from aslexp.runs.completed import find_job_runs, latest
 
 REPORT = "seen_glosses"
 JOB = "glosses"
@@ -20,7 +20,7 @@ JOB = "glosses"
 def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any]:
     """The rows of the latest completed ``aslexp glosses`` run under ``folders`` and its facts; the
     earlier runs there are counted as left out."""
-    runs, skipped = find_runs(folders, JOB)
+    runs, skipped = find_job_runs(folders, JOB)
     if not runs:
         return {"rows": [], "run_dirs": [], "skipped": skipped}
     run_dir, metrics = latest(runs, skipped)
@@ -119,10 +119,12 @@ def legend(snapshot: dict[str, Any]) -> list[str]:
             + ([f"Paired over the same splits: {'; '.join(paired)}.", ""] if paired else []))
 
 
-def render(entry: dict[str, Any], snapshot: dict[str, Any] | None,
-           render_entry: Callable[[dict[str, Any], dict[str, Any] | None], list[str]]) -> list[str]:
+def render(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list[str]:
     """``render_entry``'s lines for a seen-gloss entry with its table (and the line of numbers) in
     place of the generic one."""
     if snapshot is None:
         return render_entry(entry, snapshot)
-    return render_with_table(entry, snapshot, render_entry, table(snapshot), legend(snapshot))
+    return with_table(entry, snapshot, table(snapshot), legend(snapshot))
+
+
+register_report(ReportKind(REPORT, results_summary, render, job_defaults=True))

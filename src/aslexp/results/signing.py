@@ -1,17 +1,17 @@
-"""The signer-against-the-person entry of the results page (``report: signing``, docs/results.md): the
-table of an ``aslexp signing`` run folder, as its metrics.json holds it (per stage the keypoint error
-to the person and the reward; per reading, the person's clip first, each property's agreement with
-ASL-LEX and the lexicon rank of the true gloss; every number with its interval over glosses) and
-the lines saying which bars each stage meets. :func:`results_summary` makes the snapshot from the run
-folder; :func:`render` puts its table in the entry (the entry's other lines are results_page's)."""
+"""The signer-against-the-person entry of the results page (``report: signing``): an ``aslexp signing``
+run's own table (per stage the keypoint error to the person and the reward; per reading each
+property's agreement with ASL-LEX and the lexicon rank of the true gloss, with intervals over
+glosses) and the lines saying which bars each stage meets."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from aslexp.reports.job_table import find_runs, latest, number, render_with_table
+from aslexp.results.kinds import ReportKind, register_report
+from aslexp.results.render import render_entry, with_table
+from aslexp.results.snapshots import number
+from aslexp.runs.completed import find_job_runs, latest
 
 REPORT = "signing"
 JOB = "signing"
@@ -20,7 +20,7 @@ JOB = "signing"
 def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any]:
     """One row per stage (the median body keypoint error) and the run's table lines, from the latest
     completed ``aslexp signing`` run under ``folders``."""
-    runs, skipped = find_runs(folders, JOB)
+    runs, skipped = find_job_runs(folders, JOB)
     if not runs:
         return {"rows": [], "run_dirs": [], "skipped": skipped}
     run_dir, metrics = latest(runs, skipped)
@@ -54,10 +54,12 @@ def legend(snapshot: dict[str, Any]) -> list[str]:
     return [text, "", *(["The bars a readable signer meets:", "", *verdicts, ""] if verdicts else [])]
 
 
-def render(entry: dict[str, Any], snapshot: dict[str, Any] | None,
-           render_entry: Callable[[dict[str, Any], dict[str, Any] | None], list[str]]) -> list[str]:
+def render(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list[str]:
     """``render_entry``'s lines with the run's own table in place of the generic one."""
     if snapshot is None:
         return render_entry(entry, snapshot)
-    return render_with_table(entry, snapshot, render_entry, list((snapshot.get("facts") or {}).get("table_lines") or []),
+    return with_table(entry, snapshot, list((snapshot.get("facts") or {}).get("table_lines") or []),
                              legend(snapshot))
+
+
+register_report(ReportKind(REPORT, results_summary, render, job_defaults=True))

@@ -1,19 +1,19 @@
-"""The lexicon-retrieval entry of the results page (``report: retrieval``, docs/results.md): the table
-of an ``aslexp retrieve`` run folder, one row per method (chance, the frequency prior alone,
-phonology alone, phonology + prior, the oracle, oracle + prior), recall@k, MRR and the median rank,
-each the mean over gloss splits with its 95% t interval (none below 3 splits), as the run's metrics.json
-holds them; the legend says how often the splits reuse test glosses (so the intervals are too narrow),
-why the frequency prior is strong (how common the glosses are) with recall by the frequency band of
-the true sign, and where the issue's targets land. :func:`results_summary` makes the snapshot's rows
-from the run folder; :func:`render` draws the table (the entry's other lines are results_page's)."""
+"""The lexicon-retrieval entry of the results page (``report: retrieval``): an ``aslexp retrieve`` run's
+table, one row per method (chance, the frequency prior, phonology, phonology + prior, the oracle,
+oracle + prior): recall@k, MRR and the median rank, each the mean over gloss splits with its 95% t
+interval (none below 3 splits). The legend says how often the splits reuse test glosses, why the
+frequency prior is strong, recall by the frequency band of the true sign, and where the lookup's
+targets land."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from aslexp.reports.job_table import find_runs, latest, number, render_with_table
+from aslexp.results.kinds import ReportKind, register_report
+from aslexp.results.render import render_entry, with_table
+from aslexp.results.snapshots import number
+from aslexp.runs.completed import find_job_runs, latest
 
 REPORT = "retrieval"
 JOB = "retrieve"
@@ -28,7 +28,7 @@ TARGET_ALONE, TARGET_COMBINED = 0.10, 0.50
 def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any]:
     """The rows of the latest completed retrieve run under ``folders`` (one per method) and its facts;
     the earlier runs there are counted as left out."""
-    runs, skipped = find_runs(folders, JOB)
+    runs, skipped = find_job_runs(folders, JOB)
     if not runs:
         return {"rows": [], "run_dirs": [], "skipped": skipped}
     run_dir, metrics = latest(runs, skipped)
@@ -88,7 +88,7 @@ def _cell(metric: str, cell: dict[str, Any]) -> str:
 
 
 def targets(snapshot: dict[str, Any]) -> str:
-    """Where the issue's targets land, from the snapshot's numbers."""
+    """Where the lookup's targets land, from the snapshot's numbers."""
     rows = {r["key"]: r["learned"]["metrics"] for r in snapshot["rows"]}
     alone, both, prior = rows.get("phonology"), rows.get("phonology+prior"), rows.get("prior")
     if not (alone and both and prior) or None in (alone["recall@50"]["mean"], both["recall@50"]["mean"]):
@@ -153,10 +153,12 @@ def legend(snapshot: dict[str, Any]) -> list[str]:
     return [text, ""] + ([line, ""] if line else []) + paired_line + frequency
 
 
-def render(entry: dict[str, Any], snapshot: dict[str, Any] | None,
-           render_entry: Callable[[dict[str, Any], dict[str, Any] | None], list[str]]) -> list[str]:
+def render(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list[str]:
     """``render_entry``'s lines for a retrieval entry with its table (and the line of numbers) in place
     of the generic one."""
     if snapshot is None:
         return render_entry(entry, snapshot)
-    return render_with_table(entry, snapshot, render_entry, table(snapshot), legend(snapshot))
+    return with_table(entry, snapshot, table(snapshot), legend(snapshot))
+
+
+register_report(ReportKind(REPORT, results_summary, render, job_defaults=True))

@@ -1,0 +1,107 @@
+"""The snapshots of the results page, ``docs/results/<id>.json``: made from an entry's run folders by
+its report kind with their provenance, kept when the folders are gone, read back by the page.
+
+A snapshot holds numbers (fractions; the page prints percentages where the entry says so), the run
+folders it came from (relative to ``--outputs``), when the runs started and finished, where they
+ran (run.json's host and platform, metrics.json's device, the catalogue's machine label where the
+folders do not say), the engine and reward they composed (``.hydra/hydra.yaml``), their git commits
+and their overrides.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+from aslexp.files import atomic_write_text
+from aslexp.results.kinds import report_kind
+from aslexp.results.provenance import entry_folders, provenance
+
+SNAPSHOTS = Path("docs") / "results"
+SNAPSHOT_SCHEMA = 1
+
+
+def number(value: Any, digits: int = 6) -> float | None:
+    """A finite number rounded for a snapshot; None for a missing or non-finite one."""
+    if value is None:
+        return None
+    value = float(value)
+    return round(value, digits) if math.isfinite(value) else None
+
+
+def build_snapshot(entry: dict[str, Any], outputs: Path, snapshots: Path | None = None) -> dict[str, Any] | None:
+    """The snapshot of ``entry`` from its run folders under ``outputs``, summarised by its report kind
+    (:mod:`aslexp.results.kinds`); None when it has none.
+    ``options.ceiling_snapshot`` (an entry id): the ceilings of the rows that have no planner run here,
+    from that entry's snapshot in ``snapshots`` (made from its run folders; the same reward, controller,
+    rate and engine)."""
+    folders, alternative = entry_folders(entry, outputs)
+    if not folders:
+        return None
+    options = entry.get("options") or {}
+    for key in ("ceiling_folders", "per_motion_folders"):  # other entries' runs a row reads, under outputs/ too
+        if options.get(key):
+            options = {**options, key: [str(outputs / f) for f in options[key]]}
+    if options.get("ceiling_snapshot") and snapshots is not None:
+        kept = read_snapshot(snapshot_path(snapshots, options["ceiling_snapshot"])) or {}
+        options = {**options, "ceiling_rows": {r["key"]: {**r["ceiling"], "source": f"docs/results/{kept['id']}.json"}
+                                               for r in kept.get("rows", []) if r.get("ceiling")}}
+    entry = {**entry, "options": options}
+    summary = report_kind(entry["report"]).summarize(entry, folders)
+    if not summary["rows"]:
+        return None
+    run_dirs = sorted(set(summary.pop("run_dirs")))
+    snapshot = {"schema": SNAPSHOT_SCHEMA, "id": entry["id"], "report": entry["report"],
+                **provenance(run_dirs, outputs, folders, alternative)}
+    snapshot.update({"skipped": dict(sorted(summary.get("skipped", {}).items())), "quantity": summary.get("quantity"),
+                     "row_name": (entry.get("options") or {}).get("row_name", summary.get("row_name")),
+                     "rows": summary["rows"]})
+    for key in ("differences", "differences_from", "differences_source", "facts"):
+        if key in summary:
+            snapshot[key] = summary[key]
+    return snapshot
+
+
+def snapshot_path(snapshots: Path, entry_id: str) -> Path:
+    """Where ``entry_id``'s snapshot is: ``<snapshots>/<id>.json``."""
+    return Path(snapshots) / f"{entry_id}.json"
+
+
+def write_snapshot(path: Path, snapshot: dict[str, Any]) -> None:
+    atomic_write_text(path, json.dumps(snapshot, indent=1, ensure_ascii=False) + "\n")
+
+
+def read_snapshot(path: Path) -> dict[str, Any] | None:
+    """The snapshot at ``path``, None where there is none; one of another schema is refused."""
+    if not path.is_file():
+        return None
+    snapshot = json.loads(path.read_text(encoding="utf-8"))
+    if snapshot.get("schema") != SNAPSHOT_SCHEMA:
+        raise ValueError(f"{path}: snapshot schema {snapshot.get('schema')}, this aslexp writes {SNAPSHOT_SCHEMA}")
+    return snapshot
+
+
+def update(catalogue: list[dict[str, Any]], outputs: Path, snapshots: Path) -> dict[str, str]:
+    """Rewrite the snapshot of every entry whose run folders exist under ``outputs``; keep the others'
+    (with what their kind's ``refresh`` adds). Returns id -> what happened (``from runs``, ``kept``,
+    ``not run``)."""
+    done = {}
+    for entry in catalogue:
+        snapshot = build_snapshot(entry, outputs, snapshots)
+        path = snapshot_path(snapshots, entry["id"])
+        if snapshot is not None:
+            write_snapshot(path, snapshot)
+            done[entry["id"]] = f"from runs ({', '.join(snapshot['folders'])})"
+        elif path.is_file():
+            done[entry["id"]] = "kept"
+            kept = read_snapshot(path)
+            kind = report_kind(entry["report"])
+            extra = kind.refresh(entry, kept) if kept is not None and kind.refresh else {}
+            if extra:
+                write_snapshot(path, {**kept, **extra})
+                done[entry["id"]] = f"kept; {kind.refreshed}"
+        else:
+            done[entry["id"]] = "not run"
+    return done
