@@ -227,14 +227,21 @@ def test_bad_input_is_one_line_naming_the_file(model_dir, cache, tmp_path):
     # keypoints of another layout: the upper body's 23 points alone, a hands-only .pose, a damaged .pose
     np.save(tmp_path / "upper.npy", np.load(good).reshape(-1, 33, 4)[:, :23].reshape(-1, 92))
     message = refused(str(tmp_path / "upper.npy"))
-    assert "upper.npy: array has shape (40, 92), expected (T, 132)" in message and "layout mediapipe_pose" in message
+    assert "upper.npy: keypoints of layout none known (a (40, 92) array)" in message
+    assert "expects layout mediapipe_pose (33 nodes" in message  # and the ways on: the video, or a model of this layout
+    assert "aslexp extract VIDEO" in message and "aslexp retrieve pose=array_folder pose.path=FOLDER" in message
+    np.save(tmp_path / "hands.npy", np.zeros((40, 42, 3), np.float32))  # MediaPipe Hands' two hands
+    message = refused(str(tmp_path / "hands.npy"))
+    assert "hands.npy: keypoints of layout mediapipe_hands (a (40, 42, 3) array)" in message
+    assert "aslexp retrieve pose=mediapipe_hands pose.path=FOLDER retrieval.save_model=all" in message
     from aslexp.keypoints.posefile import LEFT, RIGHT, read_pose
 
     hands = read_pose(write_pose(Path(good), tmp_path / "whole.pose")).get_components([LEFT, RIGHT])
     with open(tmp_path / "hands.pose", "wb") as handle:
         hands.write(handle)
     message = refused(str(tmp_path / "hands.pose"))
-    assert "hands.pose: layout mediapipe_pose needs POSE_LANDMARKS" in message and "LEFT_HAND_LANDMARKS" in message
+    assert "hands.pose: keypoints of layout" in message and "expects layout mediapipe_pose" in message
+    assert "aslexp retrieve pose=pose_format" in message
     (tmp_path / "damaged.pose").write_bytes(b"not a pose file")
     assert "damaged.pose: not a readable .pose file" in refused(str(tmp_path / "damaged.pose"))
     # on the command line: the line, exit 2, no traceback, no run folder
@@ -242,7 +249,34 @@ def test_bad_input_is_one_line_naming_the_file(model_dir, cache, tmp_path):
     proc = _cli(["lookup", str(tmp_path / "upper.npy"), f"model={model_dir}", f"hydra.run.dir={folder}"], cache)
     lines = [line for line in proc.stderr.splitlines() if line.strip()]
     assert proc.returncode == 2 and lines == [lines[-1]] and "Traceback" not in proc.stderr, proc.stderr
-    assert lines[-1].startswith(f"aslexp lookup: {tmp_path / 'upper.npy'}: array has shape") and not folder.exists()
+    assert lines[-1].startswith(f"aslexp lookup: input={tmp_path / 'upper.npy'}: keypoints of layout none known")
+    assert not folder.exists()
+
+
+def test_frames_cut_the_clip_and_a_range_outside_it_is_refused(model_dir, cache, tmp_path):
+    """`frames=START:END` (as `aslexp extract --frames`): the model reads frames 11..30 of the 40, the
+    card and metrics.json say so; a range past the clip's end or unparsable is one line, exit 2."""
+    from aslexp.errors import ConfigError
+
+    good = str(KEYPOINTS / f"{CLIP}.npy")
+    base = {"input": good, "model": str(model_dir), "top_k": 10, "format": "md", "data_root": str(DATA)}
+    for frames, expected in (("30:50", f"frames=30:50: input={good} has 40 frames; expected 1 <= START <= END <= 40"),
+                             ("ten", "frames=ten: expected START:END or VIDEO_ID=START:END"),
+                             ("99999=1:10", "frames=99999=1:10: names video id '99999', not the input's '01457'")):
+        with pytest.raises((DataError, ConfigError)) as error:
+            check_inputs({**base, "frames": frames})
+        assert str(error.value).startswith(expected) and "\n" not in str(error.value), str(error.value)
+    check_inputs({**base, "frames": "11:30"})
+    run = tmp_path / "cut"
+    proc = _cli(["lookup", good, f"model={model_dir}", "frames=11:30", f"hydra.run.dir={run}"], cache)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    metrics = json.loads((run / "metrics.json").read_text())
+    assert metrics["input"]["span"] == [11, 30] and metrics["input"]["frames"] == 20
+    assert "frames 11..30 of 40" in metrics["input"]["notes"][0] and "frames 11..30 of 40" in (run / "card.md").read_text()
+    whole = _cli(["lookup", good, f"model={model_dir}", f"hydra.run.dir={tmp_path / 'whole'}"], cache)
+    assert whole.returncode == 0 and json.loads((tmp_path / "whole" / "metrics.json").read_text())["input"]["span"] is None
+    cut = _cli(["lookup", good, f"model={model_dir}", "frames=30:50", f"hydra.run.dir={tmp_path / 'past'}"], cache)
+    assert cut.returncode == 2 and "has 40 frames" in cut.stderr.strip().splitlines()[-1] and "Traceback" not in cut.stderr
 
 
 def test_a_video_goes_through_mediapipe_or_says_it_is_missing(model_dir, cache, tmp_path):

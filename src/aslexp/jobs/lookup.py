@@ -1,17 +1,19 @@
 """`aslexp lookup`: one clip's predicted phonology and the ASL-LEX signs that fit it best.
 
-    aslexp lookup FILE model=RUN_DIR [top_k=10] [format=md|html]     (FILE: the same as input=FILE)
+    aslexp lookup FILE model=RUN_DIR [top_k=10] [format=md|html] [frames=START:END]   (FILE: the same as input=FILE)
 
 FILE is a keypoint array (.npy: read by the model's own keypoint source, or as an `aslexp extract`
 folder where a layout.json lies beside it), a .pose file (pose-format) or a video (MediaPipe, when
 its environment is set up); RUN_DIR is a run folder of `aslexp retrieve retrieval.save_model=all`
-(or first_split). The clip goes through the model's WLASL-Lex preprocessing, every property's
+(or first_split). ``frames=11:60`` cuts the clip first (1-based, inclusive, as `aslexp extract --frames`
+reads it). The clip goes through the model's WLASL-Lex preprocessing, every property's
 classifier predicts it, and all lexicon entries are scored as `aslexp retrieve` scores them
 (:mod:`aslexp.recognition.lookup`). The run folder gets card.md (or card.html), metrics.json (the
 predictions, the top-k, the clip's own sign and its rank where the file names a WLASL video) and
 keypoints.png; the terminal gets a short table (stdout). Bad input (a missing or unreadable file, a
-run folder without a saved model, keypoints the model's layout cannot be read from) is one line
-naming the file, the field and what was expected, exit 2, refused before any run folder is made.
+run folder without a saved model, keypoints the model's layout cannot be read from, a frame range
+outside the clip) is one line naming the file, the field and what was expected, exit 2, refused
+before any run folder is made (a video's frame range is checked once it is extracted, in the run).
 Docs: docs/recognition.md, "Looking up one clip".
 """
 
@@ -52,10 +54,27 @@ def positional_input(argv: list[str]) -> list[str]:
     return out
 
 
-_KEYS = ("input", "model", "top_k", "format", "data_root")
+_KEYS = ("input", "model", "top_k", "format", "data_root", "frames")
 
 
-def _settings(cfg: DictConfig | dict) -> tuple[str, str, int, str, Any]:
+def frame_span(frames: Any, given: str) -> tuple[int, int] | None:
+    """``frames=START:END`` (`aslexp extract --frames`' syntax: 1-based, inclusive, END -1 or empty
+    = to the end) -> (start, end), or None for the whole clip; a VIDEO_ID= prefix must name the input."""
+    from aslexp.pose.extract import ExtractionError, parse_frames
+
+    if frames is None:
+        return None
+    try:
+        video_id, start, end = parse_frames(str(frames), f"frames={frames}")
+    except ExtractionError as error:
+        raise ConfigError(str(error)) from None
+    if video_id is not None and video_id != Path(given).stem:
+        raise ConfigError(f"frames={frames}: names video id {video_id!r}, not the input's {Path(given).stem!r}; "
+                          "expected START:END")
+    return start, end
+
+
+def _settings(cfg: DictConfig | dict) -> tuple[str, str, int, str, Any, tuple[int, int] | None]:
     if isinstance(cfg, DictConfig):  # the job's own keys only (the hydra node does not resolve in a callback)
         plain = {key: to_dict(OmegaConf.select(cfg, key, default=None)) for key in _KEYS}
     else:
@@ -73,7 +92,7 @@ def _settings(cfg: DictConfig | dict) -> tuple[str, str, int, str, Any]:
     card = plain.get("format")
     if card not in CARD:
         raise ConfigError(f"format={card!r}: expected one of {list(CARD)}")
-    return str(given), str(model), top_k, card, plain.get("data_root")
+    return str(given), str(model), top_k, card, plain.get("data_root"), frame_span(plain.get("frames"), str(given))
 
 
 def _root(model, data_root):
@@ -92,11 +111,11 @@ def check_inputs(cfg) -> None:
     keypoints also read and preprocessed; for a video the MediaPipe environment) and the model."""
     from aslexp.recognition.lookup import check_input, load_lookup_model, read_clip
 
-    given, model_dir, _, _, data_root = _settings(cfg)
+    given, model_dir, _, _, data_root, frames = _settings(cfg)
     kind = check_input(given)
     model = load_lookup_model(model_dir)
     if kind != "video":  # cheap (milliseconds); a video is extracted in the run
-        read_clip(given, model, root=_root(model, data_root))
+        read_clip(given, model, root=_root(model, data_root), frames=frames)
 
 
 class InputCheck(Callback):
@@ -117,10 +136,10 @@ def lookup(cfg: DictConfig, run) -> None:
     from aslexp.recognition.lookup import card_html, card_markdown, load_lookup_model, load_table, lookup_clip, \
         read_clip, terminal_lines
 
-    given, model_dir, top_k, card, data_root = _settings(cfg)
+    given, model_dir, top_k, card, data_root, frames = _settings(cfg)
     model = load_lookup_model(model_dir)
     root = _root(model, data_root)
-    clip = read_clip(given, model, root=root, work_dir=run.dir / "keypoints")
+    clip = read_clip(given, model, root=root, work_dir=run.dir / "keypoints", frames=frames)
     table, lexicon = load_table(model, root)
     result = lookup_clip(model, clip, table, lexicon, top_k=top_k, root=root)
     figure = None

@@ -210,19 +210,21 @@ def collect_jobs(
     return result
 
 
-def parse_frames(text: str) -> tuple[str | None, int, int]:
+def parse_frames(text: str, given: str | None = None) -> tuple[str | None, int, int]:
     """``START:END`` or ``VIDEO_ID=START:END`` -> (video id or None, start, end): 1-based and
-    inclusive like WLASL's frame_start/frame_end; END empty or -1 means to the end."""
+    inclusive like WLASL's frame_start/frame_end; END empty or -1 means to the end. ``given`` is
+    how an error names the value (default ``--frames 'TEXT'``; `aslexp lookup` says ``frames=TEXT``)."""
+    given = given or f"--frames {text!r}"
     video_id, _, span = text.rpartition("=") if "=" in text else (None, "", text)
     try:
         start_text, end_text = span.split(":")
         start = int(start_text) if start_text.strip() else 1
         end = int(end_text) if end_text.strip() else -1
     except ValueError:
-        raise ExtractionError(f"--frames {text!r}: expected START:END or VIDEO_ID=START:END "
+        raise ExtractionError(f"{given}: expected START:END or VIDEO_ID=START:END "
                               "(1-based, inclusive; END -1 or empty = to the end), e.g. 1:60") from None  # fmt: skip
     if start < 1 or (end != -1 and end < start):
-        raise ExtractionError(f"--frames {text!r}: expected 1 <= START <= END (or END = -1)")
+        raise ExtractionError(f"{given}: expected 1 <= START <= END (or END = -1)")
     return (video_id or None), start, end
 
 

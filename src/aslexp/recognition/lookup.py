@@ -257,6 +257,10 @@ def _layout_of(spec: Mapping[str, Any], origin: str) -> KeypointLayout:
             return known
     except DataError:
         pass
+    if layout.name.startswith("pose_header_"):  # a .pose header's own layout (OpenPose): offer its subsets
+        from aslexp.keypoints.slgcn27 import register_header_map
+
+        register_header_map(layout)  # slgcn27 by point name, as the training run's reader offered it
     return layout
 
 
@@ -334,6 +338,7 @@ class LookupClip:
     mask: np.ndarray  # (1, T, V) bool
     frames: int
     notes: list[str] = field(default_factory=list)
+    span: tuple[int, int] | None = None  # frames=START:END: the 1-based frames kept of the file's
 
     @property
     def video_id(self) -> str:
@@ -391,6 +396,68 @@ def onto_layout(clip: np.ndarray, have: KeypointLayout, want: KeypointLayout, or
     return clip[:, node_index][:, :, channel_index]
 
 
+# Arrays without a layout.json: the layouts told apart by their shape, and the training run's reader of each.
+_ARRAY_LAYOUTS = {"mediapipe_pose": "pose=mediapipe_pose", "mediapipe_hands": "pose=mediapipe_hands",
+                  "mediapipe_holistic": "pose=array_folder pose.options.layout=mediapipe_holistic",
+                  "mediapipe_holistic_reduced": "pose=array_folder pose.options.layout=mediapipe_holistic_reduced"}
+
+
+def file_layout(path: Path) -> tuple[str | None, str, str] | None:
+    """What a keypoint file holds, for a refusal: (its layout's name or None, the layout in words, the
+    pose overrides with which `aslexp retrieve` reads a folder of such files), or None when the file
+    reads as no layout at all."""
+    from aslexp.keypoints import get_layout
+    from aslexp.keypoints.arrays import LAYOUT_FILE, read_layout
+
+    if path.suffix.lower() == ".pose":
+        from aslexp.keypoints.posefile import auto_layout, header_layout, known_format, read_pose
+        from aslexp.keypoints.slgcn27 import header_map
+
+        try:
+            header = read_pose(path).header
+        except DataError:
+            return None
+        layout = auto_layout(header, str(path))
+        if layout is not None:  # the hands-only layout has no visibility channel
+            return (layout.name, f"{layout.name} ({layout.num_nodes} nodes)",
+                    "pose=pose_format" + ("" if "visibility" in layout.channels else " pose.channels=null"))
+        layout = header_layout(header, str(path))[0]
+        return (layout.name, f"{layout.name} (the file's own header, {layout.num_nodes} nodes; {known_format(header)})",
+                "pose=pose_format" + ("" if header_map(layout.names) else " pose.subset=all pose.channels=null"))
+    if (path.parent / LAYOUT_FILE).is_file():
+        layout = read_layout(path.parent / LAYOUT_FILE)
+        return layout.name, f"{layout.name} ({layout.num_nodes} nodes, its {LAYOUT_FILE})", "pose=mediapipe"
+    try:
+        shape = tuple(np.load(path, mmap_mode="r", allow_pickle=False).shape)
+    except (OSError, ValueError):
+        return None
+    for name, overrides in _ARRAY_LAYOUTS.items():
+        layout = get_layout(name)
+        if shape[1:] in ((layout.num_nodes * len(layout.channels),), (layout.num_nodes, len(layout.channels))):
+            return name, f"{name} (a {shape} array)", overrides
+    return None, f"none known (a {shape} array)", "pose=array_folder"
+
+
+def layout_refusal(path: Path, model: LookupModel) -> str | None:
+    """The one line for a file of another layout than the model's: the file, the layout found, the
+    layout expected and the ways on; None when the file's layout is the model's (another fault)."""
+    found = file_layout(path)
+    want = model.source_layout
+    if found is None or found[0] == want.name:
+        return None
+    from aslexp.keypoints import holistic as H
+
+    ways = []
+    if set(want.names) <= set(H.NAMES):  # what `aslexp extract` writes holds the model's nodes
+        ways.append("extract the video with `aslexp extract VIDEO --out DIR` (MediaPipe, Pose's 33 points among "
+                    "them) and look up DIR/VIDEO_ID.npy (or give the video as the input)")
+    spelled = " (its layout written in conf/pose/array_folder.yaml)" if found[0] is None else ""
+    ways.append(f"train a lookup model on this layout: `aslexp retrieve {found[2]} pose.path=FOLDER "
+                f"retrieval.save_model=all`{spelled} (FOLDER: such clips named by WLASL video id), then model=THAT_RUN")
+    return (f"input={path}: keypoints of layout {found[1]}; model={model.folder.parent} expects layout {want.name} "
+            f"({want.num_nodes} nodes, channels {', '.join(want.channels)}): " + ", or ".join(ways))
+
+
 def _source_clip(path: Path, model: LookupModel, root, work_dir: Path | None) -> tuple[np.ndarray, str]:
     """(T, V, C) in the model's source layout, NaN where missing, and how it was read."""
     from aslexp.keypoints.arrays import LAYOUT_FILE, DirectoryKeypointSource
@@ -433,19 +500,23 @@ def _source_clip(path: Path, model: LookupModel, root, work_dir: Path | None) ->
 
 
 def read_clip(path: str | Path, model: LookupModel, *, root: str | Path | None = None,
-              work_dir: str | Path | None = None) -> LookupClip:
+              work_dir: str | Path | None = None, frames: tuple[int, int] | None = None) -> LookupClip:
     """Read ``path`` and preprocess it exactly as the model's WLASL-Lex build did (source -> subset
-    -> channels -> :func:`~aslexp.data.preprocess.preprocess_clips`)."""
+    -> channels -> :func:`~aslexp.data.preprocess.preprocess_clips`); ``frames`` = (start, end),
+    1-based and inclusive (end -1: to the end), cuts the clip first."""
     from aslexp.data.preprocess import preprocess_clips
     from aslexp.data.wlasl_lex import _channel_index
     from aslexp.keypoints import subset_layout
 
     path = Path(path)
-    check_input(path)
+    kind_of = check_input(path)
     build = model.build
     try:
         clip, kind = _source_clip(path, model, root, None if work_dir is None else Path(work_dir))
     except DataError as error:
+        refusal = None if kind_of == "video" else layout_refusal(path, model)
+        if refusal is not None:
+            raise DataError(refusal) from None
         text = str(error)
         if str(path) not in text and path.name not in text:
             text = f"input={path}: {text}"
@@ -457,6 +528,14 @@ def read_clip(path: str | Path, model: LookupModel, *, root: str | Path | None =
                         f"{model.source_layout.name!r} gives nodes other than the model's layout {model.layout.name!r}")
     clip = clip[:, list(keep)]
     clip = clip[..., _channel_index(layout, model.channels)]
+    total = len(clip)
+    if frames is not None:
+        start, end = frames
+        if start > total or end > total:
+            raise DataError(f"frames={start}:{end}: input={path} has {total} frames; expected 1 <= START <= END <= "
+                            f"{total} (END -1 or empty: to the end)")
+        end = total if end == -1 else end
+        clip = clip[start - 1:end]
     if len(clip) == 0:
         raise DataError(f"input={path}: no frames; expected keypoints of at least one frame")
     prepared = preprocess_clips([clip], model.channels, int(build["length"]), build["padding"])
@@ -467,10 +546,12 @@ def read_clip(path: str | Path, model: LookupModel, *, root: str | Path | None =
     seen = float(np.isfinite(clip).all(axis=-1).mean())
     if seen < 0.5:
         notes.append(f"only {100 * seen:.0f}% of the keypoints the model uses are observed")
+    if frames is not None:
+        notes.insert(0, f"frames {start}..{end} of {total} (frames={frames[0]}:{frames[1]})")
     if len(clip) > int(build["length"]):
         notes.append(f"{len(clip)} frames: the model reads the first {build['length']} (as in training)")
     return LookupClip(path=path, kind=kind, keypoints=clip, X=prepared.X, mask=prepared.mask, frames=len(clip),
-                      notes=notes)
+                      notes=notes, span=None if frames is None else (start, end))
 
 
 def predict_properties(model: LookupModel, clip: LookupClip) -> list[np.ndarray]:
@@ -557,6 +638,7 @@ def lookup_clip(model: LookupModel, clip: LookupClip, table: R.LexiconTable, lex
         truth = None
     return {
         "input": {"file": str(clip.path), "kind": clip.kind, "frames": clip.frames,
+                  "span": None if clip.span is None else list(clip.span),
                   "observed": float(clip.mask[0].mean()), "notes": clip.notes},
         "model": {"folder": str(model.folder), "classifier": meta["classifier"]["name"], "fit_on": meta["fit_on"],
                   "fitted_on": meta["fitted_on"], "fitted_clips": meta["fitted_clips"],
