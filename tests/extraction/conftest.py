@@ -10,6 +10,7 @@ import os
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from aslexp.data.root import resolve_data_root
@@ -138,3 +139,14 @@ def wlasl6(worker_env, ws):
     words = shlex.split(command)
     proc = run(command, ws)
     return ws["tmp"] / words[words.index("--out") + 1], proc.stdout
+
+
+def hand_frames(keypoint_folder, video_id: str, side: str) -> int:
+    """The frames of an extraction whose ``side`` hand MediaPipe found. Its detections differ by CPU
+    (XNNPACK's kernels): on some machines 63185's out-of-view left hand is "found" in a few frames,
+    so tests that rely on a hand being absent ask the extraction instead of assuming it."""
+    from aslexp.keypoints import holistic as H
+
+    offset = H.LEFT_HAND_OFFSET if side == "left" else H.RIGHT_HAND_OFFSET
+    world = np.load(Path(keypoint_folder) / "world" / f"{video_id}.npy")
+    return int(np.isfinite(world[:, offset:offset + 21]).all(axis=(1, 2)).sum())

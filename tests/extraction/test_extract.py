@@ -16,7 +16,7 @@ from aslexp.pose.extract import ExtractOptions, extract_videos, read_status, ren
 from aslexp.pose.extract_cli import extract_main
 from aslexp.sim.motion import load_motion
 
-from .conftest import CLIP
+from .conftest import CLIP, hand_frames
 
 pytestmark = pytest.mark.usefixtures("worker_env")
 
@@ -35,12 +35,15 @@ def test_arrays_have_the_layout_shape_and_nan_masks(extracted):
     assert 0.0 <= np.nanmin(image[..., 3]) and np.nanmax(image[..., 3]) <= 1.0
     # The signer's right hand is seen throughout (Holistic, gaps filled by MediaPipe Hands) ...
     assert np.isfinite(image[:, RIGHT : RIGHT + 21]).all() and np.isfinite(world[:, RIGHT : RIGHT + 21]).all()
-    # ... the left stays below the frame: masked with NaN in every channel, never zero.
-    assert np.isnan(image[:, LEFT : LEFT + 21]).all() and np.isnan(world[:, LEFT : LEFT + 21]).all()
+    # ... the left stays below the frame: masked with NaN in every channel, never zero (MediaPipe
+    # "finds" it in a few frames on some CPUs: those frames hold a whole hand).
+    left = hand_frames(out, CLIP, "left")
+    found = np.isfinite(world[:, LEFT : LEFT + 21]).all(axis=(1, 2))
+    assert left <= 5 and np.isnan(image[~found, LEFT : LEFT + 21]).all() and np.isnan(world[~found, LEFT : LEFT + 21]).all()
     assert not (image == 0).all(axis=-1).any()
     status = read_status(out, CLIP)
     assert status["counts"]["pose"] == 57 and status["counts"]["right_hand"] == 57
-    assert status["counts"]["left_hand"] == 0
+    assert status["counts"]["left_hand"] == left
 
 
 def test_hands_are_on_the_signers_side(extracted):
@@ -138,9 +141,12 @@ def test_real_clip_motions_within_limits_and_loadable(extracted, tmp_path):
     body, hands = R.upper_body_keypoints(upper.frames)
     assert np.median(hands["right"][:, 12, 1] - body["right_elbow"][:, 1]) > 0.3
     assert np.median(body["right_wrist"][:, 1] - body["left_wrist"][:, 1]) > 0.5
-    # The left hand was never seen: its fingers stay open and the report says so.
-    assert result["upper_body"]["left_hand"]["coverage"] == 0.0
-    assert np.all(joints["l_index_prox"] == 0.0)
+    # The left hand is out of view: the report says how little of it was seen; never seen, its
+    # fingers stay open.
+    left = hand_frames(out, CLIP, "left")
+    assert result["upper_body"]["left_hand"]["coverage"] == pytest.approx(left / 57, abs=0.01)
+    if not left:
+        assert np.all(joints["l_index_prox"] == 0.0)
 
 
 def test_imitation_env_loads_the_hand_motion(extracted, tmp_path):

@@ -57,7 +57,9 @@ def test_pose_formats_own_reader_reads_it(extracted, pose_dir):
     np.testing.assert_allclose(pose.body.data[:, 0, :33, 0] / 480, image[:, :33, 0], atol=1e-5)
     np.testing.assert_allclose(pose.body.data[:, 0, :33, 1] / 320, image[:, :33, 1], atol=1e-5)
     np.testing.assert_allclose(pose.body.confidence[:, 0, :33], image[:, :33, 3], atol=1e-6)
-    assert pose.body.data.mask[:, 0, 33:54].all() and not pose.body.data.mask[:, 0, 54:75].any()
+    left = np.isfinite(image[:, 33:54]).all(axis=(1, 2))  # none, or a few frames on some CPUs
+    assert pose.body.data.mask[~left, 0, 33:54].all() and not pose.body.data.mask[left, 0, 33:54].any()
+    assert not pose.body.data.mask[:, 0, 54:75].any()
     # pose-format's own operations work on it: normalise by the shoulders.
     info = header.normalization_info(p1=("POSE_LANDMARKS", "RIGHT_SHOULDER"), p2=("POSE_LANDMARKS", "LEFT_SHOULDER"))
     normalised = pose.normalize(info)

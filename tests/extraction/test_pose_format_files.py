@@ -28,7 +28,7 @@ from aslexp.pose.extract_cli import extract_main
 from aslexp.recognition.models.graph import hop_distances
 from aslexp.sim.motion import load_motion
 
-from .conftest import CLIP
+from .conftest import CLIP, hand_frames
 
 pytestmark = pytest.mark.usefixtures("worker_env")
 
@@ -260,7 +260,8 @@ def test_mediapipe_components_lacking_points_are_read_as_they_are_with_a_warning
     np.testing.assert_allclose(source.load(CLIP)[:, 21:, :2], image[:, H.RIGHT_HAND_OFFSET : -1, :2], atol=1e-5)
 
 
-def test_an_openpose_file_reads_as_sl_gcns_27_points_and_says_why_it_gives_no_motion(whistle, tmp_path, capsys):
+def test_an_openpose_file_reads_as_sl_gcns_27_points_and_says_why_it_gives_no_motion(whistle, extracted, tmp_path,
+                                                                                     capsys):  # fmt: skip
     """pose-format's own OpenPose reader on the clip's real hands and arms (pixels, 2D): layout=auto
     reads the header's own layout (no MediaPipe layout fits), whose names give SL-GCN's 27 points,
     the same as Holistic's 27 of the clip (conf/pose/pose_format.yaml's defaults need no other
@@ -294,7 +295,8 @@ def test_an_openpose_file_reads_as_sl_gcns_27_points_and_says_why_it_gives_no_mo
     got, expected = thesis.load(CLIP), reference.load(CLIP)
     np.testing.assert_array_equal(np.isnan(got[..., 0]), np.isnan(expected[..., 0]))
     np.testing.assert_allclose(got[..., :2], expected[..., :2], atol=1e-5)  # x, y of the same 27 points
-    assert np.isfinite(got[..., 0]).sum() == 57 * 17  # nose, arms, the right hand; the left never seen
+    left = hand_frames(extracted[0], CLIP, "left")  # out of view: none, or a few frames on some CPUs
+    assert np.isfinite(got[..., 0]).sum() == 57 * 17 + left * 10  # nose, arms, the right hand, the left where found
     # Motions: 2D hands and no MediaPipe part; one line, no recognition option in it; bad input: exit 2.
     rc, printed = _motions(path, tmp_path / "out", capsys)
     assert rc == 2, printed

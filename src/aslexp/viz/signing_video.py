@@ -98,10 +98,11 @@ def _hand_extent(px: np.ndarray, seen: np.ndarray, nodes: tuple[int, ...]) -> fl
 
 
 def signing_hands(person_seen: np.ndarray, layout: BodyLayout) -> tuple[str, ...]:
-    """The hands that sign, the signer's right first: those the person's hand tracker ever saw;
+    """The hands that sign, the signer's right first: those the person's hand tracker saw in a tenth
+    of the frames (a hand out of view can be "found" in a few: MediaPipe's detections differ by CPU);
     for a body-only source, those whose wrist the body tracker sees in a quarter of the frames."""
     order = [s for s in ("right", "left") if s in layout.hands]
-    tracked = [s for s in order if person_seen[:, list(layout.hands[s])].any()]
+    tracked = [s for s in order if person_seen[:, list(layout.hands[s])].any(axis=1).mean() >= 0.1]
     if tracked:
         return tuple(tracked)
     return tuple(s for s in order if layout.body_hands.get(s)
