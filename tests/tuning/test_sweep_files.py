@@ -15,7 +15,7 @@ from hydra_plugins.aslexp_optuna_sweeper._space import parse_search_space
 
 SWEEPS = sorted(p.stem for p in (Path(CONF_DIR).parent / "sweeps").glob("*.yaml"))
 JOB = {"classifier": "recognize", "pd_gains": "tune_pd", "ppo": "imitate", "kfactors": "imitate",
-       "quadratic": "quadratic", "mpc": "imitate"}
+       "quadratic": "quadratic", "mpc": "imitate", "retargeting": "retarget"}
 
 
 def _job(sweep: str) -> str:

@@ -85,11 +85,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overlay-format", choices=("mp4", "gif"), default="mp4")
     p.add_argument("--motions", action="store_true",
                    help="write hand (23-column) and upper-body (76-column) motion files")
-    p.add_argument("--hand", choices=("dominant", "right", "left"), default="dominant",
-                   help="which signer hand drives the 15-DoF hand motion")
-    p.add_argument("--torso", choices=("vertical", "hips"), default="vertical",
+    # defaults: conf/retargeting/default.yaml (aslexp retarget reads the same)
+    p.add_argument("--hand", choices=("dominant", "right", "left"), default=None,
+                   help="which signer hand drives the 15-DoF hand motion (default: dominant)")
+    p.add_argument("--torso", choices=("vertical", "hips"), default=None,
                    help="chest pitch: upright (default; waist-framed videos) or from the hips")
-    p.add_argument("--sigma", type=float, default=1.0, help="temporal smoothing of angles (frames)")
+    p.add_argument("--sigma", type=float, default=None, help="temporal smoothing of angles (frames)")
+    p.add_argument("--filter", choices=("none", "savgol", "gaussian"), default=None,
+                   help="landmarks smoothed in time before inverse kinematics: Savitzky-Golay or Gaussian")
+    p.add_argument("--filter-window", type=float, default=None, metavar="SECONDS",
+                   help="the filter's window (Savitzky-Golay) or twice its sigma (Gaussian), in seconds")
+    p.add_argument("--filter-order", type=int, default=None, help="the Savitzky-Golay polynomial's order")
     p.add_argument("--frame-size", metavar="WIDTHxHEIGHT",
                    help="keypoint arrays: the video's frame size in pixels (normalised hand landmarks need it "
                    "for the hand's proportions; MediaPipe Pose arrays fit it per clip without), e.g. 640x480")
@@ -135,6 +141,14 @@ NO_SPACE = (errno.ENOSPC, errno.EDQUOT)  # a full disk stops the batch: every ne
 def _extract(argv: list[str]) -> int:
     """`aslexp extract` (the exit code)."""
     args = build_parser().parse_args(argv)
+    if args.motions:  # a bad retargeting option stops here, before any work
+        from aslexp.errors import ConfigError
+
+        try:
+            args.retargeting = retargeting_options(args)
+        except ConfigError as err:
+            print(f"aslexp extract: {err}", file=sys.stderr)
+            return 2
     keypoints, keypoint_skips = keypoint_inputs(args.inputs, read_handedness=args.hand_order == "detection")
     if keypoints:  # already keypoints: retarget them (no MediaPipe)
         others = [i for i in args.inputs if not _is_keypoints(Path(i))]
@@ -285,6 +299,26 @@ def keypoint_inputs(inputs: list[str], read_handedness: bool = False) -> tuple[l
     return files, skipped
 
 
+def retargeting_options(args) -> dict:
+    """The retargeting's options: conf/retargeting/default.yaml, with the flags given over it."""
+    from aslexp.compose import group
+    from aslexp.errors import ConfigError
+    from aslexp.pose.landmark_filter import retargeting_options as parse  # the one reader of the section
+
+    section = group("retargeting", job="retarget")
+    for key in ("hand", "torso", "sigma"):
+        if getattr(args, key) is not None:
+            section[key] = getattr(args, key)
+    for key, flag in (("kind", "filter"), ("window", "filter_window"), ("order", "filter_order")):
+        if getattr(args, flag) is not None:
+            section["filter"][key] = getattr(args, flag)
+    try:
+        return parse(section)
+    except ValueError as error:  # said as the flags are spelled
+        text = str(error).replace("retargeting.filter.kind", "--filter").replace("retargeting.filter.", "--filter-")
+        raise ConfigError(text.replace("retargeting.", "--")) from None
+
+
 def _write_motions(video_ids: list[str], args, from_files: bool = False) -> tuple[list[str], int]:
     """Motions for extracted videos (ids in --out), or for keypoint files (.pose, .npy paths) into
     --out/motions; prints the counts, each failure, each warning (implausible joints or
@@ -302,7 +336,7 @@ def _write_motions(video_ids: list[str], args, from_files: bool = False) -> tupl
     not_made: Counter = Counter()  # (part, reason) -> inputs
     written = 0
     out = Path(args.out) / "motions"
-    options = dict(hand=args.hand, sigma=args.sigma, data_root=args.data_root, torso=args.torso)
+    options = dict(args.retargeting, data_root=args.data_root)
     clips = _wlasl_clips(args) if from_files else {}
     for vid in video_ids:
         name = Path(vid).stem if from_files else vid
@@ -314,7 +348,7 @@ def _write_motions(video_ids: list[str], args, from_files: bool = False) -> tupl
                     raise NeedsOption(f"--frame-size: {err}") from None
                 fps, fps_from, gloss = _array_fps(name, args, clips)
                 landmarks = landmarks_from_keypoint_array(vid, size, fps, fps_from, gloss, args.data_root,
-                                                          hand=args.hand, hand_order=args.hand_order,
+                                                          hand=options["hand"], hand_order=args.hand_order,
                                                           mirrored=args.mirrored)  # fmt: skip
                 result = retarget_landmarks(landmarks, out, **options)
                 if "pose_array" in result:  # a MediaPipe Pose array: its image keypoints are the source
@@ -407,7 +441,7 @@ def counted_warnings(lines: list[str], examples: int = 3) -> list[str]:
     for line in lines:
         message = line.split(": ", 1)[1] if ": " in line else line
         named = re.match(r"[a-z ]+: ", message)  # "jumps: ...", "out of view: ...": the kind says itself
-        key = named.group(0) if named else re.sub(r"\(frames [^)]*\)|\d+(\.\d+)?", "#", message)
+        key = named.group(0) if named else re.sub(r"\(frames [^()]*(\([^)]*\))?\)|\d+(\.\d+)?", "#", message)  # "(frames 0-3, ... (6 ranges))"
         head = line.split(": ", 1)[0].split()
         part = head[-1] if head and head[-1] in ("hand", "upper_body") else ""
         kinds.setdefault(f"{part}|{key}", []).append(line)

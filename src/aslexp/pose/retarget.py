@@ -410,6 +410,7 @@ def _quaternion_offsets() -> list[int]:
 LIMIT_TOLERANCE = 0.05  # rad: past a limit by this much counts in the reports' fractions
 LIMIT_MARGIN = 0.35  # rad: past a limit by this much is more than landmark noise
 LIMIT_SHARE_WARN = 0.5
+LIMIT_MIN_FRAMES = 5  # fewer frames past a limit are a glimpse (a hand found in a few frames), not a hold
 DEPTH_RATIO_WARN = 2.0
 ARM_POINTS = ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist")
 
@@ -438,7 +439,8 @@ def limit_warnings(raw: np.ndarray, lower: np.ndarray, upper: np.ndarray, names,
     """Per joint (columns of a (T, J) raw angle array, NaN where unseen): the share of its seen
     frames whose raw angle lies more than ``margin`` past a limit (joints with any), and one
     warning per joint where that share exceeds ``share``, naming the joint, its limits and the
-    frames (0-based, as in the motion)."""
+    frames (0-based, as in the motion); a joint past its limit in fewer than :data:`LIMIT_MIN_FRAMES`
+    frames is not warned about."""
     raw = np.asarray(raw, dtype=float).reshape(len(raw), -1)
     seen = np.isfinite(raw)
     with np.errstate(invalid="ignore"):
@@ -449,7 +451,7 @@ def limit_warnings(raw: np.ndarray, lower: np.ndarray, upper: np.ndarray, names,
             continue
         fraction = float(beyond[:, j].sum() / seen[:, j].sum())
         shares[name] = round(fraction, 3)
-        if fraction > share:
+        if fraction > share and beyond[:, j].sum() >= LIMIT_MIN_FRAMES:
             low, high = float(np.ravel(lower)[j]), float(np.ravel(upper)[j])
             warnings.append(f"{name} held at its limit ([{low:.2f}, {high:.2f}] rad; the keypoints ask for more "
                             f"than {margin} rad beyond) in {fraction:.0%} of its {int(seen[:, j].sum())} frames "
@@ -874,6 +876,7 @@ def retarget_video(
     sigma: float = 1.0,
     data_root=None,
     torso: str = "vertical",
+    landmark_filter=None,
 ) -> dict:
     """Write ``<out>/hand/<id>.txt`` (23 columns) and ``<out>/upper_body/<id>.txt`` (76 columns)
     from a video's world landmarks: an extraction folder and a video id, or a ``.pose`` file with
@@ -885,18 +888,43 @@ def retarget_video(
 
     kdir = Path(keypoint_dir)
     out = Path(out_dir) if out_dir else (kdir.parent if kdir.suffix == ".pose" else kdir) / "motions"
-    return retarget_landmarks(load_world(kdir, video_id), out, hand, sigma, data_root, torso)
+    return retarget_landmarks(load_world(kdir, video_id), out, hand, sigma, data_root, torso, landmark_filter)
+
+
+def finger_columns(side: str) -> list[int]:
+    """The columns (of the values without dt) of one hand's 15 finger angles in an upper-body motion."""
+    columns, col = [], 7
+    for name, width in UPPER_BODY_COLUMNS:
+        if name.startswith(f"{side[0]}_") and name[2:] in HAND_JOINTS:
+            columns.append(col)
+        col += width
+    return columns
 
 
 def retarget_landmarks(landmarks, out_dir: str | os.PathLike, hand: str = "dominant", sigma: float = 1.0,
-                       data_root=None, torso: str = "vertical") -> dict:  # fmt: skip
+                       data_root=None, torso: str = "vertical", landmark_filter=None) -> dict:  # fmt: skip
     """:func:`retarget_video` on :class:`~aslexp.pose.landmarks.Landmarks` from any source (an
     extraction folder, a ``.pose``, a keypoint array). Each part's entry has a ``status``: ok (with
     its ``path`` and report, whose ``warnings`` name implausible joints and proportions), failed
-    (``error``: why), or skipped (``error``: the input's kind never holds that part)."""
+    (``error``: why), or skipped (``error``: the input's kind never holds that part).
+
+    ``landmark_filter`` (:class:`~aslexp.pose.landmark_filter.LandmarkFilter`; None: none) smooths
+    the landmarks in time first; each hand's report says how still its held handshapes stay
+    (``handshape_flicker``, over the frames where the unfiltered source hand holds its shape)."""
+    from aslexp.pose.landmark_filter import LandmarkFilter, held_handshape_flicker, still_frames
+
     out = Path(out_dir)
-    world, fps, video_id, missing = landmarks.world.astype(float), landmarks.fps, landmarks.video_id, landmarks.missing
-    result: dict = {"video_id": video_id, "fps": fps, "frames": len(world)}
+    raw, fps, video_id, missing = landmarks.world.astype(float), landmarks.fps, landmarks.video_id, landmarks.missing
+    landmark_filter = landmark_filter or LandmarkFilter("none", 0.0, 2)
+    world = landmark_filter.apply(raw, fps)
+
+    def flicker(side: str, angles: np.ndarray) -> dict:
+        offset = H.LEFT_HAND_OFFSET if side == "left" else H.RIGHT_HAND_OFFSET
+        return held_handshape_flicker(angles, still_frames(raw[:, offset:offset + 21], fps))
+
+    result: dict = {"video_id": video_id, "fps": fps, "frames": len(world),
+                    "landmark_filter": {"kind": landmark_filter.kind, "window_s": landmark_filter.window,
+                                        "order": landmark_filter.order}, "sigma": sigma}
     if missing:
         result["unavailable"] = dict(missing)  # parts the input does not have, and why
     if landmarks.warnings:
@@ -916,6 +944,7 @@ def retarget_landmarks(landmarks, out_dir: str | os.PathLike, hand: str = "domin
             raise ValueError(f"{missing[f'{side}_hand']} (the hand motion needs it)")
         hand_kp = world[:, offset : offset + 21] @ MP_TO_HUMANOID.T
         motion = hand_motion_from_landmarks(hand_kp, fps, side, sigma, data_root)
+        motion.report["handshape_flicker"] = flicker(side, motion.frames[:, 7:])
         path = motion.save(out / "hand" / f"{video_id}.txt")
         result["hand"] = {"status": "ok", "path": str(path), **motion.report}
     except _NotInInput as err:
@@ -932,6 +961,10 @@ def retarget_landmarks(landmarks, out_dir: str | os.PathLike, hand: str = "domin
         else:
             body, hands = humanoid_inputs_from_world(world)
             motion = retarget_upper_body(body, hands, fps, sigma, data_root, torso)
+            for side in ("right", "left"):
+                if motion.report[f"{side}_hand"].get("frames_observed"):
+                    motion.report[f"{side}_hand"]["handshape_flicker"] = flicker(
+                        side, motion.frames[:, finger_columns(side)])
             path = motion.save(out / "upper_body" / f"{video_id}.txt")
             result["upper_body"] = {"status": "ok", "path": str(path), **motion.report}
             _mark_plausibility(result["upper_body"], body, fps, landmarks)
