@@ -125,3 +125,22 @@ def test_the_new_jobs_are_listed_with_the_imitate_job_s_groups():
     plan_help = cli.job_help("plan")
     assert "\n  planner        mpc" in plan_help and "letters_mpc" in plan_help
     assert "\n  planner        (none) | mpc" in cli.job_help("evaluate")
+
+
+def test_a_baselines_run_whose_untrained_policy_blows_up_is_its_baselines_not_an_error(data_root, tmp_path):
+    """The upper body's default env (absolute targets) on MuJoCo: a fresh policy's targets, the joint
+    ranges' centres, blow up the fingers' stand-in motors in the first control step, where the
+    controller's baselines run; nothing was trained, so the run is its baselines (exit 0), and the
+    untrained policy's blow-up is recorded and said, never a score. The residual env starts there."""
+    run = tmp_path / "run"
+    aslexp(ROOT, data_root, "evaluate", "motion='00433'", "body=upper_body", "engine=mujoco", "ppo.eval_steps=20",
+           *NO_FIGURES, f"hydra.run.dir={run}")
+    metrics = metrics_of(run)
+    assert metrics["untrained_eval"] is None and metrics["untrained_eval_diverged"] == len(metrics["eval_protocol"]["phases"])
+    assert "last_eval_diverged" not in metrics and metrics["best_baseline"]["reward"] > 0.5
+    line = last_logged(run, "evaluate")
+    assert "nothing trained" in line and "the untrained policy's simulation blew up in" in line
+    residual = tmp_path / "residual"
+    aslexp(ROOT, data_root, "evaluate", "motion='00433'", "body=upper_body", "engine=mujoco", "env=upper_body_residual",
+           "ppo.eval_steps=20", *NO_FIGURES, f"hydra.run.dir={residual}")
+    assert metrics_of(residual)["untrained_eval_diverged"] == 0 and metrics_of(residual)["untrained_eval"] > 0.5

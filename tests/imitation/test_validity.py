@@ -173,10 +173,12 @@ def test_the_thesis_overlay_writes_its_baselines_untrained_level_and_code_scale_
 
 
 def test_a_run_whose_last_evaluation_blew_up_exits_1_with_where_and_when_and_keeps_its_metrics(tmp_path):
-    # the upper body on MuJoCo under the position-motor stand-in with an
-    # untrained policy's absolute targets. It used to end "last eval 0.0000", exit 0.
+    # the upper body on MuJoCo under the position-motor stand-in with a barely trained policy's
+    # absolute targets. It used to end "last eval 0.0000", exit 0. (A run that trains nothing is
+    # its baselines instead: tests/imitation/test_imitation_purposes.py.)
     run_dir = tmp_path / "run"
-    proc = run_job("imitate", "motion='00433'", "body=upper_body", "engine=mujoco", "ppo.total_steps=0",
+    proc = run_job("imitate", "motion='00433'", "body=upper_body", "engine=mujoco", "ppo.total_steps=64",
+                   "ppo.steps_per_rollout=64", "ppo.minibatch_size=32", "ppo.epochs=1", "ppo.eval_interval=64",
                    "ppo.eval_steps=30", "ppo.eval_episodes=2", "plots=false", "render.gif=false", "render.mp4=false",
                    f"hydra.run.dir={run_dir}", check=False)
     assert proc.returncode == 1, proc.stderr[-2000:]

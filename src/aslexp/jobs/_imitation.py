@@ -406,8 +406,11 @@ def last_line(metrics: dict[str, Any]) -> str:
     name, best = metrics["motion"], metrics.get("best_baseline")
     bar = "" if best is None else f"best no-learning baseline {best['reward']:.4f}: {best['name']}"
     if metrics.get("last_eval") is None:  # nothing trained: the baselines are the result
-        return (f"motion {name}: nothing trained (ppo.total_steps=0); {bar}; the untrained policy scores "
-                f"{metrics['untrained_eval']:.4f} (not a result); metrics.json holds every baseline")
+        blown = int(metrics.get("untrained_eval_diverged") or 0)
+        untrained = (f"the untrained policy's simulation blew up in {blown} of {len(metrics['eval_protocol']['phases'])} "
+                     "episodes" if blown else f"the untrained policy scores {metrics['untrained_eval']:.4f}")
+        return (f"motion {name}: nothing trained (ppo.total_steps=0); {bar}; {untrained} (not a result); "
+                "metrics.json holds every baseline")
     value, stopped = float(metrics["last_eval"]), metrics.get("stopped")
     if stopped == "planned":
         what = f"planner {metrics['planner']['name']} {value:.4f}"

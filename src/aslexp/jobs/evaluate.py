@@ -50,7 +50,11 @@ def baselines_only(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_log
             counters = trainer.counters()
         finally:
             trainer.close()
-        own = {**untrained, "untrained_eval": untrained["last_eval"], "last_eval": None, "best_eval": None,
+        # The untrained policy is a level, not the run's result: its blow-up (a fresh policy's targets
+        # far from the reference) is recorded and said, and the baselines stay the run's result.
+        diverged = untrained.pop("last_eval_diverged")
+        own = {**untrained, "untrained_eval": None if diverged else untrained["last_eval"],
+               "untrained_eval_diverged": diverged, "last_eval": None, "best_eval": None,
                **trainer_metrics(trainer, started, counters)}
         return finish(bench, None, own, history=trainer.history,
                       shown="nothing trained, the controller on the reference one step ahead")
