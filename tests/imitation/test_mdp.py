@@ -153,6 +153,10 @@ CASES = {
     "upper-absolute": (UpperBodyImitationEnv, "00433", {}, False, 0.05),  # built model, position control, fixed base
     # the standing residual's training env: a smoothed base, the drift charged, falls ending episodes
     "upper-free-residual-shaped": (UpperBodyImitationEnv, "00433", FREE_RESIDUAL, True, 0.3),
+    # experiment=signs_unseen_tracking_error's observation: the frame ahead as a tracking error, no phase
+    "upper-free-residual-tracking-error": (UpperBodyImitationEnv, "00433", {**FREE_RESIDUAL, "env": deep_merge(
+        FREE_RESIDUAL["env"], {"observe_future_as": "error", "observe_phase": False, "observe_joints": True})},
+        True, 0.3),
 }
 
 

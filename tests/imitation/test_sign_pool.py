@@ -150,6 +150,39 @@ def test_a_batch_of_signs_reads_each_rows_own_motion_ahead(sign_slice, data_root
     batch.close()
 
 
+def test_the_tracking_error_variant_sees_each_rows_frame_ahead_minus_its_joints(sign_slice, data_root):
+    """experiment=signs_unseen_tracking_error: the frame ahead is seen as that row's reference minus the
+    body's joints now (the same quantity whichever motion a row follows), the joints follow, no phase."""
+    overrides = ["motion='00433'", f"train_motions.folder={sign_slice}", "train_motions.folds=2",
+                 "train_motions.seed=2", f"data_root={data_root}"]
+    variant = ImitationSetup.from_config(compose("imitate", ["experiment=signs_unseen_tracking_error", *overrides]),
+                                         data_root)
+    plain = ImitationSetup.from_config(compose("imitate", ["experiment=signs_unseen", *overrides]), data_root)
+    assert variant.env.observe_future_as == "error" and not variant.env.observe_phase and variant.env.observe_joints
+    from aslexp.jobs._imitation import training_pool
+
+    pool = training_pool(compose("imitate", ["experiment=signs_unseen_tracking_error", *overrides]), variant)
+    batch = BatchedImitationEnv.from_setup(8, variant, shape_reward=True, motions=pool.motions)
+    sizes = [BatchedImitationEnv.from_setup(1, s, motions=pool.motions) for s in (variant, plain)]
+    actions = np.zeros((8, batch.single_action_space.shape[0]), dtype=np.float32)
+    batch.reset(seed=list(range(8)))
+    for _ in range(3):
+        obs, *_ = batch.step(actions)
+    q, qd = batch.body.joints(batch.states)
+    size, velocity = q.shape[1], qd.shape[1]
+    # no phase (-1), the joints and their velocities (+)
+    assert sizes[0].single_observation_space.shape[0] == sizes[1].single_observation_space.shape[0] - 1 + size + velocity
+    dt = 1.0 / variant.env.control_hz
+    for row in range(8):
+        reference = batch.pool.references[int(batch.clip[row])]
+        ahead = reference.joints_many(np.array([batch.time[row] + dt]))[0]
+        np.testing.assert_allclose(obs[row, -(2 * size + velocity):-(size + velocity)], ahead - q[row], atol=1e-5)
+        np.testing.assert_allclose(obs[row, -(size + velocity):-velocity], q[row], atol=1e-5)
+    assert np.abs(obs[:, -(2 * size + velocity):-(size + velocity)]).max() > 0
+    for env in (batch, *sizes):
+        env.close()
+
+
 def _imitate(tmp_path: Path, data_root: Path, run: str, *overrides: str) -> dict:
     env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "MPLBACKEND": "Agg"}
     tiny = ["ppo.total_steps=256", "ppo.num_envs=8", "ppo.steps_per_rollout=128", "ppo.minibatch_size=64",

@@ -265,7 +265,7 @@ class BatchedImitationEnv(VectorEnv):
                  qd: np.ndarray | None = None) -> np.ndarray:
         links = frames[:, 1:][:, self.observed]
         joints = None
-        if self.spec_env.observe_joints:
+        if self.spec_env.reads_joints:
             if q is None:
                 q, qd = self.body.joints(self.states[rows])
             joints = (q, qd)

@@ -190,7 +190,8 @@ class ImitationEnv(gym.Env):
         # Links read from the engine each step: the observed ones and the end effectors (None: all).
         self._state_links = (None if self.spec_env.observe_links is None else
                              sorted(set(self.observed_links.tolist()) | set(self.sim.end_effector_links)))
-        obs_size = 1 + 13 * len(self.observed_links) + len(self.spec_env.observe_future) * self.layout.action_size
+        obs_size = (int(self.spec_env.observe_phase) + 13 * len(self.observed_links)
+                    + len(self.spec_env.observe_future) * self.layout.action_size)
         obs_size += self.spec_env.observation == "deepmimic"  # the root height
         if self.spec_env.observe_future_velocities:
             obs_size += len(self.spec_env.observe_future) * self.velocity_size
@@ -355,7 +356,7 @@ class ImitationEnv(gym.Env):
         root_pos, root_rot, _, _ = self.sim.base_state()
         if len(self.observed_links) != len(links):
             links = links[self.observed_links]
-        joints = [a[None] for a in self.sim.joint_state()] if self.spec_env.observe_joints else None
+        joints = [a[None] for a in self.sim.joint_state()] if self.spec_env.reads_joints else None
         return observe(self.spec_env, self.reference, np.asarray([self.time]), links[None], root_pos[None],
                        root_rot[None], joints)[0]
 

@@ -259,7 +259,7 @@ def observe(spec: EnvSpec, reference, times: np.ndarray, links: np.ndarray, root
             root_rot: np.ndarray, joints: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """The observations (N, size) of N bodies (:mod:`aslexp.envs.imitation`'s docstring): ``times`` (N,)
     on ``reference``, the observed links' world states (N, L, 13), the roots' positions (N, 3) and
-    rotations (N, 4), with ``observe_joints`` the joint positions and velocities (N, ...)."""
+    rotations (N, 4), with ``spec.reads_joints`` the joint positions and velocities (N, ...)."""
     n = len(times)
     deepmimic = spec.observation == "deepmimic"
     frame = heading_rotation(root_rot) if deepmimic else root_rot  # the frame links are seen in
@@ -274,15 +274,15 @@ def observe(spec: EnvSpec, reference, times: np.ndarray, links: np.ndarray, root
                                                               turned[:, 2 * count:])
     rot = quaternion.multiply(inverse, links[..., 3:7])
     local[..., 3:7] = np.where(rot[..., :1] < 0, -rot, rot)  # one sign per rotation
-    phase = reference.phase_many(times)[:, None]
+    parts = [reference.phase_many(times)[:, None]] if spec.observe_phase else []
     if deepmimic:  # phase, root height, then all poses, then all velocities (DeepMimic's order)
-        parts = [phase, root_pos[:, UP_AXIS:UP_AXIS + 1], local[..., 0:7].reshape(n, -1),
-                 local[..., 7:13].reshape(n, -1)]
+        parts += [root_pos[:, UP_AXIS:UP_AXIS + 1], local[..., 0:7].reshape(n, -1), local[..., 7:13].reshape(n, -1)]
     else:
-        parts = [phase, local.reshape(n, -1)]
+        parts.append(local.reshape(n, -1))
     control_dt = 1.0 / spec.control_hz
     for k in spec.observe_future:
-        parts.append(reference.joints_many(times + k * control_dt))
+        ahead = reference.joints_many(times + k * control_dt)
+        parts.append(ahead - joints[0] if spec.observe_future_as == "error" else ahead)
     if spec.observe_future_velocities:
         for k in spec.observe_future:
             parts.append(reference.joint_velocities_many(times + k * control_dt))

@@ -48,6 +48,13 @@ class EnvSpec(Section):
     residual_range: float = 0.5
     reference_lookahead: int = 1
     observe_future: tuple[int, ...] = ()
+    # How the reference frames at observe_future are seen: as the reference's joint positions
+    # (reference), or as each one minus the body's joint positions now (error: the tracking error a
+    # feedback correction acts on, the same quantity whichever motion is followed).
+    observe_future_as: str = field(default="reference", metadata=key(Choice("reference", "error")))
+    # The motion's phase (time over its length) first in the observation; across a pool of motions of
+    # different lengths it says more about which motion is followed than about what to do.
+    observe_phase: bool = True
     observe_joints: bool = False
     observe_future_velocities: bool = False  # also the reference joint velocities at observe_future
     # The reference's root now, in the frame the links are seen in (position relative to the
@@ -107,6 +114,11 @@ class EnvSpec(Section):
         if abs(ratio - round(ratio)) > 1e-6 or ratio < 1:
             raise ConfigError(f"physics_hz={self.physics_hz:g}: expected a whole multiple of control_hz "
                               f"({self.control_hz:g}): 1x, 2x, ...")
+
+    @property
+    def reads_joints(self) -> bool:
+        """Whether the observation needs the joint positions and velocities."""
+        return self.observe_joints or (self.observe_future_as == "error" and bool(self.observe_future))
 
     @property
     def substeps(self) -> int:
