@@ -12,7 +12,7 @@ from typing import Any
 
 from aslexp.results.kinds import ReportKind, register_report
 from aslexp.results.render import render_entry, with_table
-from aslexp.results.snapshots import number
+from aslexp.results.snapshots import number, split_table_rows
 from aslexp.runs.completed import find_job_runs, latest
 
 REPORT = "retrieval"
@@ -32,14 +32,7 @@ def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any
     if not runs:
         return {"rows": [], "run_dirs": [], "skipped": skipped}
     run_dir, metrics = latest(runs, skipped)
-    rows = []
-    for method, label in metrics["methods"].items():
-        cells = {key: {k: number(metrics["table"][method][key].get(k)) for k in ("mean", "low", "high", "half_width")}
-                 for key in METRICS}
-        rows.append({"key": method, "label": label, "thesis": None, "baselines": [], "steps": None,
-                     "learned": {"what": "test recall@50 over gloss splits", "mean": cells["recall@50"]["mean"],
-                                 "spread": cells["recall@50"]["half_width"], "spread_kind": "95% t half-width over splits",
-                                 "n": len(metrics["per_split"]), "unit": "splits", "metrics": cells}})
+    rows = split_table_rows(metrics, METRICS, "recall@50", "test recall@50 over gloss splits")
     splits = metrics["per_split"]
     tests = [s["clips"]["test"] for s in splits]
     facts = {

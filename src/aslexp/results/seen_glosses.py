@@ -10,7 +10,7 @@ from typing import Any
 
 from aslexp.results.kinds import ReportKind, register_report
 from aslexp.results.render import render_entry, with_table
-from aslexp.results.snapshots import number
+from aslexp.results.snapshots import number, split_table_rows
 from aslexp.runs.completed import find_job_runs, latest
 
 REPORT = "seen_glosses"
@@ -25,14 +25,7 @@ def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any
         return {"rows": [], "run_dirs": [], "skipped": skipped}
     run_dir, metrics = latest(runs, skipped)
     keys = [f"top{k}" for k in metrics["top_k"]]
-    rows = []
-    for method, label in metrics["methods"].items():
-        cells = {key: {k: number(metrics["table"][method][key].get(k)) for k in ("mean", "low", "high", "half_width")}
-                 for key in keys}
-        rows.append({"key": method, "label": label, "thesis": None, "baselines": [], "steps": None,
-                     "learned": {"what": "test top-1 over splits", "mean": cells["top1"]["mean"],
-                                 "spread": cells["top1"]["half_width"], "spread_kind": "95% t half-width over splits",
-                                 "n": len(metrics["per_split"]), "unit": "splits", "metrics": cells}})
+    rows = split_table_rows(metrics, keys, "top1", "test top-1 over splits")
     splits = metrics["per_split"]
     tests = [s["clips"]["test"] for s in splits]
     tested = [s["glosses"]["tested"] for s in splits]

@@ -31,6 +31,20 @@ def number(value: Any, digits: int = 6) -> float | None:
     return round(value, digits) if math.isfinite(value) else None
 
 
+def split_table_rows(metrics: dict[str, Any], keys: list[str], headline: str, what: str) -> list[dict[str, Any]]:
+    """One row per method of a job whose metrics.json holds ``table[method][key]`` = mean, interval
+    and half-width over splits (retrieval, seen glosses): every key's cells, ``headline`` the learned cell."""
+    rows = []
+    for method, label in metrics["methods"].items():
+        cells = {key: {k: number(metrics["table"][method][key].get(k)) for k in ("mean", "low", "high", "half_width")}
+                 for key in keys}
+        rows.append({"key": method, "label": label, "thesis": None, "baselines": [], "steps": None,
+                     "learned": {"what": what, "mean": cells[headline]["mean"],
+                                 "spread": cells[headline]["half_width"], "spread_kind": "95% t half-width over splits",
+                                 "n": len(metrics["per_split"]), "unit": "splits", "metrics": cells}})
+    return rows
+
+
 def build_snapshot(entry: dict[str, Any], outputs: Path, snapshots: Path | None = None) -> dict[str, Any] | None:
     """The snapshot of ``entry`` from its run folders under ``outputs``, summarised by its report kind
     (:mod:`aslexp.results.kinds`); None when it has none.
