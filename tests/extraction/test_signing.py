@@ -240,6 +240,78 @@ def test_scores_drop_the_frames_a_part_is_missing_from(env, controller_run):
     assert masked["body"]["frames"][1] == len(person)  # the body is still compared on every frame
 
 
+def test_the_handshape_score_sees_the_fingers_not_where_the_hand_is_or_how_it_is_turned(env):
+    from aslexp.signing.scores import handshape
+
+    source, _ = SigningSource.for_motion(env.motion.source)
+    width, height = source.camera.width, source.camera.height
+    hand = source.image.keypoints[:, list(PARTS["right_hand"])].copy()
+    assert handshape(hand, hand, width, height)["handshape"] == 0.0
+    # the same hand elsewhere, larger and turned in the image plane (a rotation about the camera axis)
+    px = hand[..., :3] * [width, height, width]
+    angle = 0.7
+    turn = np.array([[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]])
+    moved = (1.6 * px @ turn.T + [40.0, -25.0, 0.0]) / [width, height, width]
+    assert handshape(moved, hand, width, height)["handshape"] == pytest.approx(0.0, abs=1e-6)
+    # ... and another shape: the fingers drawn straight out from their bases
+    straight = hand.copy()
+    for base in (5, 9, 13, 17):
+        step = hand[:, base, :3] - hand[:, 0, :3]
+        for k in (1, 2, 3):
+            straight[:, base + k, :3] = hand[:, base, :3] + 0.3 * k * step
+    assert handshape(straight, hand, width, height)["handshape"] > 0.1
+
+
+def test_a_hand_run_worn_by_the_upper_body_is_scored_against_the_persons_hand(env, extraction, data_root):
+    """The hand body's run on the clip's hand motion: its fingers on the upper body's reference arm.
+    Its reference stage is the upper body's own reference hand (one retargeting of the same
+    landmarks), so the two score alike; an open hand is the floor beside them."""
+    from aslexp.compose import compose
+    from aslexp.jobs.signing import OPEN_HAND, hand_file, score_hand_clip
+    from aslexp.signing.performance import score_trajectory
+
+    out, report = extraction
+    motion = out / "motions" / "upper_body" / f"{CLIP}.txt"
+    assert hand_file(motion) == out / "motions" / "hand" / f"{CLIP}.txt" and hand_file(motion).is_file()
+    scored = score_hand_clip(compose("imitate", ["body=hand15"]), hand_file(motion), env, data_root)
+    side = report["hand"]["side"]
+    assert scored["side"] == side == "right" and scored["body"] == "hand15"
+    assert 0.5 < scored["rewards"]["controller"] <= 1.0 and not scored["diverged"]["controller"]
+    stages = scored["stages"]
+    steps = int(np.ceil(env.reference.duration * env.spec_env.control_hz))
+    upper = evaluate(env, lambda obs, env: env.reference_action(1), steps, record=True).trajectory
+    own, _ = score_trajectory(env, upper, SigningSource.for_motion(env.motion.source)[0], "q_ref")
+    assert stages["reference"]["dtw_mje"] == pytest.approx(own[f"{side}_hand"]["dtw_mje"], abs=0.01)
+    assert stages["reference"]["handshape"] == pytest.approx(own["handshape"][side], abs=0.01)
+    for stage in ("reference", "controller", OPEN_HAND):
+        assert 0.0 < stages[stage]["handshape"] < 2.0 and stages[stage]["dtwp"] > 0, stage
+    assert stages[OPEN_HAND]["handshape"] != pytest.approx(stages["reference"]["handshape"], abs=1e-3)
+
+
+def test_the_signing_table_of_a_video_scores_its_hand_body_beside_the_upper_body(extraction, data_root, tmp_path):
+    """`aslexp signing signing.hand.enabled=true` on a video's extraction: the clip's gloss from WLASL
+    (a video's report names none), the hand body's stages in its record, a row per clip in the table."""
+    import os
+    import sys
+
+    import job_process
+
+    out, _ = extraction
+    run = tmp_path / "signing"
+    proc = job_process.run([sys.executable, "-m", "aslexp.cli", "signing", f"signing.motions={out}",
+                            "signing.hand.enabled=true", "signing.implausible=keep", "signing.read_back.enabled=false",
+                            "plots=false", f"hydra.run.dir={run}"], capture_output=True, text=True, timeout=600,
+                           env={**os.environ, "ASLEXP_DATA_ROOT": str(data_root)})
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    (record,) = [json.loads(line) for line in (run / "clips.jsonl").read_text().splitlines()]
+    assert record["gloss"] == "whistle" and record["hand"]["side"] == "right"
+    assert set(record["hand"]["stages"]) == {"reference", "controller", "open hand"}
+    table = json.loads((run / "signing.json").read_text())
+    assert set(table["table"]["hand_body"]) == {"reference", "controller", "open hand"}
+    assert table["table"]["keypoint_error"]["controller"]["handshape"]["n"] == 1
+    assert any(line.startswith(f"| {CLIP} (whistle) |") for line in table["table_lines"])
+
+
 def test_a_motion_without_source_keypoints_says_so_in_one_line(data_root, tmp_path, caplog):
     env = UpperBodyImitationEnv(data_root / "motions" / "upper_body" / "00433.txt", data_root=data_root)
     try:

@@ -45,6 +45,15 @@ def test_budget_is_the_study_total_and_a_rerun_resumes(tmp_path: Path) -> None:
         assert info["main_metric"]["value"] == after[number][1]
 
 
+def test_a_trial_folder_named_from_the_trials_config_reads_that_trials_values(tmp_path: Path) -> None:
+    # A subdir of the number alone is named without composing; one that reads the config is composed per trial.
+    sweep = tmp_path / "sweep"
+    run_sweep(sweep, "hydra.sweeper.n_trials=3", "hydra.sweep.subdir=${hydra.job.num}_x${x}")
+    for trial in load_study(sweep).trials:
+        folder = sweep / f"{trial.number}_x{trial.params['x']}"
+        assert json.loads((folder / "run.json").read_text())["status"] == "completed", sorted(os.listdir(sweep))
+
+
 def test_failed_and_nan_trials_tell_one_story_in_study_run_folder_and_status(tmp_path: Path) -> None:
     """A raising trial and a NaN trial: FAIL in the study with the real error, "failed" with the
     same error in their run.json, and the same text in `sweep status`; the sweep goes on."""

@@ -44,8 +44,10 @@ def reports_folder(folder: Path) -> Path:
                     f"`aslexp extract --motions --wlasl WLASL_v0.3.json` wrote")
 
 
-def read_sign_folder(folder: Path) -> list[SignClip]:
-    """Every upper-body motion of ``folder`` (its reports, sorted by name), plausible or not."""
+def read_sign_folder(folder: Path, gloss_of=None) -> list[SignClip]:
+    """Every upper-body motion of ``folder`` (its reports, sorted by name), plausible or not.
+    ``gloss_of(name)``: the gloss of a clip whose report names none (a video's, extracted without a
+    pose array); without it such a report is an error."""
     reports = reports_folder(folder)
     motions = reports.parent / "upper_body"
     clips = []
@@ -57,7 +59,7 @@ def read_sign_folder(folder: Path) -> list[SignClip]:
         body = report.get("upper_body") or {}
         if body.get("status") != "ok":
             continue  # no upper-body motion was written for this clip
-        gloss = (report.get("pose_array") or {}).get("gloss")
+        gloss = (report.get("pose_array") or {}).get("gloss") or (gloss_of(path.stem) if gloss_of else None)
         if not gloss:
             raise DataError(f"{path}: pose_array.gloss: expected the clip's gloss (extract with --wlasl "
                             f"WLASL_v0.3.json)")

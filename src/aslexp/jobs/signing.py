@@ -32,20 +32,23 @@ from aslexp.jobs._common import job_main, run_guarded, seed_everything, to_dict
 log = logging.getLogger("aslexp.signing")
 
 CLIPS_FILE = "clips.jsonl"
+OPEN_HAND = "open hand"  # the hand body's baseline stage: every finger joint at 0
 TABLE_JSON = "signing.json"
 TABLE_MD = "signing.md"
 FIGURE = "signing.png"
 
 
-def motion_files(folder: str | Path, limit: int | None, implausible: str,
-                 glosses: set[str] | None = None) -> tuple[list[Path], list[dict]]:  # fmt: skip
+def motion_files(folder: str | Path, limit: int | None, implausible: str, glosses: set[str] | None = None,
+                 data_root: str | Path | None = None) -> tuple[list[Path], list[dict]]:  # fmt: skip
     """The upper-body motions of an extraction folder (:func:`aslexp.envs.sign_folds.read_sign_folder`,
     sorted by name; those of ``glosses`` only, when given; the first ``limit``) and those left out
-    (marked implausible by their report, unless ``implausible: keep``)."""
+    (marked implausible by their report, unless ``implausible: keep``). A video's clip, whose report
+    names no gloss, has WLASL's gloss for its video id (under ``data_root``)."""
     from aslexp.envs.sign_folds import read_sign_folder
+    from aslexp.signing.reading import gloss_of_source
 
     kept, left_out = [], []
-    for clip in read_sign_folder(Path(folder)):
+    for clip in read_sign_folder(Path(folder), lambda name: gloss_of_source(None, name, data_root)):
         if glosses is not None and clip.gloss not in glosses:
             continue
         if not clip.plausible and implausible == "skip":
@@ -87,8 +90,49 @@ def _agent(cfg: dict[str, Any], env, checkpoint: str):
     return agent
 
 
-def score_clip(cfg: dict[str, Any], motion: Path, data_root: Path, models, agent_state: dict) -> dict[str, Any]:
-    """One clip: its stages performed once from the start, scored against the person and read back."""
+def hand_file(motion: Path) -> Path:
+    """The hand motion extraction wrote beside an upper-body one (``motions/hand/<id>.txt``)."""
+    return motion.parent.parent / "hand" / motion.name
+
+
+def score_hand_clip(hand_cfg: dict[str, Any], file: Path, body_env, data_root: Path) -> dict[str, Any]:
+    """The hand body's controller on a clip's hand motion, its fingers worn by the clip's upper body
+    on the reference arm (:func:`aslexp.signing.performance.score_hand_trajectory`) and scored against
+    the person's hand of the side the hand motion was retargeted from: the reference and the controller."""
+    from aslexp.envs.assembly import ImitationSetup
+    from aslexp.envs.imitation import ImitationEnv
+    from aslexp.rl.evaluate import evaluate
+    from aslexp.signing.keypoints import SigningSource
+    import numpy as np
+
+    from aslexp.signing.performance import score_hand_trajectory
+
+    source, why = SigningSource.for_motion(body_env.motion.source)
+    if source is None:
+        return {"file": str(file), "stages": None, "why": why}
+    side = (json.loads(source.report.read_text()).get("hand") or {}).get("side")
+    if side not in ("right", "left"):
+        return {"file": str(file), "stages": None, "why": f"{source.report}: hand.side: expected right or left"}
+    setup = ImitationSetup.from_config({**hand_cfg, "motion": {"name": file.stem, "file": str(file)}}, data_root)
+    env = ImitationEnv.from_setup(setup.merged(env={"early_termination": {"min_reward": None}}))
+    try:
+        steps = int(math.ceil(float(env.reference.duration) * float(env.spec_env.control_hz))) + 1
+        look = evaluate(env, lambda obs, env: env.reference_action(1), steps, record=True)
+        # The no-learning floor of a handshape: the hand held open (every finger joint at 0) all along.
+        trajectory = {**look.trajectory, "q_open": np.zeros_like(look.trajectory["q_ref"])}
+        stages = {stage: score_hand_trajectory(body_env, env, trajectory, source, side, joints)
+                  for stage, joints in (("reference", "q_ref"), ("controller", "q_sim"), (OPEN_HAND, "q_open"))}
+    finally:
+        env.close()
+    return {"file": str(file), "side": side, "body": hand_cfg["body"]["name"], "engine": hand_cfg["engine"]["name"],
+            "rewards": {"controller": round(look.mean_reward, 5)}, "diverged": {"controller": bool(look.diverged)},
+            "stages": stages}
+
+
+def score_clip(cfg: dict[str, Any], motion: Path, data_root: Path, models, agent_state: dict,
+               hand_cfg: dict[str, Any] | None = None) -> dict[str, Any]:
+    """One clip: its stages performed once from the start, scored against the person and read back;
+    with ``hand_cfg`` (``signing.hand``) its hand motion too, on the hand body (:func:`score_hand_clip`)."""
     from aslexp.envs.assembly import ImitationSetup
     from aslexp.envs.imitation import ImitationEnv
     from aslexp.rl.evaluate import evaluate
@@ -112,6 +156,11 @@ def score_clip(cfg: dict[str, Any], motion: Path, data_root: Path, models, agent
         keypoints: dict = {}
         signing = signing_metrics(env, runs[final].trajectory, None, stage=final, write_pose=False, keypoints=keypoints,
                                   others={n: r.trajectory for n, r in runs.items() if n != final})
+        hand = None
+        if hand_cfg is not None and signing is not None:
+            hand = (score_hand_clip(hand_cfg, hand_file(motion), env, data_root) if hand_file(motion).is_file() else
+                    {"file": str(hand_file(motion)), "stages": None,
+                     "why": "extraction wrote no hand motion for this clip (its report's hand.status says why)"})
     finally:
         env.close()
     record: dict[str, Any] = {"motion": motion.stem, "file": str(motion), "rewards": rewards,
@@ -120,8 +169,10 @@ def score_clip(cfg: dict[str, Any], motion: Path, data_root: Path, models, agent
         return {**record, "stages": None, "why": "no source keypoints (the log says why)"}
     report = json.loads(Path(signing["motion_report"]).read_text())
     gloss = gloss_of_source(report, signing["source"], data_root)
+    plausibility = (report.get("upper_body") or {}).get("plausibility") or {}
     record.update(gloss=gloss, source=signing["source"], stages=signing["stages"],
-                  retargeting_error=signing["retargeting_error"])
+                  retargeting_error=signing["retargeting_error"], plausible=bool(plausibility.get("plausible", True)),
+                  **({"hand": hand} if hand is not None else {}))
     if models is not None and gloss is not None:
         try:
             record["read_back"] = read_back_stages(models, keypoints, signing["source"], gloss)
@@ -160,12 +211,17 @@ def signing_table(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     settings = cfg["signing"]
     performing, performer, checkpoint = policy_of(cfg)
     glosses = held_out_glosses(performer) if settings.get("held_out_only", True) else None
+    data_root = resolve_data_root(cfg.get("data_root"))
     files, left_out = motion_files(settings["motions"], settings.get("limit"), settings.get("implausible", "skip"),
-                                   glosses)
+                                   glosses, data_root)
     if glosses is not None:
         log.info("signing: the policy's held-out glosses only (%d; signing.held_out_only=false: every clip)",
                  len(glosses))
-    data_root = resolve_data_root(cfg.get("data_root"))
+    hand_cfg = None
+    if (settings.get("hand") or {}).get("enabled"):
+        from aslexp.compose import compose
+
+        hand_cfg = compose("imitate", list(settings["hand"].get("overrides") or []))
     models = None
     if settings["read_back"]["enabled"]:
         from aslexp.signing.reading import models_for
@@ -179,7 +235,7 @@ def signing_table(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
         for i, motion in enumerate(files):
             record = done.get(motion.stem)
             if record is None:
-                record = score_clip(performing, motion, data_root, models, agent_state)
+                record = score_clip(performing, motion, data_root, models, agent_state, hand_cfg)
                 scored += 1
             else:
                 record = {**record, "reused_from": str(cfg["resume"])}
@@ -194,11 +250,15 @@ def signing_table(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
     recall_at = list(models.setup.settings.recall_at) if models is not None else [10, 50]
     table = T.build_table(records, properties, recall_at)
     unscored = [{"motion": r["motion"], "why": r.get("why")} for r in records if not r.get("stages")]
-    out = {"motions": str(settings["motions"]), "clips": len(records), "left_out": left_out, "unscored": unscored,
+    kept = [r["motion"] for r in records if r.get("stages") and not r.get("plausible", True)]
+    out = {"motions": str(settings["motions"]), "clips": len(records), "left_out": left_out,
+           "implausible_kept": kept, "unscored": unscored,
            "policy": performer, "read_back": None if models is None else {
                "cache": models.cache, "fit_time_s": round(models.fit_time_s, 1), "folds": len(models.folds)},
            "seconds": round(time.perf_counter() - started, 1), "table": table}
     lines = T.table_lines(table, properties, recall_at) if table["clips"] else ["no clip was scored"]
+    if 0 < table["clips"] <= T.CLIP_ROWS:
+        lines += ["", *T.clip_lines(records)]
     out.update(table_lines=lines, verdict_lines=T.verdict_lines(table))
     write_json(out_dir / TABLE_JSON, out)
     write_text(out_dir / TABLE_MD, "\n".join([f"# The signer against the person: {table['clips']} clips of "
@@ -209,7 +269,7 @@ def signing_table(cfg: dict[str, Any], out_dir: Path) -> dict[str, Any]:
         scored = [r for r in records if r.get("stages")]
         plot_signing_table({s: T.keypoint_errors(scored, s) for s in table["stages"]},
                            {n: T.lexicon_ranks(scored, n) for n in table["read_back"]}, table, properties,
-                           out_dir / FIGURE)
+                           out_dir / FIGURE, T.clip_handshapes(scored) if len(scored) <= T.CLIP_ROWS else None)
     for line in out["verdict_lines"]:
         log.info("signing: %s", line[2:])
     return out
@@ -222,6 +282,7 @@ def main(cfg: DictConfig) -> None:
         seed_everything(int(cfg.seed))
         result = signing_table(to_dict(cfg), run.dir)
         run.save_metrics({"clips": result["clips"], "left_out": len(result["left_out"]),
+                          "implausible_kept": len(result["implausible_kept"]),
                           "unscored": len(result["unscored"]), "table": result["table"],
                           "table_lines": result["table_lines"], "verdict_lines": result["verdict_lines"]})
         return None

@@ -34,6 +34,7 @@ def results_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any
                                  "spread_kind": "95% bootstrap interval over glosses", "n": body["n"], "unit": "clips",
                                  "metrics": {k: number(body.get(k)) for k in ("low", "high", "q25", "q75")}}})
     facts = {"clips": table["clips"], "glosses": table["glosses"], "left_out": metrics.get("left_out"),
+             "implausible_kept": metrics.get("implausible_kept") or 0, "hand_body": "hand_body" in table,
              "unscored": metrics.get("unscored"), "table_lines": metrics.get("table_lines") or [],
              "verdict_lines": metrics.get("verdict_lines") or []}
     return {"rows": rows, "run_dirs": [run_dir], "skipped": skipped, "row_name": "stage",
@@ -44,9 +45,15 @@ def legend(snapshot: dict[str, Any]) -> list[str]:
     facts = snapshot.get("facts") or {}
     if not facts:
         return []
+    kept = f", {facts['implausible_kept']} implausible kept and marked" if facts.get("implausible_kept") else ""
+    hands = ("; handshape error: the fingers' DTW mean joint error in the palm's own frame, in hand sizes (wrist to "
+             "the middle finger's base), of both hands seen (the upper body's stages) or of the hand motion's side "
+             "(the hand body's run, its fingers worn by the upper body's reference arm; the open hand: every finger "
+             "joint at 0)") if facts.get("hand_body") else ""
     text = (f"Numbers: {facts['clips']} clips of {facts['glosses']} glosses ({facts.get('left_out')} left out as "
-            "implausible); keypoint error: the median over clips of the body's DTW mean joint error to the person's "
-            "MediaPipe keypoints, in shoulder widths [95% bootstrap interval over glosses] (interquartile range); "
+            f"implausible{kept}); keypoint error: the median over clips of the body's DTW mean joint error to the person's "
+            "MediaPipe keypoints, in shoulder widths [95% bootstrap interval over glosses] (interquartile range)"
+            f"{hands}; "
             "reward: the mean over clips of one pass from the start; readings: each property's agreement with "
             "ASL-LEX and the lookup's rank of the true gloss among 2,723 entries, read by the gloss-fold models "
             "that never saw the clip's gloss, the person's clip (source) first.")

@@ -55,6 +55,53 @@ def score_trajectory(env: Any, trajectory: Mapping[str, np.ndarray], source: Sig
     return {**scores, "steps": len(steps)}, keypoints
 
 
+def _joint_positions(layout: Any) -> dict[str, int]:
+    """Each one-value joint's place in a joint vector (``q``: the actuated joints in order, a
+    spherical joint four values)."""
+    out, at = {}, 0
+    for joint in layout.joints:
+        if joint.dof == 1:
+            out[joint.name] = at
+        at += joint.dof
+    return out
+
+
+def hand_on_body(body_env: Any, hand_env: Any, trajectory: Mapping[str, np.ndarray], side: str,
+                 joints: str = "q_sim") -> tuple[np.ndarray, np.ndarray]:
+    """A hand body's run worn by the upper body: the upper body's reference at the hand trajectory's
+    times (one pass) with ``side``'s 15 finger joints set to the hand's ``joints``. Returns (steps
+    of ``trajectory``, (T, upper-body joints)). The arm is the reference's for every stage, so two
+    stages differ by their fingers alone."""
+    steps = one_pass(trajectory, float(hand_env.reference.duration), 1.0 / float(hand_env.spec_env.control_hz))
+    prefix = {"right": "r_", "left": "l_"}[side]
+    worn = _joint_positions(body_env.sim.layout)
+    pairs = [(at, worn.get(prefix + name)) for name, at in _joint_positions(hand_env.sim.layout).items()]
+    missing = [name for name, (_, at) in zip(_joint_positions(hand_env.sim.layout), pairs) if at is None]
+    if missing:
+        raise ValueError(f"the upper body has no {prefix}<joint> for the hand's joints {missing}")
+    times = np.asarray(trajectory["time"], dtype=float)[steps]
+    q = np.array(body_env.reference.joints_many(np.minimum(times, float(body_env.reference.duration) - 1e-9)))
+    hand = np.asarray(trajectory[joints], dtype=float)[steps]
+    for source_column, body_column in pairs:
+        q[:, body_column] = hand[:, source_column]
+    return steps, q
+
+
+def score_hand_trajectory(body_env: Any, hand_env: Any, trajectory: Mapping[str, np.ndarray],
+                          source: SigningSource, side: str, joints: str = "q_sim") -> dict:
+    """One stage of a hand body's run scored against the person's ``side`` hand, worn by the upper
+    body (:func:`hand_on_body`): :func:`aslexp.signing.scores.hand_scores`."""
+    from aslexp.signing.scores import hand_scores
+
+    steps, q = hand_on_body(body_env, hand_env, trajectory, side, joints)
+    keypoints = stage_keypoints(body_env, source, q)
+    try:
+        scores = hand_scores(keypoints, source.image.keypoints, source.camera.width, source.camera.height, side)
+    except ValueError as error:  # e.g. a simulation that blew up
+        scores = {"error": f"{joints}: {error}"}
+    return {**scores, "steps": len(steps)}
+
+
 def body_layout():
     """What the side-by-side video draws of aslexp's 75 Holistic points (aslexp.viz.signing_video)."""
     from aslexp.keypoints import holistic as H

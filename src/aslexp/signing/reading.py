@@ -72,6 +72,17 @@ def compact(record: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+def source_input(source_file: str | Path) -> Path | np.ndarray:
+    """What the readers take of the person's clip: the file, or a video's Holistic array (an
+    extraction's ``<id>.npy``, (T, 75, 4)) cut to its 33 Pose points (:func:`pose_array`)."""
+    path = Path(source_file)
+    if path.suffix == ".npy":
+        array = np.load(path, mmap_mode="r", allow_pickle=False)
+        if array.ndim == 3 and array.shape[1] == H.NUM_NODES:
+            return pose_array(np.asarray(array))
+    return path
+
+
 def read_back_stages(models, stage_keypoints: Mapping[str, np.ndarray], source_file: str | Path,
                      gloss: str) -> dict[str, Any]:
     """Every stage's keypoints and the source's own clip read back by the fold that held ``gloss``
@@ -79,7 +90,7 @@ def read_back_stages(models, stage_keypoints: Mapping[str, np.ndarray], source_f
     from aslexp.recognition.read_back import read_back_many
 
     names = [SOURCE_STAGE, *stage_keypoints]
-    items = [(Path(source_file), gloss), *((pose_array(k), gloss) for k in stage_keypoints.values())]
+    items = [(source_input(source_file), gloss), *((pose_array(k), gloss) for k in stage_keypoints.values())]
     records = read_back_many(items, models, origins=[f"{name} ({gloss})" for name in names])
     return {"gloss": gloss, "entry_id": records[0]["entry_id"], "fold_note": records[0]["fold_note"],
             "stages": {name: compact(r) for name, r in zip(names, records)}}

@@ -57,9 +57,15 @@ def keypoint_errors(records: Sequence[Mapping[str, Any]], stage: str, part: str 
     out = []
     for record in records:
         cell = ((record.get("stages") or {}).get(stage) or {}).get(part) or {}
-        value = cell.get("dtw_mje", cell.get("dtwp"))
+        value = cell.get("dtw_mje", cell.get("dtwp", cell.get("handshape")))
         out.append(math.nan if value is None else float(value))
     return np.asarray(out)
+
+
+def hand_values(records: Sequence[Mapping[str, Any]], stage: str, metric: str) -> np.ndarray:
+    """Per clip the hand body's ``metric`` (handshape, dtw_mje, dtwp) at ``stage`` (NaN where none)."""
+    values = [(((r.get("hand") or {}).get("stages") or {}).get(stage) or {}).get(metric) for r in records]
+    return np.asarray([math.nan if v is None else float(v) for v in values])
 
 
 def rewards(records: Sequence[Mapping[str, Any]], stage: str) -> np.ndarray:
@@ -89,9 +95,16 @@ def build_table(records: Sequence[Mapping[str, Any]], properties: Sequence[str],
     for stage in stages:
         table["keypoint_error"][stage] = {
             part: _bootstrap(keypoint_errors(scored, stage, part), glosses, "median", resamples, confidence, seed)
-            for part in ("body", "left_hand", "right_hand", "hands")}
+            for part in ("body", "left_hand", "right_hand", "hands", "handshape")}
         if stage != "reference":
             table["reward"][stage] = _bootstrap(rewards(scored, stage), glosses, "mean", resamples, confidence, seed)
+    hands = [r for r in scored if (r.get("hand") or {}).get("stages")]
+    if hands:  # the hand body's fingers on the reference arm (aslexp.jobs.signing.score_hand_clip)
+        names = [str(r["gloss"]) for r in hands]
+        table["hand_body"] = {stage: {metric: _bootstrap(hand_values(hands, stage, metric), names, "median",
+                                                         resamples, confidence, seed)
+                                      for metric in ("handshape", "dtw_mje")}
+                              for stage in HAND_STAGES}
     read = [r for r in scored if r.get("read_back")]
     for stage in [SOURCE_STAGE, *stages]:
         results = [{**r["read_back"]["stages"][stage], "gloss": r["gloss"]} for r in read
@@ -142,6 +155,16 @@ def table_lines(table: Mapping[str, Any], properties: Sequence[str], recall_at: 
         iqr = f" ({body['q25']:.3f}-{body['q75']:.3f})" if body["n"] else ""
         reward = table["reward"].get(stage)
         lines.append(f"| {stage} | {_cell(body)}{iqr} | {'-' if reward is None else _cell(reward)} |")
+    shape = {stage: table["keypoint_error"][stage].get("handshape") for stage in stages}
+    if any(c and c["n"] for c in shape.values()):
+        lines += ["", "| stage | handshape error, median [95% CI] (hand sizes) |" +
+                  (" hand body's handshape error (its fingers worn on the reference arm) |" if "hand_body" in table
+                   else ""), "|---|---|" + ("---|" if "hand_body" in table else "")]
+        for stage in [*stages, *(s for s in table.get("hand_body") or {} if s not in stages)]:
+            hand = (table.get("hand_body") or {}).get(stage)
+            mine = shape.get(stage)
+            lines.append(f"| {stage} | {_cell(mine) if mine else '-'} |"
+                         + (f" {_cell(hand['handshape']) if hand else '-'} |" if "hand_body" in table else ""))
     read = table.get("read_back") or {}
     if read:
         names = [n for n in (SOURCE_STAGE, *stages) if n in read]
@@ -160,6 +183,52 @@ def table_lines(table: Mapping[str, Any], properties: Sequence[str], recall_at: 
         lines.append("| frequency prior alone, median rank | "
                      + " | ".join(_cell(read[n]["lookup"]["prior"]["median_rank"], 1) for n in names) + " |")
     return lines
+
+
+HAND_STAGES = ("reference", "controller", "open hand")  # the hand body's (aslexp.jobs.signing.score_hand_clip)
+CLIP_ROWS = 12  # a table of at most this many clips also gets a row per clip
+
+
+def clip_lines(records: Sequence[Mapping[str, Any]]) -> list[str]:
+    """A row per clip: the body's and the hands' errors per stage, the hand body's, the lexicon ranks."""
+    scored = [r for r in records if r.get("stages")]
+    stages = stage_names(scored)
+    value = (lambda v, d=3: "-" if v is None or not math.isfinite(float(v)) else f"{float(v):.{d}f}")
+    per = (lambda cells: " / ".join(cells))
+    header = " / ".join(stages)
+    lines = [f"| clip (gloss) | plausible | body error: {header} | handshape (the hand motion's side): {header} | "
+             "hand body's handshape: " + " / ".join(HAND_STAGES) + " (reward) | lookup rank: source / " + header + " |",
+             "|---|---|---|---|---|---|"]
+    for r in scored:
+        cells = r["stages"]
+        hand = r.get("hand") or {}
+        side = hand.get("side")
+        hand_cell = (per(value((hand["stages"].get(s) or {}).get("handshape")) for s in HAND_STAGES)
+                     + f" ({value((hand.get('rewards') or {}).get('controller'))})" if hand.get("stages")
+                     else "-" if not hand else "not scored")
+        ranks = ((r.get("read_back") or {}).get("stages") or {})
+        lines.append(f"| {r['motion']} ({r.get('gloss')}) | {'yes' if r.get('plausible', True) else 'no'} | "
+                     f"{per(value(cells[s]['body'].get('dtw_mje')) for s in stages)} | "
+                     f"{per(value((cells[s].get('handshape') or {}).get(side or 'handshape')) for s in stages)} | {hand_cell} | "
+                     f"{per(value((ranks.get(n) or {}).get('lexicon_rank'), 0) for n in (SOURCE_STAGE, *stages))} |")
+    return lines
+
+
+def clip_handshapes(records: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, float]]:
+    """Per clip with a hand body's run: the handshape error of the hand motion's side, retargeted
+    (the reference), performed by each body's controller, and held open (the floor)."""
+    out = {}
+    for r in records:
+        hand = r.get("hand") or {}
+        if not hand.get("stages"):
+            continue
+        side = hand["side"]
+        upper = {s: ((r["stages"].get(s) or {}).get("handshape") or {}).get(side) for s in ("reference", "controller")}
+        values = {"retargeted (reference)": upper["reference"], "upper body's controller": upper["controller"],
+                  "hand body's controller": hand["stages"]["controller"].get("handshape"),
+                  "open hand": hand["stages"]["open hand"].get("handshape")}
+        out[f"{r['motion']}\n{r.get('gloss')}"] = {k: float(v) for k, v in values.items() if v is not None}
+    return out
 
 
 def verdict_lines(table: Mapping[str, Any]) -> list[str]:

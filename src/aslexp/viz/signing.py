@@ -22,13 +22,17 @@ def _colour(name: str) -> str:
 
 
 def plot_signing_table(errors: Mapping[str, np.ndarray], ranks: Mapping[str, Sequence[float]],
-                       table: Mapping[str, Any], properties: Sequence[str], path: str | Path) -> Path:  # fmt: skip
+                       table: Mapping[str, Any], properties: Sequence[str], path: str | Path,
+                       handshapes: Mapping[str, Mapping[str, float]] | None = None) -> Path:  # fmt: skip
     """Save the figure of :func:`aslexp.signing.table.build_table`'s ``table``: ``errors`` (stage ->
-    per-clip body keypoint error) and ``ranks`` (reading -> per-clip lexicon rank of the true gloss)."""
+    per-clip body keypoint error), ``ranks`` (reading -> per-clip lexicon rank of the true gloss)
+    and, when given, ``handshapes`` (clip -> stage -> handshape error): a last panel of bars per clip."""
     stages = list(table["stages"])
     read = table.get("read_back") or {}
-    panels = 3 if read else 1
+    panels = (3 if read else 1) + bool(handshapes)
     fig, axes = plt.subplots(1, panels, figsize=(5.2 * panels, 4.2), squeeze=False)
+    if handshapes:
+        _handshape_panel(axes[0, -1], handshapes)
     ax = axes[0, 0]
     data = [np.asarray(errors[s], dtype=float) for s in stages]
     data = [d[np.isfinite(d)] for d in data]
@@ -79,3 +83,22 @@ def plot_signing_table(errors: Mapping[str, np.ndarray], ranks: Mapping[str, Seq
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+HANDSHAPE_COLOURS = ("tab:blue", "tab:orange", "tab:red", "0.6")
+
+
+def _handshape_panel(ax, handshapes: Mapping[str, Mapping[str, float]]) -> None:
+    """Per clip a bar per stage: the handshape error in hand sizes (lower is closer to the person)."""
+    clips = list(handshapes)
+    names = list(dict.fromkeys(n for c in clips for n in handshapes[c]))
+    width = 0.8 / max(len(names), 1)
+    for k, name in enumerate(names):
+        values = [handshapes[c].get(name, np.nan) for c in clips]
+        ax.bar(np.arange(len(clips)) + (k - (len(names) - 1) / 2) * width, values, width,
+               color=HANDSHAPE_COLOURS[k % len(HANDSHAPE_COLOURS)], label=name)
+    ax.set_xticks(range(len(clips)), clips, fontsize=8)
+    ax.set_ylabel("handshape error after DTW (hand sizes)")
+    ax.set_title("The signing hand's shape, per clip")
+    ax.legend(fontsize=7)
+    ax.grid(axis="y", alpha=0.3)

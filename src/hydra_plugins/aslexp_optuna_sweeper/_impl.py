@@ -261,16 +261,18 @@ class SweeperImpl(Sweeper):
         under the study's home; should that folder hold anything already (a study whose
         storage was deleted, a subdir without the number), ``-2``, ``-3``, ... is appended.
         """
-        config = self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
-        with open_dict(config):
-            config.hydra.job.id = number
-            config.hydra.job.num = number
-        saved = HydraConfig.instance().cfg
-        try:
-            HydraConfig.instance().set_config(config)
-            subdir = str(OmegaConf.select(config, "hydra.sweep.subdir"))
-        finally:
-            HydraConfig.instance().cfg = saved
+        subdir = _numbered_subdir(self.config, number, overrides)
+        if subdir is None:  # the name reads the trial's config: compose it
+            config = self.hydra_context.config_loader.load_sweep_config(self.config, list(overrides))
+            with open_dict(config):
+                config.hydra.job.id = number
+                config.hydra.job.num = number
+            saved = HydraConfig.instance().cfg
+            try:
+                HydraConfig.instance().set_config(config)
+                subdir = str(OmegaConf.select(config, "hydra.sweep.subdir"))
+            finally:
+                HydraConfig.instance().cfg = saved
         base = (self.home / subdir).relative_to(self.sweep_dir)
         candidate, k = base, 1
         while True:
@@ -323,6 +325,21 @@ class SweeperImpl(Sweeper):
             children.append(subprocess.Popen(argv, env={**os.environ}))
             log.info("started sweep worker %d (pid %d)", index, children[-1].pid)
         return children
+
+
+_NUMBER_ONLY = re.compile(r"\$\{hydra\.job\.(?:num|id)\}")
+
+
+def _numbered_subdir(config: DictConfig, number: int, overrides: list[str]) -> str | None:
+    """``hydra.sweep.subdir`` when it names the trial by its number alone (``${hydra.job.num}``,
+    the imitation and tuning jobs' default), without composing the trial's config: a composition
+    costs about 0.2 s, a third of a near-empty trial. None when the name reads anything else, or a
+    trial's overrides touch Hydra's own config."""
+    raw = OmegaConf.to_container(config.hydra.sweep, resolve=False).get("subdir")
+    if not isinstance(raw, str) or any(o.lstrip("+~").startswith("hydra.") for o in overrides):
+        return None
+    name = _NUMBER_ONLY.sub(str(number), raw)
+    return None if "${" in name else name
 
 
 def outcome_of(ret: JobReturn, number: int) -> Outcome:
