@@ -592,3 +592,28 @@ def test_a_kept_snapshot_gets_its_differences_from_its_runs_commit(tmp_path):
     assert any(d.startswith("controller: reference_velocity_tuned") for d in extra["differences"])
     assert "evaluation: learned and baselines alike, 4 start phases x 300 control steps" in extra["differences"]
     assert imitation.recomposed_differences(entry, {**snapshot, "git": []}, ROOT) == {}
+
+
+def test_a_kept_snapshot_reads_the_ceiling_its_ceiling_entry_holds_now(tmp_path):
+    """The planner run again (more seeds): the rows of an entry whose runs are gone take the new
+    ceiling from the ceiling entry's snapshot, and nothing else of them changes."""
+    entries = [e for e in CATALOGUE if e["id"] in ("signs_standing_residual", "signs_mpc_standing")]
+    dependent = next(e for e in entries if e["id"] == "signs_standing_residual")
+    assert dependent["options"]["ceiling_snapshot"] == "signs_mpc_standing"
+    for entry in entries:
+        shutil.copy(ROOT / "docs" / "results" / f"{entry['id']}.json", tmp_path)
+    source = json.loads((tmp_path / "signs_mpc_standing.json").read_text())
+    row = next(r for r in source["rows"] if r.get("ceiling"))
+    row["ceiling"] = {**row["ceiling"], "mean": 0.5, "spread": 0.01, "n": 2}
+    (tmp_path / "signs_mpc_standing.json").write_text(json.dumps(source))
+    before = json.loads((tmp_path / "signs_standing_residual.json").read_text())
+
+    done = results_snapshots.update(list(reversed(entries)), tmp_path / "no_outputs", tmp_path)
+    assert done["signs_standing_residual"] == "kept; ceilings from signs_mpc_standing"
+    after = json.loads((tmp_path / "signs_standing_residual.json").read_text())
+    changed = next(r for r in after["rows"] if r["key"] == row["key"])
+    assert (changed["ceiling"]["mean"], changed["ceiling"]["n"]) == (0.5, 2)
+    assert [{k: v for k, v in r.items() if k != "ceiling"} for r in after["rows"]] == \
+        [{k: v for k, v in r.items() if k != "ceiling"} for r in before["rows"]]
+    again = results_snapshots.update(entries, tmp_path / "no_outputs", tmp_path)
+    assert again["signs_standing_residual"] == "kept"  # nothing new: nothing rewritten

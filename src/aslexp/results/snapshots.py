@@ -59,9 +59,7 @@ def build_snapshot(entry: dict[str, Any], outputs: Path, snapshots: Path | None 
         if options.get(key):
             options = {**options, key: [str(outputs / f) for f in options[key]]}
     if options.get("ceiling_snapshot") and snapshots is not None:
-        kept = read_snapshot(snapshot_path(snapshots, options["ceiling_snapshot"])) or {}
-        options = {**options, "ceiling_rows": {r["key"]: {**r["ceiling"], "source": f"docs/results/{kept['id']}.json"}
-                                               for r in kept.get("rows", []) if r.get("ceiling")}}
+        options = {**options, "ceiling_rows": ceiling_rows(options["ceiling_snapshot"], snapshots)}
     entry = {**entry, "options": options}
     summary = report_kind(entry["report"]).summarize(entry, folders)
     if not summary["rows"]:
@@ -76,6 +74,13 @@ def build_snapshot(entry: dict[str, Any], outputs: Path, snapshots: Path | None 
         if key in summary:
             snapshot[key] = summary[key]
     return snapshot
+
+
+def ceiling_rows(entry_id: str, snapshots: Path) -> dict[str, dict[str, Any]]:
+    """The planner's ceiling per row key in ``entry_id``'s snapshot, each naming its source."""
+    kept = read_snapshot(snapshot_path(snapshots, entry_id)) or {}
+    return {r["key"]: {**r["ceiling"], "source": f"docs/results/{kept['id']}.json"}
+            for r in kept.get("rows", []) if r.get("ceiling")}
 
 
 def snapshot_path(snapshots: Path, entry_id: str) -> Path:
@@ -102,7 +107,8 @@ def update(catalogue: list[dict[str, Any]], outputs: Path, snapshots: Path) -> d
     (with what their kind's ``refresh`` adds). Returns id -> what happened (``from runs``, ``kept``,
     ``not run``)."""
     done = {}
-    for entry in catalogue:
+    # An entry that reads another's ceiling comes after it, so it reads the new one.
+    for entry in sorted(catalogue, key=lambda e: bool((e.get("options") or {}).get("ceiling_snapshot"))):
         snapshot = build_snapshot(entry, outputs, snapshots)
         path = snapshot_path(snapshots, entry["id"])
         if snapshot is not None:
@@ -113,9 +119,27 @@ def update(catalogue: list[dict[str, Any]], outputs: Path, snapshots: Path) -> d
             kept = read_snapshot(path)
             kind = report_kind(entry["report"])
             extra = kind.refresh(entry, kept) if kept is not None and kind.refresh else {}
+            notes = [kind.refreshed] if extra else []
+            ceilings = _newer_ceilings(entry, kept, snapshots) if kept is not None else None
+            if ceilings is not None:
+                extra["rows"] = ceilings
+                notes.append(f"ceilings from {entry['options']['ceiling_snapshot']}")
             if extra:
                 write_snapshot(path, {**kept, **extra})
-                done[entry["id"]] = f"kept; {kind.refreshed}"
+                done[entry["id"]] = "; ".join(["kept", *notes])
         else:
             done[entry["id"]] = "not run"
-    return done
+    return {e["id"]: done[e["id"]] for e in catalogue}
+
+
+def _newer_ceilings(entry: dict[str, Any], kept: dict[str, Any], snapshots: Path) -> list[dict[str, Any]] | None:
+    """A kept snapshot's rows with the ceilings its ``options.ceiling_snapshot`` holds now (the planner
+    run again, more seeds), or None where nothing changed: a row's ceiling is that entry's, not a copy
+    frozen when the row was made."""
+    source = (entry.get("options") or {}).get("ceiling_snapshot")
+    if not source:
+        return None
+    ceilings = ceiling_rows(source, snapshots)
+    rows = [{**r, "ceiling": ceilings[r["key"]]} if r["key"] in ceilings and r.get("ceiling") else r
+            for r in kept.get("rows", [])]
+    return rows if rows != kept.get("rows", []) else None
