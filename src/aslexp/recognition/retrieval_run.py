@@ -159,6 +159,106 @@ def _fit_predict(classifier: Mapping[str, Any], params: Mapping[str, Any], confi
     return proba, int(epochs), len(classes)
 
 
+def _check_settings(classifier: Mapping[str, Any], options: SplitOptions, likelihood: str, select_by: str,
+                    smoothing: Sequence[float], prior_weights: Sequence[float]) -> None:
+    """One line naming the setting that cannot run, before any fit."""
+    if "name" not in classifier:
+        raise ValueError(f"classifier config needs a 'name' (got keys {sorted(classifier)})")
+    if options.name != "gloss":
+        raise ValueError(f"retrieval needs a gloss split (unseen glosses), got split={options.name}")
+    if likelihood not in R.LIKELIHOODS:
+        raise ValueError(f"retrieval.likelihood={likelihood!r}; expected one of {list(R.LIKELIHOODS)}")
+    if select_by not in R.SELECT_BY:
+        raise ValueError(f"retrieval.select_by={select_by!r}; expected one of {sorted(R.SELECT_BY)}")
+    if not smoothing or not all(0.0 < float(e) <= 1.0 for e in smoothing):
+        raise ValueError(f"retrieval.smoothing must be a non-empty list of numbers in (0, 1], got {list(smoothing)}")
+    if not prior_weights or not all(float(w) >= 0.0 for w in prior_weights):
+        raise ValueError(f"retrieval.prior_weights must be a non-empty list of numbers >= 0, got {list(prior_weights)}")
+
+
+def _fit_properties(classifier, params, config, clips: RetrievalClips, table: R.LexiconTable, codes_all: np.ndarray,
+                    split: tuple[np.ndarray, np.ndarray, np.ndarray], seed: int):  # fmt: skip
+    """Per property a classifier validated on ``val`` (its epoch budget), then refitted on train+val
+    for that budget: (validation probabilities, test probabilities, budgets, classes seen)."""
+    train, val, test = split
+    train_val = np.sort(np.concatenate([train, val]))
+    val_proba, test_proba, budgets, seen = [], [], {}, {}
+    for j, prop in enumerate(table.properties):
+        codes = codes_all[:, j]
+        size = len(table.vocab[j])
+        p_val, budget, _ = _fit_predict(classifier, params, config, clips, codes, size, train, val, val, seed, None)
+        p_test, _, n_classes = _fit_predict(classifier, params, config, clips, codes, size, train_val, None, test,
+                                            seed, budget)
+        val_proba.append(p_val)
+        test_proba.append(p_test)
+        budgets[prop] = budget
+        seen[prop] = n_classes
+    return val_proba, test_proba, budgets, seen
+
+
+def _property_accuracy(table: R.LexiconTable, codes_all: np.ndarray, train_val: np.ndarray, test: np.ndarray,
+                       test_proba: Sequence[np.ndarray]) -> tuple[dict[str, float], dict[str, float]]:  # fmt: skip
+    """Per property the test accuracy, and the share of test clips whose true value no training clip has."""
+    accuracy = {}
+    for j, prop in enumerate(table.properties):
+        truth = codes_all[test, j]
+        known = truth >= 0
+        predicted = test_proba[j].argmax(axis=1)
+        accuracy[prop] = float(np.mean(predicted[known] == truth[known])) if known.any() else math.nan
+    unseen = {prop: float(np.mean([c >= 0 and c not in set(codes_all[train_val, j].tolist()) for c in codes_all[test, j]]))
+              for j, prop in enumerate(table.properties)}
+    return accuracy, unseen
+
+
+def _clip_records(k: int, split_seed: int, clips: RetrievalClips, table: R.LexiconTable, test: np.ndarray,
+                  ranks: Mapping[str, Sequence[R.Rank]], test_proba: Sequence[np.ndarray]) -> list[dict[str, Any]]:  # fmt: skip
+    """One row per test clip of split ``k``: its gloss, each method's rank, each property's truth and reading."""
+    rows = []
+    for row, clip in enumerate(test):
+        entry = int(clips.entry_rows[clip])
+        record = {"split": k, "split_seed": split_seed, "video_id": clips.video_ids[clip],
+                  "gloss": clips.glosses[clip], "entry_id": table.entry_ids[entry]}
+        record.update({f"rank_{m}": round(ranks[m][row].expected, 3) for m in R.METHODS})
+        for j, prop in enumerate(table.properties):
+            code = table.codes[entry, j]
+            record[f"true_{prop}"] = table.vocab[j][code] if code >= 0 else ""
+            record[f"predicted_{prop}"] = table.vocab[j][int(test_proba[j][row].argmax())]
+            record[f"p_true_{prop}"] = round(float(test_proba[j][row][code]), 4) if code >= 0 else ""
+        rows.append(record)
+    return rows
+
+
+def _rank_test_clips(table: R.LexiconTable, clips: RetrievalClips, codes_all: np.ndarray,
+                     split: tuple[np.ndarray, np.ndarray, np.ndarray], val_proba, test_proba, smoothing, prior_weights,
+                     select_by: str, likelihood: str):  # fmt: skip
+    """The smoothing and prior weight chosen on the validation glosses, then every method's rank of
+    each test clip's entry: (the choice, method -> ranks)."""
+    train, val, test = split
+    # pi of the ratio: the values' shares among the clips each classifier trained on
+    val_priors = test_priors = None
+    if likelihood == "ratio":
+        train_val = np.sort(np.concatenate([train, val]))
+        val_priors = [R.value_prior(codes_all[train, j], len(v)) for j, v in enumerate(table.vocab)]
+        test_priors = [R.value_prior(codes_all[train_val, j], len(v)) for j, v in enumerate(table.vocab)]
+    chosen = R.choose(table, val_proba, clips.entry_rows[val], smoothing, prior_weights, select_by, val_priors)
+    both = chosen["phonology+prior"]
+    ranks = R.method_ranks(table, test_proba, clips.entry_rows[test], chosen["phonology"]["smoothing"],
+                           both["smoothing"], both["weight"], test_priors)
+    return chosen, ranks
+
+
+def _log_split(record: Mapping[str, Any], repeats: int, rate: float) -> None:
+    """One split's line: recall@50 per method, the choice, the rate and what is left."""
+    metrics, both = record["metrics"], record["chosen"]["phonology+prior"]
+    k = int(record["index"])
+    log.info("split %d/%d (seed %d): %d test clips of %d unseen glosses; recall@50 phonology %.3f, prior %.3f, "
+             "phonology+prior %.3f (eps %g, w %g), oracle %.3f; %.1f s/split, ETA %s",
+             k + 1, repeats, record["seed"], record["clips"]["test"], len(record["glosses"]["test"]),
+             metrics["phonology"].get("recall@50", math.nan), metrics["prior"].get("recall@50", math.nan),
+             metrics["phonology+prior"].get("recall@50", math.nan), both["smoothing"], both["weight"],
+             metrics["oracle"].get("recall@50", math.nan), rate, _format_seconds(rate * (repeats - k - 1)))
+
+
 def run_retrieval(
     clips: RetrievalClips,
     table: R.LexiconTable,
@@ -180,19 +280,8 @@ def run_retrieval(
     from aslexp.recognition.models import resolve_params
     from aslexp.recognition.train import TrainerConfig
 
-    if "name" not in classifier:
-        raise ValueError(f"classifier config needs a 'name' (got keys {sorted(classifier)})")
     options = split if isinstance(split, SplitOptions) else SplitOptions.parse(split)
-    if options.name != "gloss":
-        raise ValueError(f"retrieval needs a gloss split (unseen glosses), got split={options.name}")
-    if likelihood not in R.LIKELIHOODS:
-        raise ValueError(f"retrieval.likelihood={likelihood!r}; expected one of {list(R.LIKELIHOODS)}")
-    if select_by not in R.SELECT_BY:
-        raise ValueError(f"retrieval.select_by={select_by!r}; expected one of {sorted(R.SELECT_BY)}")
-    if not smoothing or not all(0.0 < float(e) <= 1.0 for e in smoothing):
-        raise ValueError(f"retrieval.smoothing must be a non-empty list of numbers in (0, 1], got {list(smoothing)}")
-    if not prior_weights or not all(float(w) >= 0.0 for w in prior_weights):
-        raise ValueError(f"retrieval.prior_weights must be a non-empty list of numbers >= 0, got {list(prior_weights)}")
+    _check_settings(classifier, options, likelihood, select_by, smoothing, prior_weights)
     params = resolve_params(str(classifier["name"]), classifier.get("params"), classifier.get("module"))
     config = TrainerConfig.parse(trainer)
     recall_at = tuple(int(k) for k in recall_at)
@@ -211,72 +300,30 @@ def run_retrieval(
         split_start = time.perf_counter()
         train, val, test = gloss_split(clips.glosses, options, split_seed)
         train_val = np.sort(np.concatenate([train, val]))
-        val_proba, test_proba, budgets, seen = [], [], {}, {}
-        for j, prop in enumerate(table.properties):
-            codes = codes_all[:, j]
-            size = len(table.vocab[j])
-            p_val, budget, _ = _fit_predict(classifier, params, config, clips, codes, size, train, val, val, seed, None)
-            p_test, _, n_classes = _fit_predict(classifier, params, config, clips, codes, size, train_val, None, test,
-                                                seed, budget)
-            val_proba.append(p_val)
-            test_proba.append(p_test)
-            budgets[prop] = budget
-            seen[prop] = n_classes
-        # pi of the ratio: the values' shares among the clips each classifier trained on
-        val_priors = test_priors = None
-        if likelihood == "ratio":
-            val_priors = [R.value_prior(codes_all[train, j], len(v)) for j, v in enumerate(table.vocab)]
-            test_priors = [R.value_prior(codes_all[train_val, j], len(v)) for j, v in enumerate(table.vocab)]
-        chosen = R.choose(table, val_proba, clips.entry_rows[val], smoothing, prior_weights, select_by, val_priors)
-        eps_alone = chosen["phonology"]["smoothing"]
-        eps_both, weight = chosen["phonology+prior"]["smoothing"], chosen["phonology+prior"]["weight"]
-        ranks = R.method_ranks(table, test_proba, clips.entry_rows[test], eps_alone, eps_both, weight, test_priors)
+        val_proba, test_proba, budgets, seen = _fit_properties(classifier, params, config, clips, table, codes_all,
+                                                               (train, val, test), seed)
+        chosen, ranks = _rank_test_clips(table, clips, codes_all, (train, val, test), val_proba, test_proba,
+                                         smoothing, prior_weights, select_by, likelihood)
         metrics = {m: R.rank_metrics(ranks[m], recall_at) for m in R.METHODS}
         pooled_entries.extend(int(e) for e in clips.entry_rows[test])
         for method in R.BAND_METHODS:
             pooled_ranks[method].extend(ranks[method])
         for method in R.METHODS:
             curves[method].append(R.recall_curve(ranks[method], ks))
-        property_accuracy = {}
-        for j, prop in enumerate(table.properties):
-            truth = codes_all[test, j]
-            known = truth >= 0
-            predicted = test_proba[j].argmax(axis=1)
-            property_accuracy[prop] = float(np.mean(predicted[known] == truth[known])) if known.any() else math.nan
-        unseen = {prop: float(np.mean([c >= 0 and c not in set(codes_all[train_val, j].tolist())
-                                       for c in codes_all[test, j]]))
-                  for j, prop in enumerate(table.properties)}
-        for row, clip in enumerate(test):
-            entry = int(clips.entry_rows[clip])
-            record = {"split": k, "split_seed": split_seed, "video_id": clips.video_ids[clip],
-                      "gloss": clips.glosses[clip], "entry_id": table.entry_ids[entry]}
-            record.update({f"rank_{m}": round(ranks[m][row].expected, 3) for m in R.METHODS})
-            for j, prop in enumerate(table.properties):
-                code = table.codes[entry, j]
-                record[f"true_{prop}"] = table.vocab[j][code] if code >= 0 else ""
-                record[f"predicted_{prop}"] = table.vocab[j][int(test_proba[j][row].argmax())]
-                record[f"p_true_{prop}"] = round(float(test_proba[j][row][code]), 4) if code >= 0 else ""
-            clip_rows.append(record)
-        elapsed = time.perf_counter() - split_start
+        property_accuracy, unseen = _property_accuracy(table, codes_all, train_val, test, test_proba)
+        clip_rows += _clip_records(k, split_seed, clips, table, test, ranks, test_proba)
         per_split.append({
             "index": k, "seed": split_seed,
             "glosses": {"train": len({clips.glosses[i] for i in train}), "val": len({clips.glosses[i] for i in val}),
                         "test": sorted({clips.glosses[i] for i in test})},
             "clips": {"train": len(train), "val": len(val), "test": len(test)},
-            "chosen": {"phonology": {"smoothing": eps_alone},
-                       "phonology+prior": {"smoothing": eps_both, "weight": weight}},
+            "chosen": {"phonology": {"smoothing": chosen["phonology"]["smoothing"]},
+                       "phonology+prior": {key: chosen["phonology+prior"][key] for key in ("smoothing", "weight")}},
             "validation": {"phonology": chosen["phonology"], "phonology+prior": chosen["phonology+prior"]},
             "epochs": budgets, "classes_seen": seen, "property_accuracy": property_accuracy,
-            "test_value_unseen_in_training": unseen, "metrics": metrics, "time_s": elapsed,
+            "test_value_unseen_in_training": unseen, "metrics": metrics, "time_s": time.perf_counter() - split_start,
         })
-        done = time.perf_counter() - start
-        rate = done / (k + 1)
-        log.info("split %d/%d (seed %d): %d test clips of %d unseen glosses; recall@50 phonology %.3f, prior %.3f, "
-                 "phonology+prior %.3f (eps %g, w %g), oracle %.3f; %.1f s/split, ETA %s",
-                 k + 1, repeats, split_seed, len(test), len(per_split[-1]["glosses"]["test"]),
-                 metrics["phonology"].get("recall@50", math.nan), metrics["prior"].get("recall@50", math.nan),
-                 metrics["phonology+prior"].get("recall@50", math.nan), eps_both, weight,
-                 metrics["oracle"].get("recall@50", math.nan), rate, _format_seconds(rate * (repeats - k - 1)))
+        _log_split(per_split[-1], repeats, (time.perf_counter() - start) / (k + 1))
     keys = [f"recall@{k}" for k in recall_at] + ["mrr", "median_rank", "mean_rank", "mean_log_rank"]
     summary = {m: {key: split_interval([s["metrics"][m][key] for s in per_split], metric_range(key, len(table)))
                    for key in keys} for m in R.METHODS}
