@@ -94,6 +94,64 @@ def preprocessing_of(params: Mapping[str, Any], root: str | Path | None = None) 
 # --------------------------------------------------------------------------- saving
 
 
+def _what_to_fit(fit_on: str, splits: list[Mapping[str, Any]], clips, table: R.LexiconTable,
+                 split: Mapping[str, Any]) -> tuple[np.ndarray, dict[str, float], dict[str, int], str]:  # fmt: skip
+    """The clips the saved model is fitted on, its smoothing and prior weight, each head's epochs,
+    and how they were chosen: from every split (``all``) or from the first split's train+val."""
+    from aslexp.data.splits import SplitOptions, resplit
+
+    n = len(clips.X)
+    if fit_on == "all":
+        chosen = {"smoothing_alone": _lower_median([s["chosen"]["phonology"]["smoothing"] for s in splits]),
+                  "smoothing": _lower_median([s["chosen"]["phonology+prior"]["smoothing"] for s in splits]),
+                  "prior_weight": _lower_median([s["chosen"]["phonology+prior"]["weight"] for s in splits])}
+        epochs = {p: int(_lower_median([s["epochs"][p] for s in splits])) for p in table.properties}
+        how = (f"the lower median over the {len(splits)} split(s) of the values chosen on each split's validation "
+               "glosses")
+        return np.arange(n), chosen, epochs, how
+    first = splits[0]
+    options = split if isinstance(split, SplitOptions) else SplitOptions.parse(split)
+    parts = resplit(["all"] * n, clips.glosses, options, int(first["seed"]))
+    fitted = np.sort(np.concatenate([parts.keep[np.asarray(parts.splits[name], dtype=np.int64)]
+                                     for name in ("train", "val")]))
+    chosen = {"smoothing_alone": float(first["chosen"]["phonology"]["smoothing"]),
+              "smoothing": float(first["chosen"]["phonology+prior"]["smoothing"]),
+              "prior_weight": float(first["chosen"]["phonology+prior"]["weight"])}
+    epochs = {p: int(first["epochs"][p]) for p in table.properties}
+    return fitted, chosen, epochs, f"chosen on the validation glosses of the first split (seed {first['seed']})"
+
+
+def _fit_head(folder: Path, prop: str, vocab: Sequence[str], codes: np.ndarray, fitted: np.ndarray, clips,
+              classifier: Mapping[str, Any], params, config, epochs: int, seed: int) -> dict[str, Any]:  # fmt: skip
+    """One property's head, fitted on the ``fitted`` clips that have a value and saved in ``folder``
+    (a constant where fewer than two values were seen): its ``model.json`` record."""
+    from aslexp.recognition.models import build_classifier
+    from aslexp.recognition.train import ArraySplit, fit_final, save_checkpoint
+
+    labelled = fitted[codes[fitted] >= 0]
+    classes = np.unique(codes[labelled])
+    head: dict[str, Any] = {"classes": [vocab[c] for c in classes], "clips": int(len(labelled)), "file": None,
+                            "constant": None, "epochs": epochs}
+    if len(classes) < 2:  # nothing to learn: uniform (no value seen) or the one value seen
+        constant = np.full(len(vocab), 1.0 / len(vocab)) if len(classes) == 0 else np.eye(len(vocab))[classes[0]]
+        head["constant"] = [float(v) for v in constant]
+        return head
+    _, channels, frames, nodes, _ = clips.X.shape
+    model = build_classifier(str(classifier["name"]), dict(params), channels, frames, nodes, len(classes),
+                             clips.layout, module=classifier.get("module"))
+    train = ArraySplit(clips.X[labelled], clips.mask[labelled], np.searchsorted(classes, codes[labelled]))
+    fit_final(model, train, ArraySplit(train.X[:1], train.mask[:1], train.y[:1]), config,
+              epochs=max(1, epochs), seed=seed)
+    path = save_checkpoint(model, folder / f"{prop}{model.checkpoint_suffix}",
+                           extra={"property": prop, "classes": head["classes"]})
+    if path.suffix == ".joblib":  # the same payload compressed (a forest of 500 trees: ~5x smaller)
+        import joblib
+
+        joblib.dump(joblib.load(path), path, compress=3)
+    head["file"] = path.name
+    return head
+
+
 def save_lookup_model(
     folder: str | Path,
     clips,
@@ -112,68 +170,26 @@ def save_lookup_model(
     """Fit and save the lookup model of a retrieval run (see the module docstring): ``clips`` and
     ``table`` as :func:`aslexp.recognition.retrieval_run.run_retrieval` took them, ``result`` its
     return (the per-split choices and epoch budgets). Returns the saved ``model.json`` content."""
-    from aslexp.data.splits import SplitOptions, resplit
     from aslexp.files import write_json
-    from aslexp.recognition.models import build_classifier, resolve_params
-    from aslexp.recognition.train import ArraySplit, TrainerConfig, fit_final, save_checkpoint
+    from aslexp.recognition.models import resolve_params
+    from aslexp.recognition.train import TrainerConfig
 
     if fit_on not in FIT_ON:
         raise ValueError(f"retrieval.save_model={fit_on!r}; expected one of {list(FIT_ON)}")
     start = time.perf_counter()
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    splits = list(result["per_split"])
     n = len(clips.X)
-    if fit_on == "all":
-        fitted = np.arange(n)
-        chosen = {"smoothing_alone": _lower_median([s["chosen"]["phonology"]["smoothing"] for s in splits]),
-                  "smoothing": _lower_median([s["chosen"]["phonology+prior"]["smoothing"] for s in splits]),
-                  "prior_weight": _lower_median([s["chosen"]["phonology+prior"]["weight"] for s in splits])}
-        epochs = {p: int(_lower_median([s["epochs"][p] for s in splits])) for p in table.properties}
-        how = (f"the lower median over the {len(splits)} split(s) of the values chosen on each split's validation "
-               "glosses")
-    else:
-        first = splits[0]
-        options = split if isinstance(split, SplitOptions) else SplitOptions.parse(split)
-        parts = resplit(["all"] * n, clips.glosses, options, int(first["seed"]))
-        fitted = np.sort(np.concatenate([parts.keep[np.asarray(parts.splits[name], dtype=np.int64)]
-                                         for name in ("train", "val")]))
-        chosen = {"smoothing_alone": float(first["chosen"]["phonology"]["smoothing"]),
-                  "smoothing": float(first["chosen"]["phonology+prior"]["smoothing"]),
-                  "prior_weight": float(first["chosen"]["phonology+prior"]["weight"])}
-        epochs = {p: int(first["epochs"][p]) for p in table.properties}
-        how = f"chosen on the validation glosses of the first split (seed {first['seed']})"
+    fitted, chosen, epochs, how = _what_to_fit(fit_on, list(result["per_split"]), clips, table, split)
     params = resolve_params(str(classifier["name"]), classifier.get("params"), classifier.get("module"))
     config = TrainerConfig.parse(trainer)
     codes_all = table.codes[clips.entry_rows]
-    _, channels, frames, nodes, _ = clips.X.shape
     heads: dict[str, Any] = {}
     priors: dict[str, list[float]] = {}
     for j, prop in enumerate(table.properties):
-        codes = codes_all[:, j]
-        vocab = table.vocab[j]
-        labelled = fitted[codes[fitted] >= 0]
-        classes = np.unique(codes[labelled])
-        head: dict[str, Any] = {"classes": [vocab[c] for c in classes], "clips": int(len(labelled)), "file": None,
-                                "constant": None, "epochs": epochs[prop]}
-        if len(classes) < 2:  # nothing to learn: uniform (no value seen) or the one value seen
-            constant = np.full(len(vocab), 1.0 / len(vocab)) if len(classes) == 0 else np.eye(len(vocab))[classes[0]]
-            head["constant"] = [float(v) for v in constant]
-        else:
-            model = build_classifier(str(classifier["name"]), dict(params), channels, frames, nodes, len(classes),
-                                     clips.layout, module=classifier.get("module"))
-            train = ArraySplit(clips.X[labelled], clips.mask[labelled], np.searchsorted(classes, codes[labelled]))
-            fit_final(model, train, ArraySplit(train.X[:1], train.mask[:1], train.y[:1]), config,
-                      epochs=max(1, epochs[prop]), seed=int(seed))
-            path = save_checkpoint(model, folder / f"{prop}{model.checkpoint_suffix}",
-                                   extra={"property": prop, "classes": head["classes"]})
-            if path.suffix == ".joblib":  # the same payload compressed (a forest of 500 trees: ~5x smaller)
-                import joblib
-
-                joblib.dump(joblib.load(path), path, compress=3)
-            head["file"] = path.name
-        heads[prop] = head
-        priors[prop] = [float(v) for v in R.value_prior(codes[fitted], len(vocab))]
+        heads[prop] = _fit_head(folder, prop, table.vocab[j], codes_all[:, j], fitted, clips, classifier, params,
+                                config, epochs[prop], int(seed))
+        priors[prop] = [float(v) for v in R.value_prior(codes_all[fitted, j], len(table.vocab[j]))]
     in_fit = np.zeros(n, dtype=bool)
     in_fit[fitted] = True
     meta = {
