@@ -152,40 +152,8 @@ def build_wlasl_lex(
                                lexicon_name=LEXICON_NAMES.get(params.lexicon, params.lexicon))  # fmt: skip
     build_warnings = list(files.warnings)
     skipped.update(files.skipped)
-    gloss_matches = dict(matched.matches)
-    extra = sorted({i.gloss for i, _ in files.clips} - gloss_matches.keys() - set(matched.unmatched))
-    gloss_matches.update(match_names(extra, lexicon)[0])  # glosses named by files, not by WLASL
-    candidates = []
-    for instance, file_id in files.clips:
-        match = gloss_matches.get(instance.gloss)
-        if match is None:
-            skipped["gloss_not_in_lexicon"] += 1
-        elif match.entry.properties[params.property] is None:
-            skipped["missing_property_value"] += 1
-        else:
-            candidates.append((instance, match.entry, file_id))
-
-    clips, loaded = [], []
-    rejected: list[str] = []
-    loaded_files = []
-    for instance, entry, file_id in _progress(candidates, desc="keypoints", unit="clip", mininterval=2,
-                                              leave=False, disable=len(candidates) < 500):  # fmt: skip
-        try:
-            clip = source.load(file_id)
-        except (DataError, OSError) as error:
-            if strict:
-                raise
-            log.warning("skipping video %s: %s", instance.video_id, error)
-            skipped["bad_keypoint_file"] += 1
-            rejected.append(str(error))
-            continue
-        clips.append(clip[..., channel_index])
-        loaded.append((instance, entry))
-        loaded_files.append(file_id)
-    if candidates and not loaded:  # every file is wrong for this source: say why, not "too few clips"
-        raise DataError(f"keypoint source {params.source!r}: all {len(candidates)} keypoint files of the "
-                        f"labelled clips were rejected, e.g. {rejected[0]} (files in another format need "
-                        "their source and layout: conf/pose/array_folder.yaml, pose=mediapipe_hands, ...)")  # fmt: skip
+    candidates = _labelled_clips(files.clips, matched, lexicon, params.property, skipped)
+    clips, loaded, loaded_files = _load_clips(candidates, source, channel_index, strict, skipped, params.source)
     for line in build_warnings:
         log.warning("%s", line)
     for level, line in getattr(inner, "build_messages", lambda ids: [])(loaded_files):
@@ -247,6 +215,51 @@ def build_wlasl_lex(
         }
         write_wlasl_lex(out_dir, dataset, params, info)
     return dataset
+
+
+def _labelled_clips(file_clips, matched, lexicon, prop: str, skipped: Counter) -> list[tuple[Any, Any, str]]:
+    """(instance, lexicon entry, file id) of every clip whose gloss has a lexicon entry with a value of
+    ``prop``; the others counted in ``skipped``."""
+    gloss_matches = dict(matched.matches)
+    extra = sorted({i.gloss for i, _ in file_clips} - gloss_matches.keys() - set(matched.unmatched))
+    gloss_matches.update(match_names(extra, lexicon)[0])  # glosses named by files, not by WLASL
+    candidates = []
+    for instance, file_id in file_clips:
+        match = gloss_matches.get(instance.gloss)
+        if match is None:
+            skipped["gloss_not_in_lexicon"] += 1
+        elif match.entry.properties[prop] is None:
+            skipped["missing_property_value"] += 1
+        else:
+            candidates.append((instance, match.entry, file_id))
+    return candidates
+
+
+def _load_clips(candidates, source, channel_index, strict: bool, skipped: Counter, source_name: str):
+    """Each candidate's keypoints (its channels): (arrays, (instance, entry) pairs, file ids). A file
+    that cannot be read is skipped, counted and named (raised with ``strict``); when every one is, the
+    build stops with one line saying why."""
+    clips, loaded, loaded_files = [], [], []
+    rejected: list[str] = []
+    for instance, entry, file_id in _progress(candidates, desc="keypoints", unit="clip", mininterval=2,
+                                              leave=False, disable=len(candidates) < 500):  # fmt: skip
+        try:
+            clip = source.load(file_id)
+        except (DataError, OSError) as error:
+            if strict:
+                raise
+            log.warning("skipping video %s: %s", instance.video_id, error)
+            skipped["bad_keypoint_file"] += 1
+            rejected.append(str(error))
+            continue
+        clips.append(clip[..., channel_index])
+        loaded.append((instance, entry))
+        loaded_files.append(file_id)
+    if candidates and not loaded:  # every file is wrong for this source: say why, not "too few clips"
+        raise DataError(f"keypoint source {source_name!r}: all {len(candidates)} keypoint files of the "
+                        f"labelled clips were rejected, e.g. {rejected[0]} (files in another format need "
+                        "their source and layout: conf/pose/array_folder.yaml, pose=mediapipe_hands, ...)")  # fmt: skip
+    return clips, loaded, loaded_files
 
 
 def _describe_source(params: WlaslLexParams, source) -> str:
