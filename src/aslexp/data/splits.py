@@ -53,6 +53,53 @@ def min_units(kind: str, num_folds: int = 5) -> int:
     return num_folds + 1 if kind == "cv5" else 3
 
 
+def _apply_rare_rule(labels_by_unit: dict, rare: dict[str, int], rule: str, needed: int) -> dict:
+    """The units' labels after the rare-class rule: ``drop`` the rare labels' units, ``merge`` them
+    into :data:`OTHER` (dropped in turn when still rare), ``train_only`` keeps them (for training)."""
+    if rule == "merge" and rare:
+        merged = {u: OTHER if lab in rare else lab for u, lab in labels_by_unit.items()}
+        counts = _count(merged)
+        if counts.get(OTHER, 0) < needed:
+            log.info("merged label %r has %d unit(s) (< %d): dropped", OTHER, counts[OTHER], needed)
+            merged = {u: lab for u, lab in merged.items() if lab != OTHER}
+        return merged
+    if rule == "drop":
+        return {u: lab for u, lab in labels_by_unit.items() if lab not in rare}
+    return labels_by_unit
+
+
+def _assign_units(labels_by_unit: dict, label_names: Sequence[str], kind: str, seed: int, train_only: set,
+                  val_fraction: float, test_fraction: float, num_folds: int) -> dict[object, str | int]:  # fmt: skip
+    """Each unit's part: per label a seeded shuffle, the first share ``test``, then ``val`` and
+    ``train`` (``cv5``: the rest dealt into folds 0..num_folds-1); ``train_only`` labels all train."""
+    rng = np.random.default_rng(seed)
+    by_label: dict[str, list] = defaultdict(list)
+    for unit in sorted(labels_by_unit):  # sorted: the same order whatever the input order
+        by_label[labels_by_unit[unit]].append(unit)
+    assignment: dict[object, str | int] = {}
+    fold_offset = 0
+    for label in label_names:
+        members = list(by_label[label])
+        order = rng.permutation(len(members))
+        members = [members[i] for i in order]
+        if label in train_only:
+            assignment.update({u: "train" for u in members})
+            continue
+        n = len(members)
+        n_test = max(1, round(n * test_fraction))
+        assignment.update({u: "test" for u in members[:n_test]})
+        rest = members[n_test:]
+        if kind == "cv5":
+            for k, unit in enumerate(rest):
+                assignment[unit] = (fold_offset + k) % num_folds
+            fold_offset += len(rest)
+        else:
+            n_val = max(1, round(n * val_fraction))
+            assignment.update({u: "val" for u in rest[:n_val]})
+            assignment.update({u: "train" for u in rest[n_val:]})
+    return assignment
+
+
 def make_splits(
     labels: Sequence[str],
     kind: str,
@@ -79,14 +126,7 @@ def make_splits(
     if rare:
         log.info("%s split: %d label(s) with < %d %s -> %s: %s", kind, len(rare), needed,
                  "glosses" if kind == "gloss" else "clips", rare_classes, rare)  # fmt: skip
-    if rare_classes == "merge" and rare:
-        labels_by_unit = {u: OTHER if lab in rare else lab for u, lab in labels_by_unit.items()}
-        counts = _count(labels_by_unit)
-        if counts.get(OTHER, 0) < needed:
-            log.info("merged label %r has %d unit(s) (< %d): dropped", OTHER, counts[OTHER], needed)
-            labels_by_unit = {u: lab for u, lab in labels_by_unit.items() if lab != OTHER}
-    elif rare_classes == "drop":
-        labels_by_unit = {u: lab for u, lab in labels_by_unit.items() if lab not in rare}
+    labels_by_unit = _apply_rare_rule(labels_by_unit, rare, rare_classes, needed)
     train_only = set(rare) if rare_classes == "train_only" else set()
 
     if not labels_by_unit:
@@ -100,31 +140,8 @@ def make_splits(
         for sample in units[unit][1]:
             y[position[sample]] = label_id[label]
 
-    rng = np.random.default_rng(seed)
-    by_label: dict[str, list] = defaultdict(list)
-    for unit in sorted(labels_by_unit):  # sorted: the same order whatever the input order
-        by_label[labels_by_unit[unit]].append(unit)
-    assignment: dict[object, str | int] = {}
-    fold_offset = 0
-    for label in label_names:
-        members = list(by_label[label])
-        order = rng.permutation(len(members))
-        members = [members[i] for i in order]
-        if label in train_only:
-            assignment.update({u: "train" for u in members})
-            continue
-        n = len(members)
-        n_test = max(1, round(n * test_fraction))
-        assignment.update({u: "test" for u in members[:n_test]})
-        rest = members[n_test:]
-        if kind == "cv5":
-            for k, unit in enumerate(rest):
-                assignment[unit] = (fold_offset + k) % num_folds
-            fold_offset += len(rest)
-        else:
-            n_val = max(1, round(n * val_fraction))
-            assignment.update({u: "val" for u in rest[:n_val]})
-            assignment.update({u: "train" for u in rest[n_val:]})
+    assignment = _assign_units(labels_by_unit, label_names, kind, seed, train_only, val_fraction, test_fraction,
+                               num_folds)
 
     def positions(wanted) -> np.ndarray:
         chosen = [position[i] for u, where in assignment.items() if where in wanted for i in units[u][1]]
