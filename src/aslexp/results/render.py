@@ -142,27 +142,10 @@ def _thesis_cell(entry: dict[str, Any], row: dict[str, Any]) -> str:
     return f"{known['value']} ({known['model']}{baseline})"
 
 
-def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list[str]:
-    """An entry's section: title, note, the facts of its runs, the generic table (one row per snapshot
-    row: the thesis, each baseline, aslexp's number, extras, the ceiling, the steps), the seeds above
-    each baseline, the scores under other rewards and the figures."""
-    options = entry.get("options") or {}
-    percent = bool(options.get("percent"))
-    beside = "T" + entry["beside"][1:] if entry["beside"].startswith("thesis") else entry["beside"]
-    lines = [f'<a id="{entry["id"]}"></a>', "", f"## {beside}: {entry['title']}", ""]
-    if snapshot is not None and entry.get("note"):  # what the folders cannot say, e.g. a default changed since
-        lines += [f"**Note**: {entry['note']}", ""]
-    thesis = (entry.get("thesis") or {}).get("source", "-")
-    job, _ = command_overrides(entry["command"])
-    overlay = f"`experiment={entry['overlay']}`" if entry["overlay"] else "no overlay (the job's defaults)"
-    lines += [f"- **Beside**: {entry['beside']}; the thesis' number: {thesis}",
-              f"- **Overlay, engine, reward**: {overlay} (`aslexp {job}`), {_engine_reward(entry)}",
-              *command_lines(entry["command"])]
-    if snapshot is None:
-        lines += [f"- **Not run on this machine yet**: no run folders under outputs/ "
-                  f"({', '.join('outputs/' + f for alt in entry['runs'] for f in alt['folders'])}) and no snapshot. "
-                  f"Earlier numbers, typed before this page: {_link(entry['earlier'])}", ""]
-        return lines
+def run_fact_lines(entry: dict[str, Any], snapshot: dict[str, Any]) -> list[str]:
+    """What the snapshot's runs were: when, where, from which commit, how they differ from the command
+    and from the thesis' setting, and where the entry is explained."""
+    lines: list[str] = []
     ran_engine = ", ".join(snapshot.get("engine") or []) or "-"
     ran_reward = ", ".join(snapshot.get("reward") or []) or "-"
     differs = []
@@ -194,7 +177,19 @@ def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list
                      f"are of the runs that were)")
     lines.append(f"- **How it was run, and what it shows**: {_link(entry['earlier'])}")
     lines.append("")
-    columns = list(dict.fromkeys((b["kind"], b["label"]) for r in snapshot["rows"] for b in r["baselines"]))
+    return lines
+
+
+def baseline_columns(snapshot: dict[str, Any]) -> list[tuple[str, str]]:
+    """The (kind, label) of every baseline the snapshot's rows hold, in their order."""
+    return list(dict.fromkeys((b["kind"], b["label"]) for r in snapshot["rows"] for b in r["baselines"]))
+
+
+def generic_table_lines(snapshot: dict[str, Any], entry: dict[str, Any], percent: bool) -> list[str]:
+    """The generic table: a row per snapshot row (the thesis, each baseline, aslexp's number, extras,
+    the ceiling, the steps)."""
+    lines: list[str] = []
+    columns = baseline_columns(snapshot)
     extras = list(dict.fromkeys(k for r in snapshot["rows"] for k in (r.get("extra") or {})))
     learned = [r["learned"] for r in snapshot["rows"] if r.get("learned")]
     whats = sorted({str(x.get("what")) for x in learned})
@@ -221,6 +216,33 @@ def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list
         if has_steps:
             cells.append(_steps(row.get("steps")))
         lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
+    return lines
+
+
+def render_entry(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list[str]:
+    """An entry's section: title, note, the facts of its runs, the generic table (one row per snapshot
+    row: the thesis, each baseline, aslexp's number, extras, the ceiling, the steps), the seeds above
+    each baseline, the scores under other rewards and the figures."""
+    options = entry.get("options") or {}
+    percent = bool(options.get("percent"))
+    beside = "T" + entry["beside"][1:] if entry["beside"].startswith("thesis") else entry["beside"]
+    lines = [f'<a id="{entry["id"]}"></a>', "", f"## {beside}: {entry['title']}", ""]
+    if snapshot is not None and entry.get("note"):  # what the folders cannot say, e.g. a default changed since
+        lines += [f"**Note**: {entry['note']}", ""]
+    thesis = (entry.get("thesis") or {}).get("source", "-")
+    job, _ = command_overrides(entry["command"])
+    overlay = f"`experiment={entry['overlay']}`" if entry["overlay"] else "no overlay (the job's defaults)"
+    lines += [f"- **Beside**: {entry['beside']}; the thesis' number: {thesis}",
+              f"- **Overlay, engine, reward**: {overlay} (`aslexp {job}`), {_engine_reward(entry)}",
+              *command_lines(entry["command"])]
+    if snapshot is None:
+        lines += [f"- **Not run on this machine yet**: no run folders under outputs/ "
+                  f"({', '.join('outputs/' + f for alt in entry['runs'] for f in alt['folders'])}) and no snapshot. "
+                  f"Earlier numbers, typed before this page: {_link(entry['earlier'])}", ""]
+        return lines
+    lines += run_fact_lines(entry, snapshot)
+    lines += generic_table_lines(snapshot, entry, percent)
+    columns = baseline_columns(snapshot)
     quantity = snapshot.get("quantity") or ""
     lines += ["", f"Numbers: {quantity}{' in %' if percent else ''}; the thesis' in its own units.", ""]
     lines += _seeds_above(snapshot, columns)
