@@ -120,6 +120,38 @@ def _format_seconds(seconds: float) -> str:
     return f"{seconds / 60:.1f} min" if seconds >= 90 else f"{seconds:.0f} s"
 
 
+def _network_scores(scores: dict[str, np.ndarray], clips, gloss_codes: np.ndarray, aux_codes: np.ndarray,
+                    options: SeenGlossOptions, params: Mapping[str, Any], split, seed: int) -> dict[str, dict]:  # fmt: skip
+    """The two networks of one split, fitted on its train clips (validated on val) and scored on its
+    test clips into ``scores``: the gloss head alone, and with the auxiliary property heads. Returns
+    each one's epochs (best, ran, validation MCC)."""
+    from aslexp.recognition.models.multitask import fit_multitask
+
+    train, val, test = split
+    epochs = {}
+    for method, codes, names, weights in (
+            (WITHOUT, gloss_codes[:, None], [GLOSS], [1.0]),
+            (WITH, np.concatenate([gloss_codes[:, None], aux_codes], axis=1), [GLOSS, *options.auxiliary],
+             [1.0] + [float(options.aux_weight)] * len(options.auxiliary))):
+        model = fit_multitask(clips.X, clips.mask, codes, names, train, val, {**params, "head_weights": weights},
+                              seed=seed, calibrate=False, select=[GLOSS])
+        scores[method] = model.logits(clips.X[test], clips.mask[test])[0]
+        epochs[method] = {"best": model.best_epoch, "ran": len(model.history),
+                          "val_mcc": model.history[model.best_epoch - 1]["val_mcc"]}
+    return epochs
+
+
+def _prediction_rows(k: int, split_seed: int, method: str, scores: np.ndarray, truth: np.ndarray, test: np.ndarray,
+                     clips, vocabulary: Sequence[str], classes: np.ndarray) -> list[dict[str, Any]]:  # fmt: skip
+    """One row per test clip of a method: its predicted gloss and the rank of the true one ("" when no
+    training clip had it)."""
+    predicted = np.argmax(scores, axis=1)
+    return [{"split": k, "split_seed": split_seed, "method": method, "video_id": clips.video_ids[clip],
+             "gloss": clips.glosses[clip], "predicted": vocabulary[int(classes[predicted[row]])],
+             "rank_of_true": (int((scores[row] > scores[row][truth[row]]).sum()) + 1 if truth[row] >= 0 else "")}
+            for row, clip in enumerate(test)]
+
+
 def run_seen_glosses(clips, property_codes: np.ndarray, options: SeenGlossOptions, encoder: Mapping[str, Any],
                      split: SplitOptions, *, simple: Mapping[str, Any] | None, seed: int = 0,
                      property_names: Sequence[str] = PROPERTIES) -> dict[str, Any]:
@@ -127,8 +159,6 @@ def run_seen_glosses(clips, property_codes: np.ndarray, options: SeenGlossOption
     and the summary over splits. ``clips``: :class:`aslexp.recognition.retrieval_run.RetrievalClips`;
     ``property_codes`` (N, P): each clip's value code per property of ``property_names`` (-1: unknown);
     ``encoder``: the multitask classifier's params; ``simple``: ``{name, params[, module]}`` or None."""
-    from aslexp.recognition.models.multitask import fit_multitask
-
     glosses = list(clips.glosses)
     vocabulary = sorted(set(glosses))
     gloss_codes = np.array([vocabulary.index(g) for g in glosses], dtype=np.int64)
@@ -157,26 +187,12 @@ def run_seen_glosses(clips, property_codes: np.ndarray, options: SeenGlossOption
         scores["majority"] = np.tile(counts, (len(test), 1))
         if simple is not None:
             scores["simple"] = _simple_scores(simple, clips, gloss_codes, classes, train, test, seed)
-        epochs = {}
-        for method, codes, names, weights in (
-                (WITHOUT, gloss_codes[:, None], [GLOSS], [1.0]),
-                (WITH, np.concatenate([gloss_codes[:, None], aux_codes], axis=1), [GLOSS, *options.auxiliary],
-                 [1.0] + [float(options.aux_weight)] * len(options.auxiliary))):
-            model = fit_multitask(clips.X, clips.mask, codes, names, train, val, {**params, "head_weights": weights},
-                                  seed=seed, calibrate=False, select=[GLOSS])
-            scores[method] = model.logits(clips.X[test], clips.mask[test])[0]
-            epochs[method] = {"best": model.best_epoch, "ran": len(model.history),
-                              "val_mcc": model.history[model.best_epoch - 1]["val_mcc"]}
+        epochs = _network_scores(scores, clips, gloss_codes, aux_codes, options, params, (train, val, test), seed)
         metrics = {m: {f"top{kk}": top_k_accuracy(scores[m], truth, kk) for kk in options.top_k} for m in methods}
         # chance's expectation, not one random draw
         metrics["chance"] = {f"top{kk}": min(1.0, kk / len(classes)) for kk in options.top_k}
         for m in (WITHOUT, WITH, *(["simple"] if simple is not None else [])):
-            predicted = np.argmax(scores[m], axis=1)
-            for row, clip in enumerate(test):
-                rows.append({"split": k, "split_seed": split_seed, "method": m, "video_id": clips.video_ids[clip],
-                             "gloss": glosses[clip], "predicted": vocabulary[int(classes[predicted[row]])],
-                             "rank_of_true": (int((scores[m][row] > scores[m][row][truth[row]]).sum()) + 1
-                                              if truth[row] >= 0 else "")})
+            rows += _prediction_rows(k, split_seed, m, scores[m], truth, test, clips, vocabulary, classes)
         elapsed = time.perf_counter() - t0
         per_split.append({
             "index": k, "seed": split_seed, "clips": {"train": len(train), "val": len(val), "test": len(test)},
