@@ -669,6 +669,23 @@ def run_worker(
         return _run_worker(study, distributions, settings, launch, on_asked)
 
 
+def _launched(study: optuna.Study, trial: Trial, settings: WorkerSettings,
+              launch: Callable[[Trial], Outcome]) -> Outcome:
+    """The trial's job run under its heartbeat: its outcome, or a failed one when the launcher
+    raised. A launch every trial would meet alike (:class:`LaunchRefused`) records the trial as
+    interrupted (not counted) and is raised: the sweep stops."""
+    try:
+        with Heartbeat(study, trial._trial_id, settings.heartbeat_interval):
+            return launch(trial)
+    except LaunchRefused as err:  # e.g. a Slurm node too small: the same command, corrected, resumes
+        record_outcome(study, trial, Outcome(INTERRUPTED, error=f"not launched: {err}"))
+        raise
+    except Exception as err:  # noqa: BLE001 - a launcher error fails this trial only
+        log.error("trial %d could not be launched:\n%s", trial.number, "".join(traceback.format_exception(err)))
+        text = " ".join(str(err).split())  # one line (cluster errors come in several)
+        return Outcome("failed", error=f"launch failed: {type(err).__name__}: {text}")
+
+
 def _run_worker(study: optuna.Study, distributions: Mapping[str, BaseDistribution],
                 settings: WorkerSettings, launch: Callable[[Trial], Outcome],
                 on_asked: Callable[[Trial], None] | None) -> WorkerSummary:
@@ -711,19 +728,7 @@ def _run_worker(study: optuna.Study, distributions: Mapping[str, BaseDistributio
             if rerun_of is not None:
                 _settle_rerun_run_file(study, rerun_of)
             started = time.monotonic()
-            try:
-                with Heartbeat(study, trial._trial_id, settings.heartbeat_interval):
-                    outcome = launch(trial)
-            except LaunchRefused as err:  # every trial would be refused alike (a Slurm node too small):
-                # stop, the trial not counted (the same command, corrected, resumes)
-                record_outcome(study, trial, Outcome(INTERRUPTED, error=f"not launched: {err}"))
-                trial = None
-                raise
-            except Exception as err:  # noqa: BLE001 - a launcher error fails this trial only
-                log.error("trial %d could not be launched:\n%s", trial.number,
-                          "".join(traceback.format_exception(err)))
-                text = " ".join(str(err).split())  # one line (cluster errors come in several)
-                outcome = Outcome("failed", error=f"launch failed: {type(err).__name__}: {text}")
+            outcome = _launched(study, trial, settings, launch)
             run_dir = outcome.run_dir or trial_run_dir(study, trial)
             full = disk_full(outcome, run_dir)
             if full:  # no result: not counted, re-run, and no trial starts until there is room
