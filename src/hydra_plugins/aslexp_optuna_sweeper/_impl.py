@@ -206,7 +206,11 @@ class SweeperImpl(Sweeper):
         except BaseException:
             _stop_children(children, grace=0.0)
             raise
-        failed_children = _wait_children(children)
+        self._finish(study, study_name, label, summary, _wait_children(children))
+
+    def _finish(self, study: optuna.Study, study_name: str, label: str, summary, failed_children: dict) -> None:
+        """The sweep's last lines (worker 0: the study and its best trial); an error when a spawned
+        worker ended abnormally and the budget is not complete."""
         log.info("%s ran %d trial(s): %s", label, len(summary.trials), dict(summary.states))
         if self.worker_index == 0:
             counts = state_counts(study.get_trials(deepcopy=False))
