@@ -90,6 +90,17 @@ def _agent(cfg: dict[str, Any], env, checkpoint: str):
     return agent
 
 
+def performing_env(cfg: dict[str, Any], motion: Path, data_root: Path):
+    """The env that performs ``motion`` once from its start under ``cfg``'s setting (no early end on
+    a low reward: the whole pass is scored), and the control steps of one pass."""
+    from aslexp.envs.assembly import ImitationSetup
+    from aslexp.envs.imitation import ImitationEnv
+
+    setup = ImitationSetup.from_config({**cfg, "motion": {"name": motion.stem, "file": str(motion)}}, data_root)
+    env = ImitationEnv.from_setup(setup.merged(env={"early_termination": {"min_reward": None}}))
+    return env, int(math.ceil(float(env.reference.duration) * float(env.spec_env.control_hz))) + 1
+
+
 def hand_file(motion: Path) -> Path:
     """The hand motion extraction wrote beside an upper-body one (``motions/hand/<id>.txt``)."""
     return motion.parent.parent / "hand" / motion.name
@@ -99,12 +110,10 @@ def score_hand_clip(hand_cfg: dict[str, Any], file: Path, body_env, data_root: P
     """The hand body's controller on a clip's hand motion, its fingers worn by the clip's upper body
     on the reference arm (:func:`aslexp.signing.performance.score_hand_trajectory`) and scored against
     the person's hand of the side the hand motion was retargeted from: the reference and the controller."""
-    from aslexp.envs.assembly import ImitationSetup
-    from aslexp.envs.imitation import ImitationEnv
-    from aslexp.rl.evaluate import evaluate
-    from aslexp.signing.keypoints import SigningSource
     import numpy as np
 
+    from aslexp.rl.evaluate import evaluate
+    from aslexp.signing.keypoints import SigningSource
     from aslexp.signing.performance import score_hand_trajectory
 
     source, why = SigningSource.for_motion(body_env.motion.source)
@@ -113,10 +122,8 @@ def score_hand_clip(hand_cfg: dict[str, Any], file: Path, body_env, data_root: P
     side = (json.loads(source.report.read_text()).get("hand") or {}).get("side")
     if side not in ("right", "left"):
         return {"file": str(file), "stages": None, "why": f"{source.report}: hand.side: expected right or left"}
-    setup = ImitationSetup.from_config({**hand_cfg, "motion": {"name": file.stem, "file": str(file)}}, data_root)
-    env = ImitationEnv.from_setup(setup.merged(env={"early_termination": {"min_reward": None}}))
+    env, steps = performing_env(hand_cfg, file, data_root)
     try:
-        steps = int(math.ceil(float(env.reference.duration) * float(env.spec_env.control_hz))) + 1
         look = evaluate(env, lambda obs, env: env.reference_action(1), steps, record=True)
         # The no-learning floor of a handshape: the hand held open (every finger joint at 0) all along.
         trajectory = {**look.trajectory, "q_open": np.zeros_like(look.trajectory["q_ref"])}
@@ -133,18 +140,13 @@ def score_clip(cfg: dict[str, Any], motion: Path, data_root: Path, models, agent
                hand_cfg: dict[str, Any] | None = None) -> dict[str, Any]:
     """One clip: its stages performed once from the start, scored against the person and read back;
     with ``hand_cfg`` (``signing.hand``) its hand motion too, on the hand body (:func:`score_hand_clip`)."""
-    from aslexp.envs.assembly import ImitationSetup
-    from aslexp.envs.imitation import ImitationEnv
     from aslexp.rl.evaluate import evaluate
     from aslexp.signing.performance import signing_metrics
     from aslexp.signing.reading import gloss_of_source, read_back_stages
 
     started = time.perf_counter()
-    clip_cfg = {**cfg, "motion": {"name": motion.stem, "file": str(motion)}}
-    setup = ImitationSetup.from_config(clip_cfg, data_root)
-    env = ImitationEnv.from_setup(setup.merged(env={"early_termination": {"min_reward": None}}))
+    env, steps = performing_env(cfg, motion, data_root)
     try:
-        steps = int(math.ceil(float(env.reference.duration) * float(env.spec_env.control_hz))) + 1
         look = evaluate(env, lambda obs, env: env.reference_action(1), steps, record=True)
         runs, rewards = {"controller": look}, {"controller": round(look.mean_reward, 5)}
         if agent_state.get("checkpoint"):

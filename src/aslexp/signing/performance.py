@@ -74,16 +74,15 @@ def hand_on_body(body_env: Any, hand_env: Any, trajectory: Mapping[str, np.ndarr
     stages differ by their fingers alone."""
     steps = one_pass(trajectory, float(hand_env.reference.duration), 1.0 / float(hand_env.spec_env.control_hz))
     prefix = {"right": "r_", "left": "l_"}[side]
-    worn = _joint_positions(body_env.sim.layout)
-    pairs = [(at, worn.get(prefix + name)) for name, at in _joint_positions(hand_env.sim.layout).items()]
-    missing = [name for name, (_, at) in zip(_joint_positions(hand_env.sim.layout), pairs) if at is None]
+    worn, fingers = _joint_positions(body_env.sim.layout), _joint_positions(hand_env.sim.layout)
+    missing = [name for name in fingers if prefix + name not in worn]
     if missing:
         raise ValueError(f"the upper body has no {prefix}<joint> for the hand's joints {missing}")
     times = np.asarray(trajectory["time"], dtype=float)[steps]
     q = np.array(body_env.reference.joints_many(np.minimum(times, float(body_env.reference.duration) - 1e-9)))
     hand = np.asarray(trajectory[joints], dtype=float)[steps]
-    for source_column, body_column in pairs:
-        q[:, body_column] = hand[:, source_column]
+    for name, column in fingers.items():
+        q[:, worn[prefix + name]] = hand[:, column]
     return steps, q
 
 
