@@ -183,13 +183,14 @@ def test_the_tracking_error_variant_sees_each_rows_frame_ahead_minus_its_joints(
         env.close()
 
 
-def _imitate(tmp_path: Path, data_root: Path, run: str, *overrides: str) -> dict:
+def _imitate(tmp_path: Path, data_root: Path, run: str, *overrides: str, experiment: str = "signs_unseen") -> dict:
+    """A tiny `aslexp imitate experiment=...` run; ``overrides`` win over the tiny budget."""
     env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "MPLBACKEND": "Agg"}
     tiny = ["ppo.total_steps=256", "ppo.num_envs=8", "ppo.steps_per_rollout=128", "ppo.minibatch_size=64",
             "ppo.eval_interval=256", "ppo.eval_steps=30", "ppo.eval_episodes=1", "ppo.hidden_sizes=[16,16]",
             "plots=false", "render.gif=false", "render.mp4=false"]
-    proc = job_process.run([sys.executable, "-m", "aslexp.cli", "imitate", "experiment=signs_unseen", *overrides,
-                            *tiny, f"hydra.run.dir={tmp_path / run}"], capture_output=True, text=True, timeout=600,
+    proc = job_process.run([sys.executable, "-m", "aslexp.cli", "imitate", f"experiment={experiment}", *tiny,
+                            *overrides, f"hydra.run.dir={tmp_path / run}"], capture_output=True, text=True, timeout=600,
                            env=env)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert json.loads((tmp_path / run / "run.json").read_text())["status"] == "completed"
@@ -270,3 +271,86 @@ def test_the_signing_table_scores_every_clip_against_the_person_and_reads_it_bac
     again = _signing(tmp_path, data_root, "resumed", f"signing.motions={sign_slice}", f"resume={first['folder']}")
     assert all(r["reused_from"] == str(first["folder"]) for r in again["records"])
     assert again["table"]["table"]["keypoint_error"] == table["keypoint_error"]
+
+
+def test_validation_glosses_neither_train_nor_test(sign_slice, data_root):
+    """validation_motions: the next fold's glosses leave the pool; that many of their plausible motions,
+    one gloss after another, validate."""
+    spec = _spec(sign_slice, folds=4, validation_motions=3)
+    glosses = {**SLICE, **THESIS}
+    for k in range(spec.folds):
+        fold = sign_fold(dataclasses.replace(spec, fold=k), data_root)
+        trained = {glosses[c.name] for c in fold.train}
+        held = set(fold.validation_glosses)
+        assert held and held == {g for g, f in fold.assignment.items() if f == (k + 1) % 4}
+        assert not held & trained and not held & set(fold.test_glosses)
+        assert trained | held | set(fold.test_glosses) == set(glosses.values())
+        chosen = [c.name for c in fold.validation]
+        assert 1 <= len(chosen) <= 3 and {glosses[n] for n in chosen} <= held and "70033" not in chosen
+        # one gloss after another: two validation glosses give two, never one gloss's two clips first
+        assert len({glosses[n] for n in chosen}) == min(len(held), len(chosen))
+        summary = fold.summary()
+        assert summary["validation_motions"] == chosen and summary["validation_glosses"] == sorted(held)
+    assert "validation_motions" not in sign_fold(dataclasses.replace(spec, validation_motions=0, fold=0),
+                                                 data_root).summary()
+
+
+def test_the_validated_variant_ends_on_the_policy_its_validation_chose(sign_slice, data_root, tmp_path):
+    """experiment=signs_unseen_validated, tiny: the untrained policy and every evaluation validated on
+    the next fold's motions; the best-validated checkpoint is the run's last row, its headline and the
+    policy `policy=RUN_DIR` performs."""
+    import csv
+
+    import torch
+
+    folder = [f"train_motions.folder={sign_slice}", "train_motions.folds=4", "train_motions.seed=2",
+              "train_motions.validation_motions=2", "ppo.total_steps=768", "ppo.eval_interval=256", "ppo.learning_rate=0.01"]
+    metrics = _imitate(tmp_path, data_root, "validated", "motion='00433'", *folder,
+                       experiment="signs_unseen_validated")
+    run = tmp_path / "validated"
+    rows = [r for r in csv.DictReader((run / "progress.csv").open()) if r["eval_reward"]]
+    validated = [(int(r["step"]), float(r["validation_reward"])) for r in rows[:-1]]
+    assert [s for s, _ in validated] == [0, 256, 512, 768]  # the untrained policy is a candidate
+    best_step = max(validated, key=lambda sv: sv[1])[0]
+    selected = metrics["selected"]
+    assert selected["step"] == best_step == int(rows[-1]["selected_step"])
+    assert selected["validation_motions"] == metrics["train_motions"]["signs"]["validation_motions"]
+    assert len(selected["validation_motions"]) == 2
+    assert metrics["last_eval"] == float(rows[-1]["eval_reward"]) and metrics["steps"] == 768
+    assert selected["last_trained_eval"] == float(rows[-2]["eval_reward"])
+    # the last row evaluates the chosen weights: deterministic episodes score what they scored then
+    assert float(rows[-1]["eval_reward"]) == float(next(r for r in rows if int(r["step"]) == best_step)["eval_reward"])
+    saved = torch.load(run / "checkpoints" / "selected.pt", weights_only=False)
+    assert saved["steps"] == best_step
+    from aslexp.jobs.performing import run_policy_checkpoint
+
+    assert run_policy_checkpoint(run) == run / "checkpoints" / "selected.pt"
+
+
+def test_validation_episodes_in_one_batch_score_as_single_evaluations(sign_slice, data_root):
+    """evaluate_rows (every validation motion and start phase a row of one batch) gives each episode
+    the reward the single environment's evaluation gives it, a correction applied and a fall included."""
+    from aslexp.envs.imitation import ImitationEnv
+    from aslexp.rl.evaluate import evaluate_phases, evaluate_rows
+
+    cfg = compose("imitate", ["experiment=signs_unseen_validated", "motion='00433'", f"data_root={data_root}"])
+    setup = ImitationSetup.from_config(cfg, data_root).merged(env={"early_termination": {"min_reward": None},
+                                                                     "episode_steps": 150})
+    names = ["01457", "13169", "46287"]
+    motions = [setup.load_motion(sign_slice / "motions" / "upper_body" / f"{n}.txt") for n in names]
+    phases = np.array([0.0, 0.5])
+    batch = BatchedImitationEnv.from_setup(len(names) * 2, setup, motions=motions)
+    size = batch.single_action_space.shape[0]
+    push = np.linspace(-1.0, 1.0, size)  # a constant correction at the box's edges: 46287's body falls
+
+    rewards, blew_up = evaluate_rows(batch, lambda obs: np.tile(push, (len(obs), 1)), 150,
+                                     np.repeat(np.arange(3), 2), np.tile(phases, 3))
+    single, ended = [], 0
+    for motion in motions:
+        env = ImitationEnv.from_setup(dataclasses.replace(setup, motion=motion))
+        summary = evaluate_phases(env, lambda obs, env: push, 150, tuple(phases))
+        single, ended = single + summary.rewards, ended + summary.ended_early
+        env.close()
+    np.testing.assert_allclose(rewards, single, atol=1e-6)
+    assert ended == 2 and not blew_up.any() and len(set(np.round(rewards, 4))) == 6
+    batch.close()

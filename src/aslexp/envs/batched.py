@@ -154,8 +154,8 @@ class BatchedImitationEnv(VectorEnv):
         durations = self.pool.durations[self.clip[rows]]
         if "time" in options:
             times = np.full(len(rows), float(options["time"]))
-        elif "phase" in options:
-            times = float(options["phase"]) * durations
+        elif "phase" in options:  # one phase for every row, or one per row
+            times = np.broadcast_to(np.asarray(options["phase"], dtype=np.float64), (len(rows),)) * durations
         elif self.spec_env.reference_state_init:
             times = np.asarray([float(self._rngs[i].uniform(0.0, d)) for i, d in zip(rows, durations)])
         else:
@@ -242,6 +242,8 @@ class BatchedImitationEnv(VectorEnv):
         if ends.diverged.any():
             obs[ends.diverged] = np.nan_to_num(obs[ends.diverged], nan=0.0, posinf=0.0, neginf=0.0)
         info: dict[str, Any] = {"fall": ends.fell, "_fall": ends.fell.copy()} if self._fall_check else {}
+        if ends.diverged.any():  # which rows blew up (an evaluation's error, never its score)
+            info.update({"diverged": ends.diverged.copy(), "_diverged": ends.diverged.copy()})
         ended = np.flatnonzero(terminated | truncated)
         if len(ended):  # same-step autoreset
             final = np.zeros_like(obs)

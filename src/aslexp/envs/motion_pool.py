@@ -8,7 +8,9 @@ trains on it, nor on motions made to its measure, so the run's headline is a zer
 
 ``folder``: real signs too, every plausible motion of an ``aslexp extract --motions`` folder whose gloss
 is outside the fold's test glosses (K ``folds`` by gloss, :mod:`aslexp.envs.sign_folds`), the thesis'
-signs with them (``include_thesis_signs``).
+signs with them (``include_thesis_signs``). ``validation_motions``: that many motions of the next fold's
+glosses (out of the pool too) score the policy during training, to choose the checkpoint the run keeps
+(``MotionPool.validation``; the trainer's ``validate``).
 """
 
 from __future__ import annotations
@@ -60,6 +62,7 @@ class TrainMotionsSpec(Section):
     fold: int | None = None  # None: the fold whose test glosses hold the run's motion's gloss
     seed: int = field(default=0, metadata=key(Int(0)))
     include_thesis_signs: bool = False
+    validation_motions: int = field(default=0, metadata=key(Int(0)))  # 0: no validation (the folder's only)
     thesis_signs: dict[str, str] = field(default_factory=dict)  # conf/motion name -> its WLASL gloss
 
 
@@ -72,6 +75,7 @@ class MotionPool:
     held_out: str | None  # the evaluated motion, taken out
     generated: int
     signs: dict | None = None  # the folder's fold (SignFold.summary); None: no folder
+    validation: dict[str, Motion] = field(default_factory=dict)  # name -> motion: scored, never trained
 
     def summary(self) -> dict:
         return {"listed": self.listed, "generated": self.generated, "held_out": self.held_out,
@@ -99,9 +103,14 @@ def training_motions(spec: TrainMotionsSpec, setup: ImitationSetup, evaluated: s
     if gen.count and not like:
         raise ConfigError(f"train_motions.generated.like: no motion left to make generated motions like "
                           f"(held out {held})")
+    if spec.validation_motions and spec.folder is None:
+        raise ConfigError(f"train_motions.validation_motions={spec.validation_motions}: validation motions are "
+                          f"a folder's (train_motions.folder); this pool has none")
     motions = [setup.load_motion(m) for m in listed]
+    validation = {}
     if signs is not None:
         motions += [setup.load_motion(c.file) for c in signs.train]
+        validation = {c.name: setup.load_motion(c.file) for c in signs.validation}
     if gen.count:
         joints = setup.layout.joints
         made = generated_motions([setup.load_motion(m) for m in like], [j.lower for j in joints],
@@ -109,7 +118,8 @@ def training_motions(spec: TrainMotionsSpec, setup: ImitationSetup, evaluated: s
                                  close_loop=gen.close_loop)
         motions += made
     held_out = Path(str(evaluated)).stem if held or (signs is not None and signs.held_out) else None
-    return MotionPool(motions, listed, held_out, gen.count, signs.summary() if signs is not None else None)
+    return MotionPool(motions, listed, held_out, gen.count, signs.summary() if signs is not None else None,
+                      validation)
 
 
 def sign_fold(spec: TrainMotionsSpec, data_root: Path, evaluated: str | None = None):
@@ -126,7 +136,7 @@ def sign_fold(spec: TrainMotionsSpec, data_root: Path, evaluated: str | None = N
     if spec.include_thesis_signs:
         clips = with_thesis_signs(clips, thesis)
     own = None if evaluated is None else resolve_motion_path(evaluated, data_root)
-    return fold_pool(clips, spec.folds, spec.fold, spec.seed, str(spec.folder), own)
+    return fold_pool(clips, spec.folds, spec.fold, spec.seed, str(spec.folder), own, spec.validation_motions)
 
 
 def thesis_sign_file(name: str, data_root: Path) -> Path:
@@ -146,6 +156,8 @@ def describe(pool: MotionPool) -> str:
     signs = "" if pool.signs is None else (
         f" + {len(pool.signs['motions'])} signs of {len(pool.signs['glosses'])} glosses (fold {pool.signs['fold']} of "
         f"{pool.signs['folds']}, test glosses {', '.join(pool.signs['test_glosses'])}; "
-        f"{pool.signs['implausible_left_out']['count']} implausible left out)")
+        f"{pool.signs['implausible_left_out']['count']} implausible left out"
+        + (f"; validated on {len(pool.validation)} motions of {', '.join(pool.signs['validation_glosses'])}"
+           if pool.validation else "") + ")")
     return (f"{len(pool.motions)} training motions ({', '.join(pool.listed) or 'none listed'} + {pool.generated} "
             f"generated{signs}; held out: {pool.held_out or 'none'}), mean joint speed {np.mean(speeds):.2f} rad/s")

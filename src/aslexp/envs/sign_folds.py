@@ -6,7 +6,9 @@ that ``aslexp extract --motions --wlasl WLASL_v0.3.json`` wrote holds one upper-
 in ``pose_array.gloss``, ``upper_body.plausibility``). The thesis' signs (``conf/motion`` names, WLASL
 video ids too) may join them with their glosses. The glosses are sorted, shuffled by the seed and dealt
 round-robin into K folds (:func:`gloss_folds`): fold k's test set is its glosses, its training pool every
-plausible motion of any other gloss, so no sign of a test gloss is ever trained on. The run's own motion
+plausible motion of any other gloss, so no sign of a test gloss is ever trained on. With validation
+motions asked for, fold k+1's glosses are taken out of the pool too and some of their motions score the
+policy during training (a checkpoint is chosen on glosses that neither train nor test). The run's own motion
 picks its fold (``fold: null``) and its gloss is always a test gloss. Motions their report marks
 implausible (a tracking jump, arms out of view) are left out and counted.
 """
@@ -98,6 +100,8 @@ class SignFold:
     held_out_gloss: str | None = None
     folder_implausible: int = 0  # implausible motions in the whole folder
     assignment: dict[str, int] = field(default_factory=dict)
+    validation: list[SignClip] = field(default_factory=list)  # of the validation glosses: scored, never trained
+    validation_glosses: list[str] = field(default_factory=list)
 
     def summary(self) -> dict:
         return {"folder": self.folder, "folds": self.folds, "fold": self.fold, "seed": self.seed,
@@ -106,13 +110,17 @@ class SignFold:
                 "motions": [c.name for c in self.train], "thesis_signs": [c.name for c in self.train if c.thesis],
                 "implausible_left_out": {"count": len(self.implausible),
                                          "motions": {c.name: list(c.reasons) for c in self.implausible}},
-                "implausible_in_folder": self.folder_implausible, "gloss_folds": self.assignment}
+                "implausible_in_folder": self.folder_implausible, "gloss_folds": self.assignment,
+                **({"validation_glosses": self.validation_glosses,
+                    "validation_motions": [c.name for c in self.validation]} if self.validation else {})}
 
 
 def fold_pool(clips: list[SignClip], folds: int, fold: int | None, seed: int, folder: str,
-              evaluated: Path | None = None) -> SignFold:
+              evaluated: Path | None = None, validation_motions: int = 0) -> SignFold:
     """Fold ``fold`` of ``clips`` (None: the fold of ``evaluated``'s gloss). ``evaluated``: the run's
-    motion file; a clip of that name or file, and every clip of its gloss, is never in the pool."""
+    motion file; a clip of that name or file, and every clip of its gloss, is never in the pool.
+    ``validation_motions``: that many plausible clips of fold ``fold + 1``'s glosses (one gloss after
+    another, drawn by ``seed``) validate; every clip of those glosses leaves the pool."""
     assignment = gloss_folds([c.gloss for c in clips], folds, seed)
     own = None
     if evaluated is not None:
@@ -128,13 +136,40 @@ def fold_pool(clips: list[SignClip], folds: int, fold: int | None, seed: int, fo
     if not 0 <= fold < folds:
         raise ConfigError(f"train_motions.fold={fold}: expected 0 to {folds - 1} (train_motions.folds={folds})")
     test = sorted({g for g, k in assignment.items() if k == fold} | ({own.gloss} if own else set()))
-    kept = [c for c in clips if c.gloss not in test and c is not own]
+    held = sorted({g for g, k in assignment.items() if k == (fold + 1) % folds} - set(test)) \
+        if validation_motions else []
+    validation = validation_clips([c for c in clips if c.gloss in held and c.plausible and c is not own],
+                                  validation_motions, seed)
+    if validation_motions and not validation:
+        raise ConfigError(f"train_motions.validation_motions={validation_motions}: fold {(fold + 1) % folds}'s "
+                          f"glosses {held} have no plausible motion to validate on")
+    kept = [c for c in clips if c.gloss not in test and c.gloss not in held and c is not own]
     if not any(c.plausible for c in kept):
         raise ConfigError(f"train_motions: fold {fold} of {folds} leaves no plausible motion to train on")
     return SignFold(train=[c for c in kept if c.plausible], test_glosses=test,
                     implausible=[c for c in kept if not c.plausible], fold=fold, folds=folds, seed=seed,
                     folder=folder, held_out=own.name if own else None, held_out_gloss=own.gloss if own else None,
-                    folder_implausible=sum(not c.plausible for c in clips), assignment=dict(sorted(assignment.items())))
+                    folder_implausible=sum(not c.plausible for c in clips), assignment=dict(sorted(assignment.items())),
+                    validation=validation, validation_glosses=held)
+
+
+def validation_clips(clips: list[SignClip], count: int, seed: int) -> list[SignClip]:
+    """``count`` of ``clips``, the glosses taken in turn (each gloss's clips and the glosses' order
+    shuffled by ``seed``), so a few motions still span many glosses; sorted by name."""
+    if not count:
+        return []
+    rng = np.random.default_rng(seed)
+    by_gloss: dict[str, list[SignClip]] = {}
+    for clip in clips:
+        by_gloss.setdefault(str(clip.gloss), []).append(clip)
+    queues = [[group[i] for i in rng.permutation(len(group))] for _, group in sorted(by_gloss.items())]
+    queues = [queues[i] for i in rng.permutation(len(queues))]
+    chosen: list[SignClip] = []
+    while len(chosen) < count and any(queues):
+        for queue in queues:
+            if queue and len(chosen) < count:
+                chosen.append(queue.pop(0))
+    return sorted(chosen, key=lambda c: c.name)
 
 
 def with_thesis_signs(clips: list[SignClip], thesis: Mapping[str, tuple[str, Path]]) -> list[SignClip]:

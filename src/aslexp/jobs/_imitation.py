@@ -176,6 +176,7 @@ class Bench:
     report_baselines: list[dict[str, Any]] | None
     residual_baselines: dict[str, Any] | None
     pool: Any = None  # train_motions' pool (None: the run's motion alone)
+    validation: Any = None  # the pool's validation motions, one row per motion and start phase (Validation)
 
     @classmethod
     def open(cls, cfg: dict[str, Any], out_dir: Path, ppo, learned: bool, pool=None, train_on_pool: bool = True):
@@ -196,10 +197,58 @@ class Bench:
         except BaseException:
             eval_env.close()
             raise
-        return cls(cfg, out_dir, ppo, make_train_env, eval_env, base, report_baselines, residual, pool)
+        bench = cls(cfg, out_dir, ppo, make_train_env, eval_env, base, report_baselines, residual, pool)
+        if train_on_pool and pool is not None and pool.validation:
+            bench.validation = Validation.open(eval_env.setup, pool.validation, ppo)
+        return bench
 
     def close(self) -> None:
         self.eval_env.close()
+        if self.validation is not None:
+            self.validation.close()
+
+
+@dataclass
+class Validation:
+    """A pool's validation motions (``train_motions.validation_motions``), scored under the run's
+    protocol (its start phases and ``ppo.eval_steps``) in one batch: every motion and phase a row."""
+
+    names: list[str]
+    env: Any  # aslexp.envs.batched.BatchedImitationEnv
+    clips: Any
+    phases: Any
+    steps: int
+
+    @classmethod
+    def open(cls, setup, motions: dict[str, Any], ppo) -> "Validation":
+        import numpy as np
+
+        from aslexp.envs.batched import BatchedImitationEnv
+
+        phases = np.asarray(ppo.phases, dtype=np.float64)
+        clips = np.repeat(np.arange(len(motions)), len(phases))
+        # an episode as long as the evaluation's: the batch's truncation (and autoreset) comes at its end
+        env = BatchedImitationEnv.from_setup(len(clips), setup.merged(env={"episode_steps": ppo.eval_steps}),
+                                             motions=list(motions.values()))
+        return cls(list(motions), env, clips, np.tile(phases, len(motions)), ppo.eval_steps)
+
+    def __call__(self, agent) -> float:
+        """The policy's mean reward over every validation episode; NaN when one blew up (never a
+        score, never chosen)."""
+        import numpy as np
+
+        from aslexp.rl.evaluate import evaluate_rows
+
+        rewards, blew_up = evaluate_rows(self.env, lambda obs: agent.act(obs, deterministic=True), self.steps,
+                                         self.clips, self.phases)
+        if blew_up.any():
+            log.warning("validation: %d episode(s) of %s blew up; this policy is not chosen", int(blew_up.sum()),
+                        sorted({self.names[c] for c in self.clips[blew_up]}))
+            return float("nan")
+        return float(np.mean(rewards))
+
+    def close(self) -> None:
+        self.env.close()
 
 
 def open_trainer(bench: Bench, reporter=None, metric_logger=None):
@@ -218,7 +267,8 @@ def open_trainer(bench: Bench, reporter=None, metric_logger=None):
             reporter.report(value, step, final=step >= ppo.total_steps)
 
     trainer = PPOTrainer(bench.make_train_env, bench.eval_env, ppo, bench.out_dir,
-                         seed=int(bench.cfg.get("seed") or 0), on_eval=on_eval)
+                         seed=int(bench.cfg.get("seed") or 0), on_eval=on_eval,
+                         validate=bench.validation)
     history_logger = HistoryLogger(metric_logger or MetricLogger(), trainer.history, rename=ppo_tag)
     return trainer, history_logger
 

@@ -79,6 +79,9 @@ def re_evaluate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger
         trainer, _ = open_trainer(bench, reporter, metric_logger)  # the run's rows were logged by the run
         try:
             trainer.restore(checkpoint)  # a corrupt or mismatched checkpoint stops here
+            selected = checkpoint.parent / "selected.pt"
+            if selected.is_file():  # a validated run ends on the policy its validation chose
+                trainer.load_policy(selected)
             started = time.perf_counter()
             own = evaluated(trainer, "evaluated" if trainer.steps > 0 else "no_training")
             counters = trainer.counters()

@@ -85,6 +85,11 @@ def train(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=None)
             "action_rms": last_row.get("eval_action_rms", float("nan")),
             **trainer_metrics(trainer, started, counters),
         }
+        if trainer.ended_on_selected:  # validated: the run ends on the policy its validation motions chose
+            trained = next(h for h in reversed(history[:-1]) if "eval_reward" in h)
+            own["selected"] = {"step": trainer.selected_step, "validation_reward": trainer.best_validation,
+                               "validation_motions": bench.validation.names,
+                               "last_trained_eval": trained["eval_reward"], "last_trained_step": trained["step"]}
         return finish(bench, trainer.evaluation_agent().act, own, history=history, shown="last policy")
     finally:
         bench.close()

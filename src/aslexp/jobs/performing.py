@@ -9,6 +9,12 @@ from typing import Any
 from aslexp.errors import ConfigError
 
 
+def run_policy_checkpoint(run_dir: Path) -> Path:
+    """The policy a run folder ends with: the checkpoint its validation chose (selected.pt), else its last."""
+    selected = run_dir / "checkpoints" / "selected.pt"
+    return selected if selected.is_file() else run_dir / "checkpoints" / "last.pt"
+
+
 def performing_config(cfg: dict[str, Any], keep: tuple[str, ...] = ()) -> tuple[dict[str, Any], dict[str, Any]]:
     """``policy=RUN_DIR``: the config a trained policy performs this run's motion under, and what the
     run folder records of the policy. Every group but the motion is the policy's run's (the body,
@@ -18,7 +24,7 @@ def performing_config(cfg: dict[str, Any], keep: tuple[str, ...] = ()) -> tuple[
     from aslexp.reports.report import run_config
 
     run_dir = Path(str(cfg["policy"]))
-    checkpoint = run_dir / "checkpoints" / "last.pt" if run_dir.is_dir() else run_dir
+    checkpoint = run_policy_checkpoint(run_dir) if run_dir.is_dir() else run_dir
     if run_dir.is_file():
         run_dir = checkpoint.parent.parent
     if not checkpoint.is_file():

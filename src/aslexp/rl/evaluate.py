@@ -167,6 +167,28 @@ def evaluate_phases(env: EvaluatedEnv, policy: Policy, steps: int | None = None,
     )
 
 
+def evaluate_rows(env, act: Callable[[np.ndarray], np.ndarray], steps: int, clips: np.ndarray,
+                  phases: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`evaluate`'s deterministic episodes, all at once on a batch of many motions (an env with
+    :class:`aslexp.envs.batched.BatchedImitationEnv`'s interface, one row per episode): row ``i``
+    imitates pool motion ``clips[i]`` from ``phases[i]``. ``act(obs)``: the batch's actions. Returns
+    each row's mean reward (an early end scores 0 for the rest, as :func:`evaluate`'s) and whether it
+    blew up (its simulation diverged or its action was not finite: an error, never a score)."""
+    obs, _ = env.reset(options={"clip": np.asarray(clips), "phase": np.asarray(phases, dtype=np.float64)})
+    n = env.num_envs
+    total, running, blew_up = np.zeros(n), np.ones(n, dtype=bool), np.zeros(n, dtype=bool)
+    for _ in range(steps):
+        action = np.asarray(act(obs), dtype=np.float64).reshape(n, -1)
+        blew_up |= running & ~np.isfinite(action).all(axis=1)
+        obs, reward, terminated, _, info = env.step(action)
+        total += np.where(running, reward, 0.0)
+        blew_up |= running & np.asarray(info.get("diverged", np.zeros(n, dtype=bool)))
+        running &= ~np.asarray(terminated)  # the row's next episode (same-step autoreset) is not scored
+        if not running.any():
+            break
+    return total / steps, blew_up
+
+
 def reference_policy(lookahead: int) -> Policy:
     """The no-learning baseline: PD targets = the reference ``lookahead`` control steps ahead."""
     return lambda obs, env: env.reference_action(lookahead)

@@ -297,13 +297,21 @@ class PPOTrainer:
 
     def __init__(self, env: gym.Env | Callable[[], gym.Env], eval_env, config: PPOConfig, out_dir: str | Path,
                  seed: int = 0, on_eval: Callable[[int, float, dict[str, Any]], None] | None = None,
-                 on_progress: Callable[[dict[str, Any]], None] | None = None) -> None:
+                 on_progress: Callable[[dict[str, Any]], None] | None = None,
+                 validate: Callable[[Agent], float] | None = None) -> None:
         torch.set_num_threads(max(1, int(config.torch_threads)))
         self.config, self.eval_env = config, eval_env
         self.device = resolve_device(config.device)
         self.out_dir = Path(out_dir)
         self.out_dir.mkdir(parents=True, exist_ok=True)
         self.on_eval, self.on_progress = on_eval, on_progress
+        # Early stopping: ``validate(agent)`` scores the policy on motions that neither train nor are
+        # evaluated, at every evaluation; the best-validated policy is kept (checkpoints/selected.pt) and
+        # is the one the run ends with, evaluated once more as the last row (``selected_step`` in it).
+        self.validate = validate
+        self.best_validation = -math.inf
+        self.selected_step: int | None = None
+        self.ended_on_selected = False  # the last row evaluates the selected policy: it alone is last_eval
         torch.manual_seed(seed)
         self.rng = np.random.default_rng(seed)
         self.seed = seed
@@ -374,6 +382,7 @@ class PPOTrainer:
             "agent": self.agent.state_dict(), "optimizer": self.optimizer.state_dict(),
             "steps": self.steps, "iteration": self.iteration, "elapsed": self.elapsed,
             "best_eval": self.best_eval, "history": self.history, "config": asdict(self.config),
+            "best_validation": self.best_validation, "selected_step": self.selected_step,
             "seed": self.seed, "torch_rng": torch.get_rng_state(), "numpy_rng": self.rng.bit_generator.state,
             "num_envs": self.num_envs, "device": str(self.device),  # informative: any other value resumes
         }
@@ -394,6 +403,8 @@ class PPOTrainer:
         self.steps, self.iteration = int(payload["steps"]), int(payload["iteration"])
         self.elapsed, self.best_eval = float(payload["elapsed"]), float(payload["best_eval"])
         self.history = list(payload["history"])
+        self.best_validation = float(payload.get("best_validation", -math.inf))
+        self.selected_step = payload.get("selected_step")
         torch.set_rng_state(payload["torch_rng"])
         self.rng.bit_generator.state = payload["numpy_rng"]
         self._sync_rollout_agent()
@@ -599,8 +610,55 @@ class PPOTrainer:
                 **{f"eval_score_{k}": round(v, 5) for k, v in summary.scores.items()},
                 **{f"eval_{k}": round(v, 5) for k, v in summary.terms.items()}}
 
+    def _validated(self, row: dict[str, Any]) -> None:
+        """``validate``'s score of the current policy in ``row``; a new best is kept as selected.pt."""
+        if self.validate is None:
+            return
+        value = round(float(self.validate(self.evaluation_agent())), 5)
+        row["validation_reward"] = value
+        if value > self.best_validation:
+            self.best_validation, self.selected_step = value, self.steps
+            self.save("selected.pt")
+        row["selected_step"] = self.selected_step
+
+    def _record_evaluation(self, row: dict[str, Any], elapsed: float, progress: "Progress") -> None:
+        """An evaluated row's headline and best, its checkpoints (last.pt, best.pt on a new best) and
+        its progress line."""
+        self.elapsed = elapsed
+        row["last_eval"] = round(self.last_eval(), 5)
+        if row["eval_reward"] > self.best_eval:  # rounded as last_eval is: they compare exactly
+            self.best_eval = row["eval_reward"]
+            self.save("best.pt")
+        row["best_eval"] = round(self.best_eval, 5)
+        self.save("last.pt")
+        progress.note = f"  eval {row['eval_reward']:.4f} (last {row['last_eval']:.4f}, best {self.best_eval:.4f})"
+        if "validation_reward" in row:
+            chosen = "none" if self.selected_step is None else f"{self.selected_step:,}"
+            progress.note += (f"  validation {row['validation_reward']:.4f} (best {self.best_validation:.4f}, "
+                              f"step {chosen})")
+        progress.report(self.steps)
+
+    def _end_on_selected(self, csv_file: "ProgressCSV") -> None:
+        """The run ends with the best-validated policy: its weights loaded, evaluated as the last row."""
+        if self.validate is None or self.selected_step is None or self.eval_env is None:
+            return
+        path = self.out_dir / "checkpoints" / "selected.pt"
+        self.agent.load_state_dict(load_checkpoint(path)["agent"])
+        self._sync_rollout_agent()
+        row = {"step": self.steps, "seconds": round(self.elapsed, 2), **self._evaluation_row(self.evaluate()),
+               "selected_step": self.selected_step, "validation_reward": self.best_validation}
+        self.history.append(row)
+        self.ended_on_selected = True
+        row["last_eval"] = round(self.last_eval(), 5)
+        row["best_eval"] = round(max(self.best_eval, row["eval_reward"]), 5)
+        csv_file.append(row)
+        log.info("the policy of step %d (validation %.4f) kept: eval %.4f", self.selected_step,
+                 self.best_validation, row["eval_reward"])
+
     def last_eval(self) -> float:
         """The headline: mean of the last ``eval_last_k`` evaluations (NaN before the first)."""
+        if self.ended_on_selected:
+            return float(self.history[-1]["eval_reward"])
         values = [h["eval_reward"] for h in self.history
                   if "eval_reward" in h and h["step"] > 0][-self.config.eval_last_k:]
         return float(np.mean(values)) if values else float("nan")
@@ -621,9 +679,11 @@ class PPOTrainer:
                  self.device, self.rollout_agent.device)
         if cfg.eval_at_start and self.steps == 0 and self.eval_env is not None and not self.history:
             row = {"step": 0, "seconds": 0.0, **self._evaluation_row(self.evaluate())}
+            self._validated(row)
             self.history.append(row)
             csv_file.append(row)
-            log.info("untrained policy: eval %.4f", row["eval_reward"])
+            log.info("untrained policy: eval %.4f%s", row["eval_reward"],
+                     f"  validation {row['validation_reward']:.4f}" if "validation_reward" in row else "")
         while self.steps < cfg.total_steps:
             scheduled = self.apply_schedules()
             t0 = time.perf_counter()
@@ -652,17 +712,10 @@ class PPOTrainer:
             if evaluated:
                 next_eval = (self.steps // cfg.eval_interval + 1) * cfg.eval_interval
                 row.update(self._evaluation_row(self.evaluate()))
+                self._validated(row)
             self.history.append(row)
             if evaluated:
-                self.elapsed = elapsed
-                row["last_eval"] = round(self.last_eval(), 5)
-                if row["eval_reward"] > self.best_eval:  # rounded as last_eval is: they compare exactly
-                    self.best_eval = row["eval_reward"]
-                    self.save("best.pt")
-                row["best_eval"] = round(self.best_eval, 5)
-                self.save("last.pt")
-                progress.note = f"  eval {row['eval_reward']:.4f} (last {row['last_eval']:.4f}, best {self.best_eval:.4f})"
-                progress.report(self.steps)
+                self._record_evaluation(row, elapsed, progress)
             else:
                 progress.tick(self.steps)
             csv_file.append(row)
@@ -678,7 +731,8 @@ class PPOTrainer:
                 break
         self.elapsed = progress.elapsed()
         self.progress = None
-        self.save("last.pt")
+        self.save("last.pt")  # the last policy, to resume from; a validated run then ends on its selected one
+        self._end_on_selected(csv_file)
         return TrainResult(self.steps, self.elapsed, self.best_eval, self.last_eval(), self.history, stopped)
 
 
