@@ -154,16 +154,7 @@ def build_wlasl_lex(
     skipped.update(files.skipped)
     candidates = _labelled_clips(files.clips, matched, lexicon, params.property, skipped)
     clips, loaded, loaded_files = _load_clips(candidates, source, channel_index, strict, skipped, params.source)
-    for line in build_warnings:
-        log.warning("%s", line)
-    for level, line in getattr(inner, "build_messages", lambda ids: [])(loaded_files):
-        log.log(level, "%s", line)  # e.g. hand files that look like detection order: one line per build
-        if level >= logging.WARNING:
-            build_warnings.append(line)
-    zero_frames = getattr(inner, "zero_frames", {})  # sources that mark all-zero frames
-    all_zero_frames = int(sum(zero_frames.get(f, 0) for f in loaded_files))
-    if zero_frames:
-        log.info("%d all-zero frames (no detection) in %d clips marked missing", all_zero_frames, len(loaded))
+    all_zero_frames = _source_messages(inner, loaded_files, len(loaded), build_warnings)
 
     prepared = preprocess_clips(clips, channels, params.length, params.padding)
     skipped["no_valid_frame"] = len(prepared.skipped_no_valid_frame)
@@ -195,26 +186,31 @@ def build_wlasl_lex(
         skipped=skipped,
     )
     if out_dir is not None:
-        info = {
-            "data_root": str(data_root),
-            "entry_ids": [entry.entry_id for _, entry in kept],
-            "counts": {
-                "wlasl_instances": len(wlasl.instances),
-                "keypoint_files": len(available),
-                "matched_glosses": matched.num_glosses,
-                "matched_videos": matched.num_videos,
-                "ambiguous_glosses": len(matched.ambiguous),
-                "clips": len(kept),
-                "glosses": len(set(dataset.glosses)),
-                "classes": dataset.num_classes,
-                "all_zero_frames": all_zero_frames,
-                **{f"preprocess_{k}": v for k, v in prepared.stats.items()},
-            },
-            "rare_classes": {"rule": params.rare_classes, "classes": split.rare},
-            "warnings": build_warnings,
-        }
+        counts = {"wlasl_instances": len(wlasl.instances), "keypoint_files": len(available),
+                  "matched_glosses": matched.num_glosses, "matched_videos": matched.num_videos,
+                  "ambiguous_glosses": len(matched.ambiguous), "clips": len(kept),
+                  "glosses": len(set(dataset.glosses)), "classes": dataset.num_classes,
+                  "all_zero_frames": all_zero_frames, **{f"preprocess_{k}": v for k, v in prepared.stats.items()}}
+        info = {"data_root": str(data_root), "entry_ids": [entry.entry_id for _, entry in kept], "counts": counts,
+                "rare_classes": {"rule": params.rare_classes, "classes": split.rare}, "warnings": build_warnings}
         write_wlasl_lex(out_dir, dataset, params, info)
     return dataset
+
+
+def _source_messages(inner, loaded_files: list[str], clips: int, build_warnings: list[str]) -> int:
+    """Log the build's warnings and the source's own messages on the files it read (a warning joins
+    ``build_warnings``); returns the all-zero frames (no detection) the source marked missing."""
+    for line in build_warnings:
+        log.warning("%s", line)
+    for level, line in getattr(inner, "build_messages", lambda ids: [])(loaded_files):
+        log.log(level, "%s", line)  # e.g. hand files that look like detection order: one line per build
+        if level >= logging.WARNING:
+            build_warnings.append(line)
+    zero_frames = getattr(inner, "zero_frames", {})  # sources that mark all-zero frames
+    all_zero_frames = int(sum(zero_frames.get(f, 0) for f in loaded_files))
+    if zero_frames:
+        log.info("%d all-zero frames (no detection) in %d clips marked missing", all_zero_frames, clips)
+    return all_zero_frames
 
 
 def _labelled_clips(file_clips, matched, lexicon, prop: str, skipped: Counter) -> list[tuple[Any, Any, str]]:

@@ -151,44 +151,10 @@ def _extract(argv: list[str]) -> int:
             return 2
     keypoints, keypoint_skips = keypoint_inputs(args.inputs, read_handedness=args.hand_order == "detection")
     if keypoints:  # already keypoints: retarget them (no MediaPipe)
-        others = [i for i in args.inputs if not _is_keypoints(Path(i))]
-        if others or not args.motions:
-            kinds = Counter(path.suffix for path in keypoints)
-            print(f"aslexp extract: {', '.join(f'{n} {suffix}' for suffix, n in sorted(kinds.items()))} "
-                  "input(s) are keypoints already: give only keypoint files and folders, with --motions, to "
-                  "retarget them" + (f" (not keypoints: {', '.join(others)})" if others else ""),
-                  file=sys.stderr)  # fmt: skip
-            return 2
-        if keypoint_skips:
-            print(f"skipped inputs: {dict(keypoint_skips)}")
-        from aslexp.pose.landmarks import NeedsOption
-
-        try:
-            problems, written = _write_motions([str(path) for path in keypoints], args, from_files=True)
-        except NeedsOption as err:  # the same for every array of the batch: one line, not one per file
-            print(f"aslexp extract: {err}", file=sys.stderr)
-            return 2
-        return _batch_end(len(keypoints), written, problems)
+        return _retarget_keypoints(args, keypoints, keypoint_skips)
     skipped: Counter = Counter()
-    summary_name = "summary.json"
     try:
-        if not args.inputs and not args.wlasl:
-            raise ExtractionError("nothing to extract: give video files or folders, or --wlasl FILE "
-                                  "--videos DIR")  # fmt: skip
-        if args.wlasl and not args.videos and not any(Path(i).is_dir() for i in args.inputs):
-            raise ExtractionError(f"--wlasl {args.wlasl} needs the videos: add --videos DIR (a folder "
-                                  "of <video_id>.mp4), e.g. --videos ../shared/data/videos/wlasl")  # fmt: skip
-        if args.workers < 1:
-            raise ExtractionError(f"--workers {args.workers}: expected 1 or more")
-        jobs = collect_jobs(args.inputs, wlasl_json=args.wlasl, video_dir=args.videos,
-                            ids=args.ids, skipped=skipped)  # fmt: skip
-        jobs = apply_frame_ranges(jobs, [parse_frames(text) for text in args.frames])
-        if args.shard:
-            index, count = parse_shard(args.shard)
-            total = len(jobs)
-            jobs = select_shard(jobs, index, count)
-            summary_name = f"summary.shard-{index}-of-{count}.json"
-            print(f"shard {index}/{count}: {len(jobs)} of {total} videos")
+        jobs, summary_name = _video_jobs(args, skipped)
     except ExtractionError as err:
         print(f"aslexp extract: {err}", file=sys.stderr)
         return 2  # bad input
@@ -226,6 +192,51 @@ def _extract(argv: list[str]) -> int:
     data["skipped_inputs"] = dict(skipped)
     summary_path.write_text(json.dumps(data, indent=1))
     return _batch_end(len(jobs), len(done), problems)
+
+
+def _retarget_keypoints(args, keypoints: list[Path], keypoint_skips: Counter) -> int:
+    """Inputs that are keypoints already: retargeted to motions (no MediaPipe); the exit code."""
+    others = [i for i in args.inputs if not _is_keypoints(Path(i))]
+    if others or not args.motions:
+        kinds = Counter(path.suffix for path in keypoints)
+        print(f"aslexp extract: {', '.join(f'{n} {suffix}' for suffix, n in sorted(kinds.items()))} "
+              "input(s) are keypoints already: give only keypoint files and folders, with --motions, to "
+              "retarget them" + (f" (not keypoints: {', '.join(others)})" if others else ""),
+              file=sys.stderr)  # fmt: skip
+        return 2
+    if keypoint_skips:
+        print(f"skipped inputs: {dict(keypoint_skips)}")
+    from aslexp.pose.landmarks import NeedsOption
+
+    try:
+        problems, written = _write_motions([str(path) for path in keypoints], args, from_files=True)
+    except NeedsOption as err:  # the same for every array of the batch: one line, not one per file
+        print(f"aslexp extract: {err}", file=sys.stderr)
+        return 2
+    return _batch_end(len(keypoints), written, problems)
+
+
+def _video_jobs(args, skipped: Counter) -> tuple[list, str]:
+    """The videos to extract (``--wlasl``/``--videos``, ``--frames``, ``--shard``) and the summary's
+    file name; an ExtractionError names what is wrong with the inputs."""
+    if not args.inputs and not args.wlasl:
+        raise ExtractionError("nothing to extract: give video files or folders, or --wlasl FILE "
+                              "--videos DIR")  # fmt: skip
+    if args.wlasl and not args.videos and not any(Path(i).is_dir() for i in args.inputs):
+        raise ExtractionError(f"--wlasl {args.wlasl} needs the videos: add --videos DIR (a folder "
+                              "of <video_id>.mp4), e.g. --videos ../shared/data/videos/wlasl")  # fmt: skip
+    if args.workers < 1:
+        raise ExtractionError(f"--workers {args.workers}: expected 1 or more")
+    jobs = collect_jobs(args.inputs, wlasl_json=args.wlasl, video_dir=args.videos,
+                        ids=args.ids, skipped=skipped)  # fmt: skip
+    jobs = apply_frame_ranges(jobs, [parse_frames(text) for text in args.frames])
+    if not args.shard:
+        return jobs, "summary.json"
+    index, count = parse_shard(args.shard)
+    total = len(jobs)
+    jobs = select_shard(jobs, index, count)
+    print(f"shard {index}/{count}: {len(jobs)} of {total} videos")
+    return jobs, f"summary.shard-{index}-of-{count}.json"
 
 
 def _batch_end(total: int, succeeded: int, problems: list[str]) -> int:

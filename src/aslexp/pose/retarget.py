@@ -812,42 +812,12 @@ def retarget_upper_body(
     report: dict = {"frames": T, "body_frames": int(body_ok.sum()), "past_limits": {}}  # arms; fingers per hand
     report["depth_to_width"], warnings = depth_warning(body)  # implausible proportions, said on the terminal
     for side in ("right", "left"):
-        q = np.full((T, 4), np.nan)
-        elbow = np.full(T, np.nan)
-        wrist = np.full(T, np.nan)
-        prev = None
-        for t in np.flatnonzero(body_ok):
-            hand = hands[side][t] if hand_ok[side][t] else None
-            q[t], elbow[t], wrist[t], prev = _solve_arm(
-                side, body[f"{side}_shoulder"][t], body[f"{side}_elbow"][t], body[f"{side}_wrist"][t],
-                hand, chest_rot[t], prev, model.wrist_offset)  # fmt: skip
-        prefix = side[0] + "_"
-        hand_model = model.hands[side]
-        try:
-            fingers, hand_report = finger_angles(hands[side], hand_model, sigma)
-        except ValueError as err:
-            fingers = np.zeros((T, 15))
-            hand_report = {"frames_observed": 0, "coverage": 0.0, "observed": False,
-                           "note": f"{err}: fingers left open (0)"}  # fmt: skip
-        report[f"{side}_hand"] = hand_report
-        warnings += hand_report.get("warnings", [])
-        elbow_lim = model.kinematics.limits([f"{side}_elbow"])
-        wrist_lim = model.kinematics.limits([f"{side}_wrist"])
-        report[f"{side}_elbow_outside_limits"] = round(_clip_report(elbow, *elbow_lim), 3)
-        report[f"{side}_wrist_outside_limits"] = round(_clip_report(wrist, *wrist_lim), 3)
-        arm_lower, arm_upper = model.kinematics.limits([f"{side}_elbow", f"{side}_wrist"])
-        arm_shares, arm_warnings = limit_warnings(np.stack([elbow, wrist], axis=1), arm_lower, arm_upper,
-                                                  [f"{side}_elbow", f"{side}_wrist"])  # fmt: skip
-        report["past_limits"].update(arm_shares)
-        warnings += arm_warnings
-        wrist_filled, wrist_seen = fill_gaps(wrist[:, None])
-        if not wrist_seen.any():
-            wrist_filled = np.zeros((T, 1))
-        joints[f"{side}_shoulder"] = smooth_quaternions(fill_gaps(q)[0], sigma)
-        joints[f"{side}_elbow"] = np.clip(smooth(fill_gaps(elbow[:, None])[0], sigma)[:, 0], *elbow_lim)
-        joints[f"{side}_wrist"] = np.clip(smooth(wrist_filled, sigma)[:, 0], *wrist_lim)
-        for k, name in enumerate(HAND_JOINTS):
-            joints[prefix + name] = fingers[:, k]
+        side_joints, side_report, side_warnings = _retarget_arm(side, body, hands, body_ok, hand_ok, chest_rot,
+                                                                model, sigma)
+        joints.update(side_joints)
+        report["past_limits"].update(side_report.pop("past_limits"))
+        report.update(side_report)
+        warnings += side_warnings
     joints["chest"] = smooth_quaternions(fill_gaps(chest_q)[0], sigma)
     if np.isfinite(neck_q).any():
         joints["neck"] = smooth_quaternions(fill_gaps(neck_q)[0], sigma)
@@ -856,6 +826,49 @@ def retarget_upper_body(
     report["hip_frames"] = int(hips_ok.sum())
     report["warnings"] = warnings
     return RetargetResult(upper_body_frames(joints, T), 1.0 / fps, report)
+
+
+def _retarget_arm(side: str, body: dict[str, np.ndarray], hands: dict[str, np.ndarray], body_ok: np.ndarray,
+                  hand_ok: dict[str, np.ndarray], chest_rot: np.ndarray, model, sigma: float):
+    """One arm of :func:`retarget_upper_body`: the shoulder, elbow and wrist solved frame by frame in
+    the chest's frame, the fingers from the hand's landmarks, gaps filled and smoothed, inside the
+    joint limits. Returns its joints, its report entries (``past_limits`` among them) and warnings."""
+    T = len(body_ok)
+    q = np.full((T, 4), np.nan)
+    elbow = np.full(T, np.nan)
+    wrist = np.full(T, np.nan)
+    prev = None
+    for t in np.flatnonzero(body_ok):
+        hand = hands[side][t] if hand_ok[side][t] else None
+        q[t], elbow[t], wrist[t], prev = _solve_arm(
+            side, body[f"{side}_shoulder"][t], body[f"{side}_elbow"][t], body[f"{side}_wrist"][t],
+            hand, chest_rot[t], prev, model.wrist_offset)  # fmt: skip
+    prefix = side[0] + "_"
+    try:
+        fingers, hand_report = finger_angles(hands[side], model.hands[side], sigma)
+    except ValueError as err:
+        fingers = np.zeros((T, 15))
+        hand_report = {"frames_observed": 0, "coverage": 0.0, "observed": False,
+                       "note": f"{err}: fingers left open (0)"}  # fmt: skip
+    warnings = list(hand_report.get("warnings", []))
+    elbow_lim = model.kinematics.limits([f"{side}_elbow"])
+    wrist_lim = model.kinematics.limits([f"{side}_wrist"])
+    report = {f"{side}_hand": hand_report,
+              f"{side}_elbow_outside_limits": round(_clip_report(elbow, *elbow_lim), 3),
+              f"{side}_wrist_outside_limits": round(_clip_report(wrist, *wrist_lim), 3)}
+    arm_lower, arm_upper = model.kinematics.limits([f"{side}_elbow", f"{side}_wrist"])
+    report["past_limits"], arm_warnings = limit_warnings(np.stack([elbow, wrist], axis=1), arm_lower, arm_upper,
+                                                         [f"{side}_elbow", f"{side}_wrist"])  # fmt: skip
+    warnings += arm_warnings
+    wrist_filled, wrist_seen = fill_gaps(wrist[:, None])
+    if not wrist_seen.any():
+        wrist_filled = np.zeros((T, 1))
+    joints = {f"{side}_shoulder": smooth_quaternions(fill_gaps(q)[0], sigma),
+              f"{side}_elbow": np.clip(smooth(fill_gaps(elbow[:, None])[0], sigma)[:, 0], *elbow_lim),
+              f"{side}_wrist": np.clip(smooth(wrist_filled, sigma)[:, 0], *wrist_lim)}
+    for k, name in enumerate(HAND_JOINTS):
+        joints[prefix + name] = fingers[:, k]
+    return joints, report, warnings
 
 
 # ----------------------------------------------------------------------------- files

@@ -313,10 +313,7 @@ def run_retrieval(
         property_accuracy, unseen = _property_accuracy(table, codes_all, train_val, test, test_proba)
         clip_rows += _clip_records(k, split_seed, clips, table, test, ranks, test_proba)
         per_split.append({
-            "index": k, "seed": split_seed,
-            "glosses": {"train": len({clips.glosses[i] for i in train}), "val": len({clips.glosses[i] for i in val}),
-                        "test": sorted({clips.glosses[i] for i in test})},
-            "clips": {"train": len(train), "val": len(val), "test": len(test)},
+            "index": k, "seed": split_seed, **_split_sizes(clips.glosses, train, val, test),
             "chosen": {"phonology": {"smoothing": chosen["phonology"]["smoothing"]},
                        "phonology+prior": {key: chosen["phonology+prior"][key] for key in ("smoothing", "weight")}},
             "validation": {"phonology": chosen["phonology"], "phonology+prior": chosen["phonology+prior"]},
@@ -324,9 +321,6 @@ def run_retrieval(
             "test_value_unseen_in_training": unseen, "metrics": metrics, "time_s": time.perf_counter() - split_start,
         })
         _log_split(per_split[-1], repeats, (time.perf_counter() - start) / (k + 1))
-    keys = [f"recall@{k}" for k in recall_at] + ["mrr", "median_rank", "mean_rank", "mean_log_rank"]
-    summary = {m: {key: split_interval([s["metrics"][m][key] for s in per_split], metric_range(key, len(table)))
-                   for key in keys} for m in R.METHODS}
     overlap = split_overlap([s["glosses"]["test"] for s in per_split])
     log.info("the %d splits' %d test-gloss slots hold %d distinct glosses; %d slots recur in another split",
              repeats, overlap["test_slots"], overlap["distinct_test_glosses"], overlap["recurring"])
@@ -345,7 +339,7 @@ def run_retrieval(
         "selection": {"select_by": select_by, "smoothing": [float(e) for e in smoothing],
                       "prior_weights": [float(w) for w in prior_weights], "on": "validation glosses"},
         "methods": {m: R.METHOD_LABELS[m] for m in R.METHODS},
-        "table": summary,
+        "table": _summary(per_split, recall_at, len(table)),
         "paired": _paired(per_split, len(table)),
         "split_overlap": overlap,
         "frequency": _frequency(table, clips, pooled_entries, pooled_ranks, recall_at),
@@ -355,6 +349,20 @@ def run_retrieval(
         "clips": clip_rows,
         "time_s": time.perf_counter() - start,
     }
+
+
+def _split_sizes(glosses: Sequence[str], train, val, test) -> dict[str, Any]:
+    """A split's glosses (the test ones by name) and clips per part."""
+    return {"glosses": {"train": len({glosses[i] for i in train}), "val": len({glosses[i] for i in val}),
+                        "test": sorted({glosses[i] for i in test})},
+            "clips": {"train": len(train), "val": len(val), "test": len(test)}}
+
+
+def _summary(per_split: Sequence[Mapping[str, Any]], recall_at: Sequence[int], entries: int) -> dict[str, Any]:
+    """Per method and metric: mean, std and 95% t interval over the splits."""
+    keys = [f"recall@{k}" for k in recall_at] + ["mrr", "median_rank", "mean_rank", "mean_log_rank"]
+    return {m: {key: split_interval([s["metrics"][m][key] for s in per_split], metric_range(key, entries))
+                for key in keys} for m in R.METHODS}
 
 
 def _paired(per_split: Sequence[Mapping[str, Any]], entries: int) -> list[dict[str, Any]]:

@@ -360,27 +360,14 @@ def _train_torch(
     on_epoch_end: EpochCallback | None,
     on_epoch_record: RecordCallback | None = None,
 ) -> FitResult:
-    torch.set_num_threads(config.num_threads)
-    device = resolve_device(config.device)
-    precision = check_precision(config.precision, device)
-    if device.type == "cuda":  # autotuned convolution kernels, unless bit-reproducibility was asked for
-        torch.backends.cudnn.benchmark = not config.deterministic
+    device, precision = _learner_device(config)
     module = classifier.module.to(device)
     classifier.eval_batch_size = config.eval_batch_size
     classifier.precision = precision
     optimizer = make_optimizer(module, config)
     scaler = torch.amp.GradScaler("cuda") if precision == "fp16" else None
-    class_weight = None
-    if config.class_weights:
-        class_weight = torch.as_tensor(inverse_frequency_weights(train.y, classifier.spec.num_classes),
-                                       dtype=torch.float32, device=device)  # fmt: skip
-    loss_fn = nn.CrossEntropyLoss(weight=class_weight)
-    x_all, mask_all = to_tensors(train.X, train.mask)
-    y_all = torch.as_tensor(train.y, dtype=torch.long)
-    data_device = device if config.data_on_device else torch.device("cpu")
-    x_all, mask_all, y_all = x_all.to(data_device), mask_all.to(data_device), y_all.to(data_device)
-    if data_device.type == "cpu" and device.type == "cuda":
-        x_all, mask_all, y_all = x_all.pin_memory(), mask_all.pin_memory(), y_all.pin_memory()
+    loss_fn = _loss(config, train, classifier.spec.num_classes, device)
+    data = _TrainingData.of(train, config, device)
     rng = np.random.default_rng(seed)
     augmenting = config.crop_window > 0 or config.shift > 0
     generator = torch.Generator(device=device).manual_seed(seed) if augmenting else None
@@ -401,23 +388,13 @@ def _train_torch(
         module.train()
         loss_sum, correct, seen = 0.0, 0, 0
         for batch in _batches(len(train), config.batch_size, rng, config.drop_last):
-            index = torch.from_numpy(batch).to(data_device)
-            x, m, y = x_all[index], mask_all[index], y_all[index]
-            if data_device != device:
-                x, m, y = (t.to(device, non_blocking=True) for t in (x, m, y))
+            x, m, y = data.batch(batch, device)
             if generator is not None:
                 x, m = _augment(x, m, config, generator, getattr(module, "fixed_length", False))
             with autocast(device, precision):
                 logits = module(x, m)
                 loss = loss_fn(logits.float(), y)
-            optimizer.zero_grad(set_to_none=True)
-            if scaler is not None:
-                scaler.scale(loss).backward()
-                scaler.step(optimizer)
-                scaler.update()
-            else:
-                loss.backward()
-                optimizer.step()
+            _step(optimizer, scaler, loss)
             loss_sum += float(loss.detach()) * len(batch)
             correct += int((logits.detach().argmax(dim=1) == y).sum())
             seen += len(batch)
@@ -437,28 +414,44 @@ def _train_torch(
         elif early_stopping:
             epochs_without_improvement += 1
 
-        mean_epoch_time = (time.perf_counter() - run_start) / epoch
-        validation = f"  val acc {val_eval['accuracy']:.3f}  val MCC {val_eval['mcc']:.3f}" if val is not None else ""
-        if val is not None and metric not in ("mcc", "accuracy"):
-            validation += f"  val {metric} {score:.3f}"
-        log.info(
-            "%s epoch %d/%d  loss %.4f  train acc %.3f%s  lr %.2e  %.1f clips/s  %.2fs  ETA <= %s%s",
-            classifier.name, epoch, epochs, record["train_loss"], record["train_accuracy"], validation,
-            lr, record["clips_per_s"], epoch_time, _format_seconds(mean_epoch_time * (epochs - epoch)),
-            "  *" if improved else "",
-        )
+        _log_epoch(classifier.name, epoch, epochs, record, val_eval if val is not None else None, metric, improved,
+                   (time.perf_counter() - run_start) / epoch)
         if on_epoch_record is not None:
             on_epoch_record(epoch, record)
         if on_epoch_end is not None:
             on_epoch_end(epoch, score)  # may raise (e.g. optuna.TrialPruned): let it propagate
         if early_stopping and epochs_without_improvement >= config.patience:
             result.stopped_early = True
-            log.info(
-                "%s: early stop after epoch %d (no val %s gain for %d epochs); best epoch %d, val %s %.3f",
-                classifier.name, epoch, metric, config.patience, result.best_epoch, metric, result.best_val_score,
-            )
+            log.info("%s: early stop after epoch %d (no val %s gain for %d epochs); best epoch %d, val %s %.3f",
+                     classifier.name, epoch, metric, config.patience, result.best_epoch, metric, result.best_val_score)
             break
 
+    _end_fit(result, module, best_state, early_stopping, metric)
+    return result
+
+
+def _learner_device(config: TrainerConfig) -> tuple[torch.device, str]:
+    """The learner's device and precision (its threads set; cuDNN autotuned unless ``deterministic``)."""
+    torch.set_num_threads(config.num_threads)
+    device = resolve_device(config.device)
+    precision = check_precision(config.precision, device)
+    if device.type == "cuda":  # autotuned convolution kernels, unless bit-reproducibility was asked for
+        torch.backends.cudnn.benchmark = not config.deterministic
+    return device, precision
+
+
+def _loss(config: TrainerConfig, train: ArraySplit, num_classes: int, device: torch.device) -> nn.Module:
+    """Cross-entropy, weighted by inverse class frequency with ``class_weights``."""
+    class_weight = None
+    if config.class_weights:
+        class_weight = torch.as_tensor(inverse_frequency_weights(train.y, num_classes),
+                                       dtype=torch.float32, device=device)  # fmt: skip
+    return nn.CrossEntropyLoss(weight=class_weight)
+
+
+def _end_fit(result: FitResult, module: nn.Module, best_state: dict[str, torch.Tensor] | None, early_stopping: bool,
+             metric: str) -> None:
+    """The fit's kept weights (the best epoch's with early stopping, else the last's) and their scores."""
     if early_stopping and best_state is not None:
         module.load_state_dict(best_state)
     elif not early_stopping:
@@ -468,7 +461,60 @@ def _train_torch(
             result.best_val_score = last.get(f"val_{metric}", last["val_mcc"] if metric == "mcc" else last["val_accuracy"])
             result.best_val_mcc = last["val_mcc"]
     module.eval()
-    return result
+
+
+def _log_epoch(name: str, epoch: int, epochs: int, record: dict[str, Any], val_eval: dict[str, Any] | None,
+               metric: str, improved: bool, mean_epoch_time: float) -> None:
+    """The epoch's progress line: loss, accuracies, learning rate, rate and ETA (``*``: a new best)."""
+    validation = f"  val acc {val_eval['accuracy']:.3f}  val MCC {val_eval['mcc']:.3f}" if val_eval is not None else ""
+    if val_eval is not None and metric not in ("mcc", "accuracy"):
+        validation += f"  val {metric} {val_eval['score']:.3f}"
+    log.info(
+        "%s epoch %d/%d  loss %.4f  train acc %.3f%s  lr %.2e  %.1f clips/s  %.2fs  ETA <= %s%s",
+        name, epoch, epochs, record["train_loss"], record["train_accuracy"], validation,
+        record["lr"], record["clips_per_s"], record["epoch_time"], _format_seconds(mean_epoch_time * (epochs - epoch)),
+        "  *" if improved else "",
+    )
+
+
+@dataclass
+class _TrainingData:
+    """The training split as tensors, on the device (``data_on_device``) or in (pinned) host memory."""
+
+    x: torch.Tensor
+    mask: torch.Tensor
+    y: torch.Tensor
+    device: torch.device
+
+    @classmethod
+    def of(cls, train: ArraySplit, config: TrainerConfig, device: torch.device) -> "_TrainingData":
+        x_all, mask_all = to_tensors(train.X, train.mask)
+        y_all = torch.as_tensor(train.y, dtype=torch.long)
+        data_device = device if config.data_on_device else torch.device("cpu")
+        x_all, mask_all, y_all = x_all.to(data_device), mask_all.to(data_device), y_all.to(data_device)
+        if data_device.type == "cpu" and device.type == "cuda":
+            x_all, mask_all, y_all = x_all.pin_memory(), mask_all.pin_memory(), y_all.pin_memory()
+        return cls(x_all, mask_all, y_all, data_device)
+
+    def batch(self, rows: np.ndarray, device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The rows' clips, masks and labels on the learner's ``device``."""
+        index = torch.from_numpy(rows).to(self.device)
+        x, m, y = self.x[index], self.mask[index], self.y[index]
+        if self.device != device:
+            x, m, y = (t.to(device, non_blocking=True) for t in (x, m, y))
+        return x, m, y
+
+
+def _step(optimizer: torch.optim.Optimizer, scaler, loss: torch.Tensor) -> None:
+    """One optimiser step on ``loss`` (through the fp16 gradient scaler when there is one)."""
+    optimizer.zero_grad(set_to_none=True)
+    if scaler is not None:
+        scaler.scale(loss).backward()
+        scaler.step(optimizer)
+        scaler.update()
+    else:
+        loss.backward()
+        optimizer.step()
 
 
 def _augment(x: torch.Tensor, mask: torch.Tensor, config: TrainerConfig, generator: torch.Generator,

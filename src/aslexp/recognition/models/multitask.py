@@ -273,33 +273,10 @@ def fit_multitask(X: np.ndarray, mask: np.ndarray, codes: np.ndarray, names: Seq
     nor is calibrated. With ``select`` naming only some heads, the others are auxiliary tasks: they
     shape the encoder through their loss and never choose the epoch (seen-gloss classification with
     phonology heads: :mod:`aslexp.recognition.seen_glosses`)."""
-    from aslexp.recognition.metrics import mcc
-
     p = check_params(params or {})
-    codes = np.asarray(codes, dtype=np.int64).reshape(len(X), -1)
-    names = list(names)
-    if len(names) != codes.shape[1]:
-        raise ValueError(f"multitask: {len(names)} head names for {codes.shape[1]} label columns")
     train_idx, val_idx = np.asarray(train_idx, dtype=np.int64), np.asarray(val_idx, dtype=np.int64)
-    if p["gloss_head"]:
-        if glosses is None or len(glosses) != len(X):
-            raise ValueError("multitask: gloss_head=true needs every clip's gloss (glosses=...)")
-        vocabulary = {g: i for i, g in enumerate(sorted(set(glosses)))}
-        codes = np.concatenate([codes, np.array([[vocabulary[g]] for g in glosses], dtype=np.int64)], axis=1)
-        names = names + [GLOSS]
-    heads = []
-    for h, name in enumerate(names):
-        column = codes[train_idx, h]
-        classes = np.unique(column[column >= 0])
-        if len(classes) < 2:
-            raise ValueError(f"multitask: head {name!r} has {len(classes)} class(es) among the training clips; need 2")
-        heads.append(Head(name, classes))
-    chooses = [h for h, name in enumerate(names) if not (name == GLOSS and p["gloss_head"])]
-    if select is not None:
-        missing = sorted(set(select) - set(names))
-        if missing or not select:
-            raise ValueError(f"multitask: select={list(select)} names no head or unknown heads {missing}; heads: {names}")
-        chooses = [h for h, name in enumerate(names) if name in set(select)]
+    codes, names, heads, chooses = _heads(np.asarray(codes, dtype=np.int64).reshape(len(X), -1), list(names),
+                                          train_idx, glosses, p, select)
     weights = p["head_weights"] or [1.0] * len(heads)
     if len(weights) != len(heads):
         raise ValueError(f"multitask: head_weights has {len(weights)} values for {len(heads)} heads")
@@ -334,20 +311,7 @@ def fit_multitask(X: np.ndarray, mask: np.ndarray, codes: np.ndarray, names: Seq
             loss.backward()
             optimizer.step()
             total += float(loss.detach()) * len(batch)
-        val_logits = model.logits(X[val_idx], mask[val_idx])
-        scores, losses = [], []
-        for h, (z, head) in enumerate(zip(val_logits, heads)):
-            if h not in chooses:
-                continue
-            truth = codes[val_idx, h]
-            known = truth >= 0
-            if known.any():
-                scores.append(mcc(truth[known], head.classes[z[known].argmax(axis=1)]))
-            y = targets[val_idx, h]
-            if (y >= 0).any():
-                losses.append(nll(z[y >= 0], y[y >= 0]))
-        score = float(np.mean(scores)) if scores else 0.0
-        val_loss = float(np.mean(losses)) if losses else math.inf
+        score, val_loss = _validation(model, X[val_idx], mask[val_idx], codes[val_idx], targets[val_idx], chooses)
         model.history.append({"epoch": epoch + 1, "train_loss": total / max(1, len(train_idx)), "val_mcc": score,
                               "val_loss": val_loss})
         if (score, -val_loss) > (best[0], -best[1]):
@@ -365,3 +329,51 @@ def fit_multitask(X: np.ndarray, mask: np.ndarray, codes: np.ndarray, names: Seq
     if calibrate:
         model.calibration = model.calibrate(X[val_idx], mask[val_idx], codes[val_idx])
     return model
+
+
+def _heads(codes: np.ndarray, names: list[str], train_idx: np.ndarray, glosses: Sequence[str] | None,
+           p: Mapping[str, Any], select: Sequence[str] | None):
+    """:func:`fit_multitask`'s heads: the label columns (the gloss head's appended with ``gloss_head``),
+    their names, a :class:`Head` per column (its classes: the training clips' values) and the heads
+    that choose the epoch."""
+    if len(names) != codes.shape[1]:
+        raise ValueError(f"multitask: {len(names)} head names for {codes.shape[1]} label columns")
+    if p["gloss_head"]:
+        if glosses is None or len(glosses) != len(codes):
+            raise ValueError("multitask: gloss_head=true needs every clip's gloss (glosses=...)")
+        vocabulary = {g: i for i, g in enumerate(sorted(set(glosses)))}
+        codes = np.concatenate([codes, np.array([[vocabulary[g]] for g in glosses], dtype=np.int64)], axis=1)
+        names = names + [GLOSS]
+    heads = []
+    for h, name in enumerate(names):
+        column = codes[train_idx, h]
+        classes = np.unique(column[column >= 0])
+        if len(classes) < 2:
+            raise ValueError(f"multitask: head {name!r} has {len(classes)} class(es) among the training clips; need 2")
+        heads.append(Head(name, classes))
+    chooses = [h for h, name in enumerate(names) if not (name == GLOSS and p["gloss_head"])]
+    if select is not None:
+        missing = sorted(set(select) - set(names))
+        if missing or not select:
+            raise ValueError(f"multitask: select={list(select)} names no head or unknown heads {missing}; heads: {names}")
+        chooses = [h for h, name in enumerate(names) if name in set(select)]
+    return codes, names, heads, chooses
+
+
+def _validation(model: MultiTaskModel, X: np.ndarray, mask: np.ndarray, codes: np.ndarray, targets: np.ndarray,
+                chooses: Sequence[int]) -> tuple[float, float]:
+    """The epoch's validation: the mean MCC and mean NLL over the heads that choose the epoch."""
+    from aslexp.recognition.metrics import mcc
+
+    scores, losses = [], []
+    for h, (z, head) in enumerate(zip(model.logits(X, mask), model.heads)):
+        if h not in chooses:
+            continue
+        truth = codes[:, h]
+        known = truth >= 0
+        if known.any():
+            scores.append(mcc(truth[known], head.classes[z[known].argmax(axis=1)]))
+        y = targets[:, h]
+        if (y >= 0).any():
+            losses.append(nll(z[y >= 0], y[y >= 0]))
+    return (float(np.mean(scores)) if scores else 0.0), (float(np.mean(losses)) if losses else math.inf)
