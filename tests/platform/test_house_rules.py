@@ -1,6 +1,6 @@
 """The house's written rules that a reader meets first: the README stays short, the docs pages fit their word
-budget and each opens with what it is for, and the project speaks of itself alone (no tracker or session
-numbers outside the lab notes of docs/archive/ and git)."""
+budget and each opens with what it is for, the project speaks of itself alone (no tracker or session
+numbers outside the lab notes of docs/archive/ and git), and no function runs over 80 lines."""
 
 from __future__ import annotations
 
@@ -76,3 +76,20 @@ def test_an_opening_is_a_paragraph_not_a_heading_or_code():
     assert _opening_paragraph("# T\n\n```\ncode\n```\n") == ""
     assert _opening_paragraph("# T\n\n## A\n") == ""
     assert _opening_paragraph("no title\n\ntext\n") == ""
+
+
+FUNCTION_LINES = 80
+
+
+def test_no_function_in_the_package_is_over_80_lines():
+    """A function a reader takes in at once: each of src/'s is at most 80 lines, its docstring included."""
+    import ast
+
+    long = []
+    for path in sorted((ROOT / "src").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                lines = node.end_lineno - node.lineno + 1
+                if lines > FUNCTION_LINES:
+                    long.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name} ({lines} lines)")
+    assert not long, f"functions over {FUNCTION_LINES} lines (split them where the work splits): {long}"

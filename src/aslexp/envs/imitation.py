@@ -141,7 +141,32 @@ class ImitationEnv(gym.Env):
         self.reward_fn = setup.reward_function()
         self.score_fns = {name: setup.reward_function(spec) for name, spec in setup.score_rewards.items()}
 
-        # -- spaces ---------------------------------------------------------------------------
+        self._action_spaces()
+        size = self.layout.action_size
+        alpha = self.spec_env.residual_base_smoothing
+        self.base_smoothing = (mdp.BaseSmoothing(alpha, self.joint_value_indices(
+            self.spec_env.residual_base_smoothing_groups, "env residual_base_smoothing_groups"),
+            self.physical_action_space.low[:size], self.physical_action_space.high[:size]) if alpha > 0 else None)
+        self.termination = mdp.Termination.of(self.spec_env)
+        self._target_rules: dict[bool, mdp.TargetRule] = {}  # by plain (thesis_pd) or not
+        self.observed_links = self._select_links(self.spec_env.observe_links)
+        # Links read from the engine each step: the observed ones and the end effectors (None: all).
+        self._state_links = (None if self.spec_env.observe_links is None else
+                             sorted(set(self.observed_links.tolist()) | set(self.sim.end_effector_links)))
+        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(self._observation_size(),), dtype=np.float32)
+
+        # -- episode state and counters --------------------------------------------------
+        self.time = 0.0
+        self.steps = 0
+        self._steps_below = 0
+        self.last_sim_state: PoseSnapshot | None = None
+        self.last_reference_state: PoseSnapshot | None = None
+        self.counters: dict[str, int] = defaultdict(int)
+        self._term_sums: dict[str, float] = defaultdict(float)
+
+    def _action_spaces(self) -> None:
+        """The joint ranges, the action space (absolute or residual, in physical units or [-1, 1] with
+        ``normalize_actions``) and the physical box step() maps onto."""
         lower, upper = [], []
         for joint in self.layout.joints:
             if joint.dof == 1:
@@ -179,35 +204,19 @@ class ImitationEnv(gym.Env):
                 raise ValueError(f"env config: normalize_actions needs a non-empty range per action; "
                                  f"joints {empty} of body {self.body_spec.name} have lower == upper")
             self.action_space = gym.spaces.Box(-1.0, 1.0, shape=self.physical_action_space.shape, dtype=np.float32)
-        size = self.layout.action_size
-        alpha = self.spec_env.residual_base_smoothing
-        self.base_smoothing = (mdp.BaseSmoothing(alpha, self.joint_value_indices(
-            self.spec_env.residual_base_smoothing_groups, "env residual_base_smoothing_groups"),
-            self.physical_action_space.low[:size], self.physical_action_space.high[:size]) if alpha > 0 else None)
-        self.termination = mdp.Termination.of(self.spec_env)
-        self._target_rules: dict[bool, mdp.TargetRule] = {}  # by plain (thesis_pd) or not
-        self.observed_links = self._select_links(self.spec_env.observe_links)
-        # Links read from the engine each step: the observed ones and the end effectors (None: all).
-        self._state_links = (None if self.spec_env.observe_links is None else
-                             sorted(set(self.observed_links.tolist()) | set(self.sim.end_effector_links)))
-        obs_size = (int(self.spec_env.observe_phase) + 13 * len(self.observed_links)
-                    + len(self.spec_env.observe_future) * self.layout.action_size)
-        obs_size += self.spec_env.observation == "deepmimic"  # the root height
-        if self.spec_env.observe_future_velocities:
-            obs_size += len(self.spec_env.observe_future) * self.velocity_size
-        if self.spec_env.observe_joints:
-            obs_size += self.layout.action_size + self.velocity_size
-        obs_size += 7 * self.spec_env.observe_reference_root
-        self.observation_space = gym.spaces.Box(-np.inf, np.inf, shape=(obs_size,), dtype=np.float32)
 
-        # -- episode state and counters --------------------------------------------------
-        self.time = 0.0
-        self.steps = 0
-        self._steps_below = 0
-        self.last_sim_state: PoseSnapshot | None = None
-        self.last_reference_state: PoseSnapshot | None = None
-        self.counters: dict[str, int] = defaultdict(int)
-        self._term_sums: dict[str, float] = defaultdict(float)
+    def _observation_size(self) -> int:
+        """The observation's length: phase, 13 values per observed link, the reference's next frames
+        (and their velocities), the root height, the body's joints, the reference root."""
+        size = (int(self.spec_env.observe_phase) + 13 * len(self.observed_links)
+                + len(self.spec_env.observe_future) * self.layout.action_size)
+        size += self.spec_env.observation == "deepmimic"  # the root height
+        if self.spec_env.observe_future_velocities:
+            size += len(self.spec_env.observe_future) * self.velocity_size
+        if self.spec_env.observe_joints:
+            size += self.layout.action_size + self.velocity_size
+        size += 7 * self.spec_env.observe_reference_root
+        return size
 
     def _motion_range(self, margin: float) -> tuple[np.ndarray, np.ndarray]:
         """Per action value, the reference's min and max over the motion (sampled at four times

@@ -223,6 +223,74 @@ def image_hand_to_world(hand_xyz: np.ndarray, width: int, height: int) -> np.nda
     return pts.astype(np.float32)
 
 
+HAND_OFFSETS = {"left": H.LEFT_HAND_OFFSET, "right": H.RIGHT_HAND_OFFSET}  # a hand's first node
+POSE_WRIST = {"left": 15, "right": 16}  # the pose's wrist nodes
+
+
+def _holistic_frame(res, image: np.ndarray, world: np.ndarray, face: np.ndarray | None,
+                    counts: dict[str, int]) -> None:
+    """One frame's Holistic result written into its rows of the image, world and face arrays."""
+    if res.pose_landmarks is not None:
+        counts["pose"] += 1
+        image[: H.NUM_POSE] = _landmarks_xyzv(res.pose_landmarks, True)
+    if res.pose_world_landmarks is not None:
+        world[: H.NUM_POSE] = _landmarks_xyz(res.pose_world_landmarks)
+    for side, lm in {"left": res.left_hand_landmarks, "right": res.right_hand_landmarks}.items():
+        if lm is not None:
+            image[HAND_OFFSETS[side] : HAND_OFFSETS[side] + 21] = _landmarks_xyzv(lm, False)
+    if face is not None and res.face_landmarks is not None:
+        counts["face"] += 1
+        face[:] = _landmarks_xyz(res.face_landmarks)[:468]
+
+
+def _hands_model_frame(hres, image: np.ndarray, counts: dict[str, int]) -> dict[str, np.ndarray]:
+    """The Hands model's detections in one frame, each assigned to a side by its nearness to that
+    side's Holistic wrist (else the pose's wrist) and its label: a hand Holistic missed is filled in
+    ``image`` (one frame, written in place); returns the world landmarks per side it found."""
+    world_hands: dict[str, np.ndarray] = {}
+    if not hres.multi_hand_landmarks:
+        return world_hands
+    dets = [_landmarks_xyz(h) for h in hres.multi_hand_landmarks]
+    labels = [h.classification[0].label for h in hres.multi_handedness]
+    refs = {}
+    for side in ("left", "right"):
+        o = HAND_OFFSETS[side]
+        if np.isfinite(image[o, 0]):
+            refs[side] = image[o, :2]
+        elif np.isfinite(image[POSE_WRIST[side], 0]):
+            refs[side] = image[POSE_WRIST[side], :2]
+        else:
+            refs[side] = None
+    assignment = assign_hands([d[:, :2] for d in dets], refs, labels)
+    for side, det in assignment.items():
+        o = HAND_OFFSETS[side]
+        if not np.isfinite(image[o, 0]):
+            counts["hand_filled_by_hands_model"] += 1
+            image[o : o + 21, :3] = dets[det]
+            image[o : o + 21, 3] = 1.0
+        world_hands[side] = _landmarks_xyz(hres.multi_hand_world_landmarks[det])
+    return world_hands
+
+
+def _hands_in_world(image: np.ndarray, world: np.ndarray, world_hands: dict[str, np.ndarray],
+                    counts: dict[str, int], width: int, height: int) -> None:
+    """One frame's seen hands placed in the world array (in place) at the pose's wrist: the Hands
+    model's world landmarks, else the image landmarks lifted to metres."""
+    for side in ("left", "right"):
+        o = HAND_OFFSETS[side]
+        if not np.isfinite(image[o, 0]):
+            continue
+        counts[f"{side}_hand"] += 1
+        hand_world = world_hands.get(side)
+        if hand_world is None:
+            hand_world = image_hand_to_world(image[o : o + 21], width, height)
+            counts["hand_world_from_image"] += 1
+        anchor = world[POSE_WRIST[side]]
+        if np.all(np.isfinite(anchor)) and np.all(np.isfinite(hand_world)):
+            world[o : o + 21] = hand_world - hand_world[0] + anchor
+            counts[f"{side}_hand_world"] += 1
+
+
 def extract_video(job: dict, options: dict, models) -> dict:
     """Run Holistic (+ Hands) over one video's frame range; write arrays and status."""
     import cv2
@@ -243,8 +311,6 @@ def extract_video(job: dict, options: dict, models) -> dict:
     counts = dict.fromkeys(
         ["pose", "left_hand", "right_hand", "left_hand_world", "right_hand_world",
          "hand_filled_by_hands_model", "hand_world_from_image", "face"], 0)  # fmt: skip
-    offsets = {"left": H.LEFT_HAND_OFFSET, "right": H.RIGHT_HAND_OFFSET}
-    pose_wrist = {"left": 15, "right": 16}
 
     holistic.reset()
     if hands is not None:
@@ -261,57 +327,9 @@ def extract_video(job: dict, options: dict, models) -> dict:
         decoded += 1
         rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
         rgb.flags.writeable = False
-        res = holistic.process(rgb)
-        if res.pose_landmarks is not None:
-            counts["pose"] += 1
-            image[t, : H.NUM_POSE] = _landmarks_xyzv(res.pose_landmarks, True)
-        if res.pose_world_landmarks is not None:
-            world[t, : H.NUM_POSE] = _landmarks_xyz(res.pose_world_landmarks)
-        hol_hands = {"left": res.left_hand_landmarks, "right": res.right_hand_landmarks}
-        for side, lm in hol_hands.items():
-            if lm is not None:
-                image[t, offsets[side] : offsets[side] + 21] = _landmarks_xyzv(lm, False)
-        if face is not None and res.face_landmarks is not None:
-            counts["face"] += 1
-            face[t] = _landmarks_xyz(res.face_landmarks)[:468]
-
-        world_hands: dict[str, np.ndarray] = {}
-        if hands is not None:
-            hres = hands.process(rgb)
-            if hres.multi_hand_landmarks:
-                dets = [_landmarks_xyz(h) for h in hres.multi_hand_landmarks]
-                labels = [h.classification[0].label for h in hres.multi_handedness]
-                refs = {}
-                for side in ("left", "right"):
-                    o = offsets[side]
-                    if np.isfinite(image[t, o, 0]):
-                        refs[side] = image[t, o, :2]
-                    elif np.isfinite(image[t, pose_wrist[side], 0]):
-                        refs[side] = image[t, pose_wrist[side], :2]
-                    else:
-                        refs[side] = None
-                assignment = assign_hands([d[:, :2] for d in dets], refs, labels)
-                for side, det in assignment.items():
-                    o = offsets[side]
-                    if not np.isfinite(image[t, o, 0]):
-                        counts["hand_filled_by_hands_model"] += 1
-                        image[t, o : o + 21, :3] = dets[det]
-                        image[t, o : o + 21, 3] = 1.0
-                    wl = hres.multi_hand_world_landmarks[det]
-                    world_hands[side] = _landmarks_xyz(wl)
-        for side in ("left", "right"):
-            o = offsets[side]
-            if not np.isfinite(image[t, o, 0]):
-                continue
-            counts[f"{side}_hand"] += 1
-            hand_world = world_hands.get(side)
-            if hand_world is None:
-                hand_world = image_hand_to_world(image[t, o : o + 21], width, height)
-                counts["hand_world_from_image"] += 1
-            anchor = world[t, pose_wrist[side]]
-            if np.all(np.isfinite(anchor)) and np.all(np.isfinite(hand_world)):
-                world[t, o : o + 21] = hand_world - hand_world[0] + anchor
-                counts[f"{side}_hand_world"] += 1
+        _holistic_frame(holistic.process(rgb), image[t], world[t], None if face is None else face[t], counts)
+        world_hands = _hands_model_frame(hands.process(rgb), image[t], counts) if hands is not None else {}
+        _hands_in_world(image[t], world[t], world_hands, counts, width, height)
         if (t + 1) % PROGRESS_EVERY == 0 or t + 1 == total:
             emit("progress", video_id=vid, done=t + 1, total=total)
     cap.release()
@@ -335,12 +353,9 @@ def extract_video(job: dict, options: dict, models) -> dict:
         "warnings": warnings,
         "seconds": round(time.perf_counter() - t0, 3),
         "worker_pid": os.getpid(),
-        "extractor": {
-            "name": "mediapipe_holistic",
-            "mediapipe": _mediapipe_version(),
-            "model_complexity": 1,
-            "hands_model": hands is not None,
-        },
+        "extractor": {"name": "mediapipe_holistic", "mediapipe": _mediapipe_version(), "model_complexity": 1,
+                      "hands_model": hands is not None},
+        "status": "ok", "error": None, "reason": None,  # written only once the checks below pass
     }
     if decoded == 0:
         raise VideoError("empty", f"{path}: no frame could be decoded in range {first}..{stop}")
@@ -349,9 +364,6 @@ def extract_video(job: dict, options: dict, models) -> dict:
     if counts["left_hand"] == 0 and counts["right_hand"] == 0:
         warnings.append("no hand found in any frame: hand channels are all NaN")
         status["no_hands"] = True
-    status["status"] = "ok"
-    status["error"] = None
-    status["reason"] = None
     # Status last: a video counts as finished only once its status file says so.
     _atomic_save_npy(out / "world" / f"{vid}.npy", world)
     if face is not None:

@@ -296,30 +296,16 @@ def run_retrieval(
     log.info("retrieval: %d clips of %d glosses, %d lexicon entries, properties %s, classifier %s, %d gloss split(s)",
              len(clips.X), len(set(clips.glosses)), len(table), list(table.properties), classifier["name"], repeats)
     for k in range(repeats):
-        split_seed = int(options.seed) + k
-        split_start = time.perf_counter()
-        train, val, test = gloss_split(clips.glosses, options, split_seed)
-        train_val = np.sort(np.concatenate([train, val]))
-        val_proba, test_proba, budgets, seen = _fit_properties(classifier, params, config, clips, table, codes_all,
-                                                               (train, val, test), seed)
-        chosen, ranks = _rank_test_clips(table, clips, codes_all, (train, val, test), val_proba, test_proba,
-                                         smoothing, prior_weights, select_by, likelihood)
-        metrics = {m: R.rank_metrics(ranks[m], recall_at) for m in R.METHODS}
+        record, test, ranks, rows = _one_split(k, int(options.seed) + k, options, clips, table, codes_all,
+                                               (classifier, params, config, seed),
+                                               (smoothing, prior_weights, select_by, likelihood), recall_at)
+        per_split.append(record)
+        clip_rows += rows
         pooled_entries.extend(int(e) for e in clips.entry_rows[test])
         for method in R.BAND_METHODS:
             pooled_ranks[method].extend(ranks[method])
         for method in R.METHODS:
             curves[method].append(R.recall_curve(ranks[method], ks))
-        property_accuracy, unseen = _property_accuracy(table, codes_all, train_val, test, test_proba)
-        clip_rows += _clip_records(k, split_seed, clips, table, test, ranks, test_proba)
-        per_split.append({
-            "index": k, "seed": split_seed, **_split_sizes(clips.glosses, train, val, test),
-            "chosen": {"phonology": {"smoothing": chosen["phonology"]["smoothing"]},
-                       "phonology+prior": {key: chosen["phonology+prior"][key] for key in ("smoothing", "weight")}},
-            "validation": {"phonology": chosen["phonology"], "phonology+prior": chosen["phonology+prior"]},
-            "epochs": budgets, "classes_seen": seen, "property_accuracy": property_accuracy,
-            "test_value_unseen_in_training": unseen, "metrics": metrics, "time_s": time.perf_counter() - split_start,
-        })
         _log_split(per_split[-1], repeats, (time.perf_counter() - start) / (k + 1))
     overlap = split_overlap([s["glosses"]["test"] for s in per_split])
     log.info("the %d splits' %d test-gloss slots hold %d distinct glosses; %d slots recur in another split",
@@ -349,6 +335,34 @@ def run_retrieval(
         "clips": clip_rows,
         "time_s": time.perf_counter() - start,
     }
+
+
+def _one_split(k: int, split_seed: int, options: SplitOptions, clips: RetrievalClips, table: R.LexiconTable,
+               codes_all: np.ndarray, model: tuple, selection: tuple, recall_at: tuple[int, ...]):
+    """Split ``k``: the properties fitted on its training glosses, its test clips ranked (the prior's
+    smoothing and weight chosen on its validation glosses). Returns its record, its test clips' rows
+    (indices into ``clips``), the ranks per method and its clip rows."""
+    classifier, params, config, seed = model
+    smoothing, prior_weights, select_by, likelihood = selection
+    split_start = time.perf_counter()
+    train, val, test = gloss_split(clips.glosses, options, split_seed)
+    train_val = np.sort(np.concatenate([train, val]))
+    val_proba, test_proba, budgets, seen = _fit_properties(classifier, params, config, clips, table, codes_all,
+                                                           (train, val, test), seed)
+    chosen, ranks = _rank_test_clips(table, clips, codes_all, (train, val, test), val_proba, test_proba,
+                                     smoothing, prior_weights, select_by, likelihood)
+    metrics = {m: R.rank_metrics(ranks[m], recall_at) for m in R.METHODS}
+    property_accuracy, unseen = _property_accuracy(table, codes_all, train_val, test, test_proba)
+    rows = _clip_records(k, split_seed, clips, table, test, ranks, test_proba)
+    record = {
+        "index": k, "seed": split_seed, **_split_sizes(clips.glosses, train, val, test),
+        "chosen": {"phonology": {"smoothing": chosen["phonology"]["smoothing"]},
+                   "phonology+prior": {key: chosen["phonology+prior"][key] for key in ("smoothing", "weight")}},
+        "validation": {"phonology": chosen["phonology"], "phonology+prior": chosen["phonology+prior"]},
+        "epochs": budgets, "classes_seen": seen, "property_accuracy": property_accuracy,
+        "test_value_unseen_in_training": unseen, "metrics": metrics, "time_s": time.perf_counter() - split_start,
+    }
+    return record, test, ranks, rows
 
 
 def _split_sizes(glosses: Sequence[str], train, val, test) -> dict[str, Any]:

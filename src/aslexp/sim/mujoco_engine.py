@@ -162,6 +162,37 @@ class MujocoBody:
         mspec.option.solver = getattr(mujoco.mjtSolver, f"mjSOL_{self.engine.options.solver.upper()}")
         mspec.option.iterations = int(self.engine.options.iterations)
         bodies = {b.name: b for b in mspec.bodies}
+        self._collisions(mspec)
+        for k, name in enumerate(spec.end_effectors):
+            if name not in bodies:
+                raise ValueError(f"body {spec.name}: no link named {name!r}; links: {self.link_names}")
+            bodies[name].add_site(name=f"tip_{k}", pos=list(spec.end_effector_offset))
+        self._add_actuators(mspec)
+        if not spec.inertia_from_file:
+            _inertia_from_shapes(mujoco, mspec)
+        # A diverging state stays diverged (MuJoCo would silently reset it): the env counts and ends it.
+        mspec.option.disableflags = int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
+        self._extend_spec(mspec)
+        self.model = mspec.compile()  # the physics: no sensors to evaluate at every step
+        self.tip_probe, self.probe = self._compile_probes(mspec, root.name)
+        self._tip_values = 3 * len(spec.end_effectors)
+        self.slices = _state_slices(mujoco, self.model)
+        self.state_size = self.slices["mocap_quat"].stop
+        self.physics_size = self.slices["physics"].stop
+        self.control_spec = sum(int(getattr(mujoco.mjtState, name)) for name in CONTROL_SPEC)
+        self._index_maps(urdf)
+        self._data = mujoco.MjData(self.model)
+        self.set_gains(controller)
+        self._runner = None
+        self.clamped_steps = 0  # physics steps of one environment where the joint-speed clamp acted
+        self.peak_speeds = np.zeros(0)  # per environment of the last step(): fastest joint before the clamp
+        self.peak_dofs = np.zeros(0, dtype=int)  # and its MuJoCo degree of freedom (dof_name)
+        self._dof_names = {int(v): name for v, name in zip(self.qvel_index, layout.velocity_names)}
+
+    def _collisions(self, mspec) -> None:
+        """PyBullet's collision rules: self collision without any ancestor pair, else the ground only;
+        a free base's ground plane, normal to gravity."""
+        spec, mujoco = self.spec, self.mujoco
         if spec.self_collision:
             for body in mspec.bodies:  # PyBullet excludes every ancestor; MuJoCo only the parent
                 ancestor = body.parent
@@ -173,18 +204,17 @@ class MujocoBody:
             for geom in mspec.geoms:
                 geom.contype, geom.conaffinity = 2, 1
         if spec.base == "free":
-            up = -np.asarray(physics.gravity, dtype=np.float64)
+            up = -np.asarray(self.physics.gravity, dtype=np.float64)
             up /= max(np.linalg.norm(up), 1e-12)
             ground = mspec.worldbody.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1])
             ground.quat = z_to(up)
             ground.contype, ground.conaffinity = 1, 3
-        for k, name in enumerate(spec.end_effectors):
-            if name not in bodies:
-                raise ValueError(f"body {spec.name}: no link named {name!r}; links: {self.link_names}")
-            bodies[name].add_site(name=f"tip_{k}", pos=list(spec.end_effector_offset))
-        # One PD actuator per degree of freedom of the layout's joints, in layout order.
+
+    def _add_actuators(self, mspec) -> None:
+        """One PD actuator per degree of freedom of the layout's joints, in layout order."""
+        mujoco = self.mujoco
         axes = np.eye(3)
-        for joint in layout.joints:
+        for joint in self.layout.joints:
             for axis in ([None] if joint.dof == 1 else axes):
                 act = mspec.add_actuator(name=joint.name if axis is None else f"{joint.name}_{'xyz'[int(np.argmax(axis))]}",
                                          target=joint.name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
@@ -193,38 +223,35 @@ class MujocoBody:
                 act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
                 act.biastype = mujoco.mjtBias.mjBIAS_AFFINE
                 act.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
-        if not spec.inertia_from_file:
-            _inertia_from_shapes(mujoco, mspec)
-        # A diverging state stays diverged (MuJoCo would silently reset it): the env counts and ends it.
-        mspec.option.disableflags = int(mujoco.mjtDisableBit.mjDSBL_AUTORESET)
-        self._extend_spec(mspec)
-        self.model = mspec.compile()  # the physics: no sensors to evaluate at every step
+
+    def _compile_probes(self, mspec, root_name: str):
+        """The tip probe and the link probe (see below), compiled from the physics' spec."""
         # Probes read what the observation and reward need, as sensors: the end-effector tips (the
         # reference's probe), then every link's and the root's frame (world position, orientation,
         # linear and angular velocity; the simulated body's probe). A probe is the model without
         # contacts, constraints or actuators: mj_step evaluates sensors before it integrates, so one
         # probe step from a state reads that state's sensors (and its integration is thrown away).
-        for k in range(len(spec.end_effectors)):
+        mujoco = self.mujoco
+        for k in range(len(self.spec.end_effectors)):
             mspec.add_sensor(type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=f"tip_{k}")
-        self.tip_probe = mspec.compile()
-        for name in [root.name, *self.link_names]:
+        tip_probe = mspec.compile()
+        for name in [root_name, *self.link_names]:
             for kind in ("FRAMEPOS", "FRAMEQUAT", "FRAMELINVEL", "FRAMEANGVEL"):
                 mspec.add_sensor(type=getattr(mujoco.mjtSensor, f"mjSENS_{kind}"), objtype=mujoco.mjtObj.mjOBJ_XBODY,
                                  objname=name)
-        self.probe = mspec.compile()
-        m = self.model
+        probe = mspec.compile()
         off = mujoco.mjtDisableBit
-        for probe in (self.probe, self.tip_probe):
-            probe.opt.disableflags = int(off.mjDSBL_CONSTRAINT | off.mjDSBL_CONTACT | off.mjDSBL_ACTUATION
-                                         | off.mjDSBL_GRAVITY | off.mjDSBL_SPRING | off.mjDSBL_DAMPER
-                                         | off.mjDSBL_WARMSTART | off.mjDSBL_ISLAND | off.mjDSBL_AUTORESET)
-            probe.opt.integrator = mujoco.mjtIntegrator.mjINT_EULER
-        self._tip_values = 3 * len(spec.end_effectors)
-        self.slices = _state_slices(mujoco, m)
-        self.state_size = self.slices["mocap_quat"].stop
-        self.physics_size = self.slices["physics"].stop
-        self.control_spec = sum(int(getattr(mujoco.mjtState, name)) for name in CONTROL_SPEC)
-        # -- maps: layout vectors <-> MuJoCo vectors ----------------------------------------------
+        for one in (probe, tip_probe):
+            one.opt.disableflags = int(off.mjDSBL_CONSTRAINT | off.mjDSBL_CONTACT | off.mjDSBL_ACTUATION
+                                       | off.mjDSBL_GRAVITY | off.mjDSBL_SPRING | off.mjDSBL_DAMPER
+                                       | off.mjDSBL_WARMSTART | off.mjDSBL_ISLAND | off.mjDSBL_AUTORESET)
+            one.opt.integrator = mujoco.mjtIntegrator.mjINT_EULER
+        return tip_probe, probe
+
+    def _index_maps(self, urdf: Path) -> None:
+        """The maps between layout vectors and MuJoCo's: joints to qpos/qvel, links to bodies, the
+        root's free joint, the tips' bodies, the ground geom."""
+        mujoco, m, spec, layout = self.mujoco, self.model, self.spec, self.layout
         qpos_index, qvel_index = [], []
         for joint in layout.joints:
             jid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, joint.name)
@@ -244,14 +271,6 @@ class MujocoBody:
         self.root_free_qvel = (int(m.jnt_dofadr[m.body_jntadr[self.root_body]]) if spec.base == "free" else None)
         self.tip_bodies = np.asarray([m.site_bodyid[k] for k in range(len(spec.end_effectors))], dtype=int)
         self.ground_geom = (mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "ground") if spec.base == "free" else -1)
-
-        self._data = mujoco.MjData(m)
-        self.set_gains(controller)
-        self._runner = None
-        self.clamped_steps = 0  # physics steps of one environment where the joint-speed clamp acted
-        self.peak_speeds = np.zeros(0)  # per environment of the last step(): fastest joint before the clamp
-        self.peak_dofs = np.zeros(0, dtype=int)  # and its MuJoCo degree of freedom (dof_name)
-        self._dof_names = {int(v): name for v, name in zip(self.qvel_index, layout.velocity_names)}
 
     def _extend_spec(self, mspec) -> None:
         """What a subclass adds to the model before it compiles (the MJX engine: its collision limits)."""
