@@ -60,7 +60,8 @@ def test_plain_loss_equals_torchrl_clip_ppo_loss(rollout, entropy_coef):
         if a is None or b is None:
             assert a is None and b is None
         else:
-            torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-6)
+            # atol 1e-5: float32 sums in another order (another CPU's kernels) move a near-zero entry by ~1e-6
+            torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5)
 
 
 def test_optimizer_steps_the_modules_own_parameters(rollout):

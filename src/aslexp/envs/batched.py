@@ -21,10 +21,10 @@ the upper body's free-base residual work (``residual_base_smoothing``, a filter 
 restarted with each row's episode; drift shaping with ``shape_reward``). The single environment's
 ``thesis_pd()`` (its baselines) has no batched form: a batch drives its own controller.
 
-Many motions (``motions=[...]``): each row imitates one motion of the pool, drawn from
-the row's random stream at every episode start (or named: ``options={"clip": k}``); its targets,
-reward, reference root and observation (the reference frames ahead it sees, ``env.observe_future``)
-are that motion's (:class:`~aslexp.sim.reference.ReferencePool`). The motion the setup names gives
+Many motions (``motions=[...]``): each row imitates one motion of the pool, drawn from the row's
+random stream at every episode start (or named: ``options={"clip": k}``; or the same in every
+episode: ``pin_clips``); its targets, reward, reference root and observation (the reference frames
+ahead it sees, ``env.observe_future``) are that motion's (:class:`~aslexp.sim.reference.ReferencePool`). The motion the setup names gives
 the spaces only. ``clip`` holds each row's motion index, ``clip_episodes`` the episodes per motion.
 """
 
@@ -116,6 +116,7 @@ class BatchedImitationEnv(VectorEnv):
         self._filter_state: np.ndarray | None = None  # residual_base_smoothing: each row's filtered base
         self._rngs = [np.random.default_rng() for _ in range(n)]
         self.clip = np.zeros(n, dtype=np.int64)
+        self._pinned: np.ndarray | None = None  # pin_clips(): each row's motion for every episode
         self.clip_episodes = np.zeros(len(self.pool), dtype=np.int64)  # episodes started per pool motion
         # The reference's end effectors are read with its root where the single environment's
         # kinematic reference stands: each row's motion's first root pose.
@@ -149,6 +150,8 @@ class BatchedImitationEnv(VectorEnv):
             if clips.min(initial=0) < 0 or clips.max(initial=0) >= len(self.pool):
                 raise ValueError(f"reset: clip {options['clip']} for a pool of {len(self.pool)} motions")
             self.clip[rows] = clips
+        elif self._pinned is not None:  # drawn from no stream: a pinned row's stream stays a single env's
+            self.clip[rows] = self._pinned[rows]
         elif len(self.pool) > 1:  # a pool of one draws nothing: its rows' streams stay a single env's
             self.clip[rows] = [int(self._rngs[i].integers(len(self.pool))) for i in rows]
         durations = self.pool.durations[self.clip[rows]]
@@ -172,6 +175,15 @@ class BatchedImitationEnv(VectorEnv):
                 self._ref_root[0][chosen], self._ref_root[1][chosen] = self._clip_roots[c]
                 self.clip_episodes[c] += int(k)
         self.counters["episodes"] += len(rows)
+
+    def pin_clips(self, clips) -> None:
+        """Row ``i`` imitates pool motion ``clips[i]`` in every episode from the next reset on (many
+        runs in one batch, each its own motion: :mod:`aslexp.rl.stacked`)."""
+        clips = np.asarray(clips, dtype=np.int64)
+        if clips.shape != (self.num_envs,) or clips.min(initial=0) < 0 or clips.max(initial=0) >= len(self.pool):
+            raise ValueError(f"pin_clips: {clips.tolist()} for {self.num_envs} rows and a pool of {len(self.pool)} "
+                             f"motions (one index in [0, {len(self.pool)}) per row)")
+        self._pinned = clips
 
     def _rows(self, rows) -> ReferenceMotion:
         """The references the environments ``rows`` imitate (one motion: that motion's)."""

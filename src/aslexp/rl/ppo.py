@@ -553,12 +553,7 @@ class PPOTrainer:
             for start in range(0, len(flat), cfg.minibatch_size):
                 losses = clipped_ppo_losses(self.agent, data.take(order[start:start + cfg.minibatch_size]),
                                             cfg.clip_epsilon, cfg.value_coef, cfg.entropy_coef)
-                if self.steps <= cfg.critic_warmup_steps:
-                    total = losses["loss_critic"]
-                else:
-                    total = losses["loss_objective"] + losses["loss_critic"]
-                    if "loss_entropy" in losses:
-                        total = total + losses["loss_entropy"]
+                total = minimised_loss(losses, critic_only=self.steps <= cfg.critic_warmup_steps)
                 totals += torch.stack([losses[k].detach() for k in STAT_KEYS])
                 seen += 1
                 # One device sync per minibatch, only when the early stop needs it; the epochs stop
@@ -686,18 +681,14 @@ class PPOTrainer:
                      f"  validation {row['validation_reward']:.4f}" if "validation_reward" in row else "")
         while self.steps < cfg.total_steps:
             scheduled = self.apply_schedules()
-            t0 = time.perf_counter()
-            batch = self.collect()
-            t1 = time.perf_counter()
-            stats = self.learn(batch)
-            t2 = time.perf_counter()
+            stats, collect_s, update_s = timed_update(self)
             self.iteration += 1
             elapsed = progress.elapsed()
             terms = mean_terms(self.envs)
             row: dict[str, Any] = {
                 "step": self.steps, "seconds": round(elapsed, 2),
-                "env_steps_per_s": round(cfg.batch_size / (t1 - t0), 1),
-                "steps_per_s": round(cfg.batch_size / (t2 - t0), 1),
+                "env_steps_per_s": round(cfg.batch_size / collect_s, 1),
+                "steps_per_s": round(cfg.batch_size / update_s, 1),
                 **{f"train_{k}": round(v, 5) for k, v in terms.items()},
                 **{f"train_{k}": round(v, 5) for k, v in self.episodes.pop().items()},
                 **{k: round(v, 6) for k, v in stats.items()},
@@ -734,6 +725,25 @@ class PPOTrainer:
         self.save("last.pt")  # the last policy, to resume from; a validated run then ends on its selected one
         self._end_on_selected(csv_file)
         return TrainResult(self.steps, self.elapsed, self.best_eval, self.last_eval(), self.history, stopped)
+
+
+def minimised_loss(losses: dict[str, torch.Tensor], critic_only: bool) -> torch.Tensor:
+    """What an update minimises of :func:`clipped_ppo_losses`' terms: the critic's alone during the
+    critic warm-up, else the surrogate, the critic's and the entropy bonus (when there is one)."""
+    if critic_only:
+        return losses["loss_critic"]
+    total = losses["loss_objective"] + losses["loss_critic"]
+    return total + losses["loss_entropy"] if "loss_entropy" in losses else total
+
+
+def timed_update(trainer) -> tuple[Any, float, float]:
+    """One rollout and update of a trainer (its ``collect()``, then its ``learn(batch)``): the
+    update's statistics, the seconds of the collection and of both."""
+    start = time.perf_counter()
+    batch = trainer.collect()
+    collected = time.perf_counter()
+    stats = trainer.learn(batch)
+    return stats, collected - start, time.perf_counter() - start
 
 
 STAT_KEYS = ("loss_objective", "loss_critic", "kl", "approx_kl", "clip_fraction")
