@@ -46,20 +46,37 @@ def plot_tracking(trajectory: dict[str, np.ndarray], joint_names: list[str], pat
 
 def plot_reward_curve(history: list[dict[str, Any]], baselines: dict[str, float], path: str | Path,
                       title: str = "") -> Path:
-    """Evaluation (and training) reward against environment steps, with the baselines as lines."""
+    """Evaluation (and training) reward against environment steps, with the baselines as lines; a
+    validated run's validation reward too, and the policy it kept (its last row re-evaluates it)."""
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    ev = [(h["step"], h["eval_reward"]) for h in history if "eval_reward" in h]
+    evaluated = [h for h in history if "eval_reward" in h]
+    kept = None
+    if len(evaluated) > 1 and evaluated[-1].get("selected_step") is not None \
+            and evaluated[-1]["step"] == evaluated[-2]["step"]:  # the run ended on its selected policy
+        kept, evaluated = evaluated[-1], evaluated[:-1]
+    ev = [(h["step"], h["eval_reward"]) for h in evaluated]
     tr = [(h["step"], h["train_reward"]) for h in history if "train_reward" in h]
+    va = [(h["step"], h["validation_reward"]) for h in evaluated if "validation_reward" in h]
     if tr:
         ax.plot(*zip(*tr), color="tab:gray", lw=1, alpha=0.6, label="training (stochastic)")
     if ev:
         ax.plot(*zip(*ev), color="tab:green", marker="o", ms=3, label="evaluation (deterministic)")
+    if va:
+        ax.plot(*zip(*va), color="tab:purple", marker=".", ms=3, lw=1, label="validation motions (deterministic)")
+    if kept is not None:
+        ax.axvline(kept["selected_step"], color="tab:purple", ls=":", lw=1)
+        ax.plot([kept["selected_step"]], [kept["eval_reward"]], "*", color="tab:red", ms=10,
+                label=f"kept: step {kept['selected_step']:,} ({kept['eval_reward']:.3f})")
     for (name, value), style in zip(baselines.items(), ("--", ":", "-.")):
         ax.axhline(value, color="black", ls=style, lw=1, label=f"baseline: {name} ({value:.3f})")
     ax.set_xlabel("environment steps")
     ax.set_ylabel("mean reward per step")
     ax.set_title(title)
-    ax.legend(fontsize=7)
+    if va:  # the validation line runs along the top: the legend goes below the axes
+        fig.set_size_inches(6, 4.6)
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=2)
+    else:
+        ax.legend(fontsize=7)
     fig.tight_layout()
     with naming_errors(path):  # a full disk names the file
         fig.savefig(path, dpi=90)
