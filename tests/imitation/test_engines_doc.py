@@ -95,3 +95,24 @@ def test_the_gpu_check_script_runs_on_the_cpu(tmp_path, data_root):
     assert proc.returncode == 0 and "3 passed" in log, log[-3000:]
     metrics = json.loads((tmp_path / "imitate_B" / "metrics.json").read_text())
     assert metrics["motion"] == "B" and metrics["steps"] > 0 and metrics["device"] == "cpu"
+
+
+def test_the_stacked_letters_gpu_script_runs_on_the_cpu(tmp_path, data_root):
+    """bench/gpu_stacked_letters.sh (figure 5.9's runs as one program) on the CPU path, as its header's
+    command: one letter, two seeds, seconds of training; the summary and the archive come back."""
+    import json
+    import os
+    import tarfile
+
+    env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "OUT": str(tmp_path), "DEV": "cpu", "MIN": "0.05",
+           "LETTERS": "A", "SEEDS": "0,1", "NOPIP": "1", "PY": sys.executable,
+           "EXTRA": "ppo.hidden_sizes=[32,32] ppo.eval_steps=30 ppo.steps_per_rollout=1024"}
+    proc = subprocess.run(["bash", "bench/gpu_stacked_letters.sh"], cwd=PROJECT_ROOT, env=env, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, (tmp_path / "log.txt").read_text()[-3000:]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["runs"] == 2 and summary["steps_per_run"] > 0
+    assert summary["letters"]["A"]["last_eval"]["seeds"] == [0, 1] and "lookahead" in summary["letters"]["A"]["baselines"]
+    with tarfile.open(tmp_path / "letters_stacked.tgz") as archive:
+        names = archive.getnames()
+    assert "letters_stacked/A_s1/progress.csv" in names and not any("checkpoints" in n for n in names)

@@ -93,3 +93,24 @@ def test_each_run_of_the_program_writes_its_own_folder(tmp_path, data_root):
     # the two seeds on motion A learn apart; their untrained evaluations differ by their initial weights
     a0, a2 = (load_checkpoint(r.out_dir / "checkpoints" / "last.pt")["agent"] for r in (runs[0], runs[2]))
     assert not torch.allclose(a0["critic.module.0.weight"], a2["critic.module.0.weight"])
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (torch finds none)")
+def test_two_runs_together_on_a_gpu_match_them_on_the_cpu(tmp_path, data_root):
+    motions = [data_root / "motions" / "hand" / f"{letter}.txt" for letter in "AB"]
+    weights = {}
+    for device in ("cpu", "cuda"):
+        runs = [StackedRun(seed=3, out_dir=tmp_path / device / "A", clip=0),
+                StackedRun(seed=8, out_dir=tmp_path / device / "B", clip=1)]
+        config = PPOConfig(**{**TINY, "device": device}, target_kl=None)
+        together = StackedPPO(_factory(motions), runs, config)
+        try:
+            for _ in range(config.total_steps // config.batch_size):
+                together.learning_rate = config.scheduled(together.steps)[0]
+                together.learn(together.collect())
+            weights[device] = [{k: v.cpu() for k, v in together.agent(r).state_dict().items()} for r in range(2)]
+        finally:
+            together.close()
+    for cpu, gpu in zip(weights["cpu"], weights["cuda"]):
+        for key in cpu:
+            assert torch.allclose(cpu[key], gpu[key], atol=1e-3, rtol=1e-3), key

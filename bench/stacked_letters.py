@@ -1,0 +1,105 @@
+"""Letters x seeds of an imitation experiment trained as one program (aslexp.rl.stacked): figure 5.9's
+runs (experiment=letters_thesis: the thesis' hand, PD, reward, 240 Hz and PPO) in one process.
+
+    python bench/stacked_letters.py --letters A --seeds 0,1 --steps 4096 --out /tmp/stacked   # the CPU miniature
+    python bench/stacked_letters.py --seeds 0-9 --minutes 8 --device cuda --out $OUT/letters  # on a GPU node
+
+Every run is composed as ``aslexp imitate experiment=EXPERIMENT engine=mujoco motion=LETTER seed=SEED``
+would compose it (``--set`` adds overrides, e.g. ``ppo.num_envs=64``), and all of them train together:
+their environments one MuJoCo batch, their policies one stacked network. Each run's folder
+(``OUT/<letter>_s<seed>``) holds its progress.csv (evaluations every ``ppo.eval_interval`` steps on
+its own letter, from step 0) and checkpoints/last.pt. ``OUT/summary.json`` and the printed table give,
+per letter: the untrained policy's evaluation, the no-learning baselines under the same protocol,
+and the last evaluation, mean ± std over seeds, with the steps reached and the program's steps/s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+
+def _seeds(text: str) -> list[int]:
+    if "-" in text:
+        low, high = text.split("-")
+        return list(range(int(low), int(high) + 1))
+    return [int(s) for s in text.split(",")]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--experiment", default="letters_thesis")
+    parser.add_argument("--letters", default="A,B,C,D,E")
+    parser.add_argument("--seeds", default="0,1,2", help="0,1,2 or 0-9")
+    parser.add_argument("--steps", type=int, help="ppo.total_steps per run (default: the experiment's)")
+    parser.add_argument("--minutes", type=float, help="ppo.max_minutes: the program stops after this long")
+    parser.add_argument("--device", default="cpu", help="the learner's device (ppo.device)")
+    parser.add_argument("--engine", default="mujoco", help="an engine that batches (mujoco, mjx)")
+    parser.add_argument("--set", nargs="*", default=[], help="more overrides, as on the imitate command line")
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args()
+
+    from aslexp.compose import compose
+    from aslexp.data.root import resolve_data_root
+    from aslexp.envs.assembly import ImitationSetup
+    from aslexp.envs.batched import BatchedImitationEnv
+    from aslexp.jobs._imitation import build_envs
+    from aslexp.rl.evaluate import baselines
+    from aslexp.rl.ppo import PPOConfig
+    from aslexp.rl.stacked import StackedPPO, StackedRun
+
+    letters, seeds = args.letters.split(","), _seeds(args.seeds)
+    overrides = [f"experiment={args.experiment}", f"engine={args.engine}", "ppo.vector_env=batched", f"ppo.device={args.device}",
+                 "ppo.eval_at_start=true", *([f"ppo.total_steps={args.steps}"] if args.steps else []),
+                 *([f"ppo.max_minutes={args.minutes}"] if args.minutes else []), *args.set]
+    root = resolve_data_root(None)
+    cfgs = {x: compose("imitate", [*overrides, f"motion={x}"]) for x in letters}
+    setups = {x: ImitationSetup.from_config(cfgs[x], root) for x in letters}
+    config = PPOConfig.parse(cfgs[letters[0]]["ppo"])
+    evals = {x: build_envs(cfgs[x], root, "batched")[1] for x in letters}
+    base = {x: baselines(evals[x], config.eval_steps, config.phases) for x in letters}
+    import functools
+
+    make_env = functools.partial(BatchedImitationEnv.from_setup, setup=setups[letters[0]], shape_reward=True,
+                                 motions=[setups[x].motion for x in letters])
+    runs = [StackedRun(seed=s, out_dir=args.out / f"{x}_s{s}", clip=k, eval_env=evals[x])
+            for k, x in enumerate(letters) for s in seeds]
+    print(f"{len(runs)} runs ({args.experiment}: letters {letters} x seeds {seeds}) as one program, "
+          f"{config.num_envs} environments each, learner on {args.device}")
+    program = StackedPPO(make_env, runs, config)
+    start = time.perf_counter()
+    try:
+        histories = program.train()
+    finally:
+        program.close()
+        for env in evals.values():
+            env.close()
+    seconds = time.perf_counter() - start
+    table = {}
+    for k, x in enumerate(letters):
+        mine = [h for run, h in zip(runs, histories) if run.clip == k]
+        last = [[r["eval_reward"] for r in h if "eval_reward" in r][-1] for h in mine]
+        table[x] = {"untrained": float(np.mean([h[0]["eval_reward"] for h in mine])),
+                    "baselines": {name: round(v, 5) for name, v in base[x].items()},
+                    "last_eval": {"mean": float(np.mean(last)), "std": float(np.std(last, ddof=1)) if len(last) > 1 else 0.0,
+                                  "values": last, "seeds": seeds}}
+        print(f"{x}: untrained {table[x]['untrained']:.3f}  baselines "
+              + "  ".join(f"{n} {v:.3f}" for n, v in base[x].items())
+              + f"  learned {table[x]['last_eval']['mean']:.3f} ± {table[x]['last_eval']['std']:.3f} (n={len(last)})")
+    summary = {"experiment": args.experiment, "overrides": overrides, "runs": len(runs), "steps_per_run": program.steps,
+               "seconds": round(seconds, 1), "steps_per_s_all_runs": round(len(runs) * program.steps / seconds),
+               "device": args.device, "letters": table}
+    (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
+    print(f"{program.steps:,} steps per run in {seconds:.0f} s: {summary['steps_per_s_all_runs']:,} steps/s over "
+          f"all runs; {args.out / 'summary.json'}")
+
+
+if __name__ == "__main__":
+    main()
