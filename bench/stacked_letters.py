@@ -8,7 +8,8 @@ Every run is composed as ``aslexp imitate experiment=EXPERIMENT engine=mujoco mo
 would compose it (``--set`` adds overrides, e.g. ``ppo.num_envs=64``), and all of them train together:
 their environments one MuJoCo batch, their policies one stacked network. Each run's folder
 (``OUT/<letter>_s<seed>``) holds its progress.csv (evaluations every ``ppo.eval_interval`` steps on
-its own letter, from step 0) and checkpoints/last.pt. ``OUT/summary.json`` and the printed table give,
+its own letter, from step 0), checkpoints/last.pt and .hydra/config.yaml (so ``aslexp imitate
+policy=RUN`` performs its policy). ``OUT/summary.json`` and the printed table give,
 per letter: the untrained policy's evaluation, the no-learning baselines under the same protocol,
 and the last evaluation, mean ± std over seeds, with the steps reached and the program's steps/s.
 """
@@ -71,6 +72,12 @@ def main() -> None:
                                  motions=[setups[x].motion for x in letters])
     runs = [StackedRun(seed=s, out_dir=args.out / f"{x}_s{s}", clip=k, eval_env=evals[x])
             for k, x in enumerate(letters) for s in seeds]
+    import yaml
+
+    for run, x in zip(runs, [x for x in letters for _ in seeds]):  # the run's config, as a job writes it:
+        hydra_dir = run.out_dir / ".hydra"                         # policy=RUN and re-evaluation rebuild from it
+        hydra_dir.mkdir(parents=True, exist_ok=True)
+        (hydra_dir / "config.yaml").write_text(yaml.safe_dump({**cfgs[x], "seed": run.seed}, sort_keys=False))
     print(f"{len(runs)} runs ({args.experiment}: letters {letters} x seeds {seeds}) as one program, "
           f"{config.num_envs} environments each, learner on {args.device}")
     program = StackedPPO(make_env, runs, config)

@@ -116,3 +116,4 @@ def test_the_stacked_letters_gpu_script_runs_on_the_cpu(tmp_path, data_root):
     with tarfile.open(tmp_path / "letters_stacked.tgz") as archive:
         names = archive.getnames()
     assert "letters_stacked/A_s1/progress.csv" in names and not any("checkpoints" in n for n in names)
+    assert "letters_stacked/A_s1/.hydra/config.yaml" in names  # policy=RUN rebuilds the run from it

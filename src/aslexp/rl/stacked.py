@@ -8,8 +8,8 @@ call per control step for every run, one gradient call per minibatch. Each run k
 its own: its seed (its initial weights, its sampling noise, its minibatch order, its environments'
 streams: each the stream its run alone would draw), its Adam moments and step count, its gradient
 clipping, its KL stop, its observation statistics, its evaluations, and its run folder
-(progress.csv, checkpoints/last.pt with the agent as :class:`~aslexp.rl.ppo.PPOTrainer` writes it,
-so ``policy=RUN_DIR`` and re-evaluation read it). Same seeds give what separate runs give, to float
+(progress.csv, checkpoints/last.pt with the agent as :class:`~aslexp.rl.ppo.PPOTrainer` writes it:
+beside the run's .hydra/config.yaml, which bench/stacked_letters.py writes, ``policy=RUN_DIR`` reads it). Same seeds give what separate runs give, to float
 tolerance (tests/imitation/test_stacked_ppo.py).
 
 The algorithm is :class:`~aslexp.rl.ppo.PPOTrainer`'s, setting for setting (rollout, GAE, the clipped
