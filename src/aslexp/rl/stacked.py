@@ -113,6 +113,7 @@ class StackedPPO:
         self.calls = _AgentCalls(copy.deepcopy(self.agents[0]).to("meta"))
         self.log_std_key = next(k for k in self.params if k.endswith("log_std"))
         self.steps = self.iteration = 0
+        self.learning_rate = config.scheduled(0)[0]  # train() sets it before every update, as PPOTrainer's schedules
         self.histories: list[list[dict[str, Any]]] = [[] for _ in runs]
         self.best_evals = [-float("inf")] * self.num_runs
         self.episodes = [EpisodeStats(self.num_envs) for _ in runs]
