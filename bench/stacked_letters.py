@@ -5,8 +5,10 @@ runs (experiment=letters_thesis: the thesis' hand, PD, reward, 240 Hz and PPO) i
     python bench/stacked_letters.py --seeds 0-9 --minutes 8 --device cuda --out $OUT/letters  # on a GPU node
 
 Every run is composed as ``aslexp imitate experiment=EXPERIMENT engine=mujoco motion=LETTER seed=SEED``
-would compose it (``--set`` adds overrides, e.g. ``ppo.num_envs=64``), and all of them train together:
-their environments one MuJoCo batch, their policies one stacked network. Each run's folder
+would compose it (``--set`` adds overrides, e.g. ``ppo.num_envs=64``), and all of them train together
+(aslexp.jobs.stacked.train_together, what ``aslexp imitate -m ... hydra/launcher=stacked`` runs, without
+the per-job figures and re-evaluation that cost seconds a run): their environments one MuJoCo batch,
+their policies one stacked network. Each run's folder
 (``OUT/<letter>_s<seed>``) holds its progress.csv (evaluations every ``ppo.eval_interval`` steps on
 its own letter, from step 0), checkpoints/last.pt and .hydra/config.yaml (so ``aslexp imitate
 policy=RUN`` performs its policy). ``OUT/summary.json`` and the printed table give,
@@ -49,49 +51,39 @@ def main() -> None:
 
     from aslexp.compose import compose
     from aslexp.data.root import resolve_data_root
-    from aslexp.envs.assembly import ImitationSetup
-    from aslexp.envs.batched import BatchedImitationEnv
     from aslexp.jobs._imitation import build_envs
+    from aslexp.jobs.stacked import train_together
+    from aslexp.rl.checkpoint import load_checkpoint
     from aslexp.rl.evaluate import baselines
     from aslexp.rl.ppo import PPOConfig
-    from aslexp.rl.stacked import StackedPPO, StackedRun
 
     letters, seeds = args.letters.split(","), _seeds(args.seeds)
     overrides = [f"experiment={args.experiment}", f"engine={args.engine}", "ppo.vector_env=batched", f"ppo.device={args.device}",
                  "ppo.eval_at_start=true", *([f"ppo.total_steps={args.steps}"] if args.steps else []),
                  *([f"ppo.max_minutes={args.minutes}"] if args.minutes else []), *args.set]
     root = resolve_data_root(None)
-    cfgs = {x: compose("imitate", [*overrides, f"motion={x}"]) for x in letters}
-    setups = {x: ImitationSetup.from_config(cfgs[x], root) for x in letters}
-    config = PPOConfig.parse(cfgs[letters[0]]["ppo"])
-    evals = {x: build_envs(cfgs[x], root, "batched")[1] for x in letters}
-    base = {x: baselines(evals[x], config.eval_steps, config.phases) for x in letters}
-    import functools
-
-    make_env = functools.partial(BatchedImitationEnv.from_setup, setup=setups[letters[0]], shape_reward=True,
-                                 motions=[setups[x].motion for x in letters])
-    runs = [StackedRun(seed=s, out_dir=args.out / f"{x}_s{s}", clip=k, eval_env=evals[x])
-            for k, x in enumerate(letters) for s in seeds]
+    jobs = [(x, s, compose("imitate", [*overrides, f"motion={x}", f"seed={s}"])) for x in letters for s in seeds]
     import yaml
 
-    for run, x in zip(runs, [x for x in letters for _ in seeds]):  # the run's config, as a job writes it:
-        hydra_dir = run.out_dir / ".hydra"                         # policy=RUN and re-evaluation rebuild from it
+    for x, s, cfg in jobs:  # the run's config, as a job writes it: policy=RUN and re-evaluation rebuild from it
+        hydra_dir = args.out / f"{x}_s{s}" / ".hydra"
         hydra_dir.mkdir(parents=True, exist_ok=True)
-        (hydra_dir / "config.yaml").write_text(yaml.safe_dump({**cfgs[x], "seed": run.seed}, sort_keys=False))
-    print(f"{len(runs)} runs ({args.experiment}: letters {letters} x seeds {seeds}) as one program, "
+        (hydra_dir / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    config = PPOConfig.parse(jobs[0][2]["ppo"])
+    print(f"{len(jobs)} runs ({args.experiment}: letters {letters} x seeds {seeds}) as one program, "
           f"{config.num_envs} environments each, learner on {args.device}")
-    program = StackedPPO(make_env, runs, config)
     start = time.perf_counter()
-    try:
-        histories = program.train()
-    finally:
-        program.close()
-        for env in evals.values():
-            env.close()
+    program = train_together([cfg for _, _, cfg in jobs], [args.out / f"{x}_s{s}" for x, s, _ in jobs])
+    base = {}
+    for x in letters:  # the no-learning baselines under the runs' protocol, once per letter
+        eval_env = build_envs(next(cfg for y, _, cfg in jobs if y == x), root, "batched")[1]
+        base[x] = baselines(eval_env, config.eval_steps, config.phases)
+        eval_env.close()
+    histories = [load_checkpoint(args.out / f"{x}_s{s}" / "checkpoints" / "last.pt")["history"] for x, s, _ in jobs]
     seconds = time.perf_counter() - start
     table = {}
-    for k, x in enumerate(letters):
-        mine = [h for run, h in zip(runs, histories) if run.clip == k]
+    for x in letters:
+        mine = [h for (y, _, _), h in zip(jobs, histories) if y == x]
         last = [[r["eval_reward"] for r in h if "eval_reward" in r][-1] for h in mine]
         table[x] = {"untrained": float(np.mean([h[0]["eval_reward"] for h in mine])),
                     "baselines": {name: round(v, 5) for name, v in base[x].items()},
@@ -100,11 +92,12 @@ def main() -> None:
         print(f"{x}: untrained {table[x]['untrained']:.3f}  baselines "
               + "  ".join(f"{n} {v:.3f}" for n, v in base[x].items())
               + f"  learned {table[x]['last_eval']['mean']:.3f} ± {table[x]['last_eval']['std']:.3f} (n={len(last)})")
-    summary = {"experiment": args.experiment, "overrides": overrides, "runs": len(runs), "steps_per_run": program.steps,
-               "seconds": round(seconds, 1), "steps_per_s_all_runs": round(len(runs) * program.steps / seconds),
+    summary = {"experiment": args.experiment, "overrides": overrides, "runs": len(jobs),
+               "steps_per_run": program["steps_per_run"], "seconds": round(seconds, 1),
+               "training_seconds": program["seconds"], "steps_per_s_all_runs": program["steps_per_s_all_runs"],
                "device": args.device, "letters": table}
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
-    print(f"{program.steps:,} steps per run in {seconds:.0f} s: {summary['steps_per_s_all_runs']:,} steps/s over "
+    print(f"{program['steps_per_run']:,} steps per run in {seconds:.0f} s: {summary['steps_per_s_all_runs']:,} steps/s over "
           f"all runs; {args.out / 'summary.json'}")
 
 

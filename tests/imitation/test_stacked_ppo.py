@@ -37,7 +37,8 @@ def _alone(motion, seed, config, out_dir):
         for _ in range(config.total_steps // config.batch_size):
             trainer.apply_schedules()
             stats.append(trainer.learn(trainer.collect()))
-        return {k: v.detach().clone() for k, v in trainer.agent.state_dict().items()}, stats
+        weights = {k: v.detach().clone() for k, v in trainer.agent.state_dict().items()}
+        return weights, stats, trainer.optimizer.state_dict()
     finally:
         trainer.close()
 
@@ -55,8 +56,15 @@ def test_two_runs_together_match_the_same_runs_alone(tmp_path, data_root, kl):
             together.learning_rate = config.scheduled(together.steps)[0]
             stats_together.append(together.learn(together.collect()))
         for r, (motion, run) in enumerate(zip(motions, runs)):
-            weights, stats = _alone(motion, run.seed, config, tmp_path / f"alone{r}")
+            weights, stats, adam = _alone(motion, run.seed, config, tmp_path / f"alone{r}")
             mine = together.agent(r).state_dict()
+            # its checkpoint's optimiser is the Adam state the run alone holds (what resume= reads)
+            ours = together._optimizer_state(r, together.agent(r))
+            assert sorted(ours["state"]) == sorted(adam["state"])
+            for index, state in adam["state"].items():
+                assert float(ours["state"][index]["step"]) == float(state["step"])
+                for key in ("exp_avg", "exp_avg_sq"):
+                    assert torch.allclose(ours["state"][index][key], state[key], atol=1e-6, rtol=1e-3), (r, index, key)
             assert [s["updates"] for s in stats] == [s[r]["updates"] for s in stats_together]
             for key, value in weights.items():
                 assert torch.allclose(mine[key], value, atol=2e-5, rtol=1e-4), (r, key, (mine[key] - value).abs().max())
@@ -93,6 +101,15 @@ def test_each_run_of_the_program_writes_its_own_folder(tmp_path, data_root):
     # the two seeds on motion A learn apart; their untrained evaluations differ by their initial weights
     a0, a2 = (load_checkpoint(r.out_dir / "checkpoints" / "last.pt")["agent"] for r in (runs[0], runs[2]))
     assert not torch.allclose(a0["critic.module.0.weight"], a2["critic.module.0.weight"])
+    # a run of the program continues alone: PPOTrainer resumes its checkpoint, one update more
+    alone = PPOTrainer(_factory(motions[:1]), None, PPOConfig(**{**TINY, "total_steps": 192}), tmp_path / "alone", seed=0)
+    try:
+        alone.restore(runs[0].out_dir / "checkpoints" / "last.pt")
+        assert alone.steps == 128 and len(alone.history) == 3
+        result = alone.train()
+    finally:
+        alone.close()
+    assert result.steps == 192 and len(result.history) == 4
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA GPU (torch finds none)")

@@ -88,9 +88,29 @@ def re_evaluate(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger
         finally:
             trainer.close()
         own.update(resumed_from=resume_origin(checkpoint, trainer.steps), **trainer_metrics(trainer, started, counters))
+        together = _trained_together(checkpoint, out_dir)
+        if together is not None:  # a run of a stacked program (aslexp.jobs.stacked), finished in its own folder
+            own.pop("resumed_from")
+            own.update(stopped=together["stopped"], num_envs=together["num_envs"], trained_together=together)
+            start = next((h["eval_reward"] for h in trainer.history if h["step"] == 0 and "eval_reward" in h), None)
+            if start is not None:  # ppo.eval_at_start: where it began, as a run trained alone records it
+                own["untrained_eval"] = start
+            return finish(bench, trainer.evaluation_agent().act, own, history=trainer.history, shown="last policy")
         return finish(bench, trainer.evaluation_agent().act, own, history=trainer.history, shown="the resumed policy")
     finally:
         bench.close()
+
+
+def _trained_together(checkpoint: Path, out_dir: Path) -> dict[str, Any] | None:
+    """The program a checkpoint of this very folder was trained in, when it was one of many runs
+    trained together (its ``stacked`` entry: runs, seconds, why it stopped, environments per run)."""
+    from aslexp.rl.checkpoint import load_checkpoint
+
+    if checkpoint.parent.parent.resolve() != Path(out_dir).resolve():
+        return None
+    payload = load_checkpoint(checkpoint)
+    together = payload.get("stacked")
+    return None if together is None else {**together, "num_envs": int(payload.get("num_envs", 1))}
 
 
 def perform(cfg: dict[str, Any], out_dir: Path, reporter=None, metric_logger=None,

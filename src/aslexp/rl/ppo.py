@@ -218,6 +218,21 @@ class TrainResult:
     stopped: str = "total_steps"  # total_steps | max_minutes | target_reward
 
 
+def loss_and_optimizer(agent: Agent, config: PPOConfig, device: torch.device) -> tuple[ClipPPOLoss, torch.optim.Adam]:
+    """The trainer's clipped-PPO loss over ``agent`` and the Adam that steps its parameters (a
+    checkpoint's ``optimizer`` is this Adam's state: stacked runs write theirs through it)."""
+    loss = ClipPPOLoss(
+        agent.actor, agent.critic, clip_epsilon=config.clip_epsilon,
+        entropy_bonus=config.entropy_coef > 0, entropy_coeff=config.entropy_coef or None,
+        critic_coeff=config.value_coef, loss_critic_type="l2", normalize_advantage=True, device=device,
+    )
+    loss.set_keys(sample_log_prob=LOG_PROB)
+    # On a GPU one fused kernel steps every parameter (the update is 800 small steps in Table D.1).
+    optimizer = torch.optim.Adam(loss.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay,
+                                 fused=device.type == "cuda")
+    return loss, optimizer
+
+
 def make_agent(env, config: PPOConfig) -> Agent:
     """An agent for an environment (or a vector environment: its single spaces)."""
     if hasattr(env, "single_observation_space"):
@@ -340,17 +355,9 @@ class PPOTrainer:
         # The policy that collects: the learner's own, or a CPU copy refreshed after every update.
         same = config.rollout_device == "learner" or self.device.type == "cpu"
         self.rollout_agent = self.agent if same else copy.deepcopy(self.agent).cpu()
-        self.loss = ClipPPOLoss(
-            self.agent.actor, self.agent.critic, clip_epsilon=config.clip_epsilon,
-            entropy_bonus=config.entropy_coef > 0, entropy_coeff=config.entropy_coef or None,
-            critic_coeff=config.value_coef, loss_critic_type="l2", normalize_advantage=True, device=self.device,
-        )
-        self.loss.set_keys(sample_log_prob=LOG_PROB)
+        self.loss, self.optimizer = loss_and_optimizer(self.agent, config, self.device)
         self.gae = GAE(gamma=config.gamma, lmbda=config.gae_lambda, value_network=self.agent.critic,
                        average_gae=False, device=self.device)
-        # On a GPU one fused kernel steps every parameter (the update is 800 small steps in Table D.1).
-        self.optimizer = torch.optim.Adam(self.loss.parameters(), lr=config.learning_rate,
-                                          weight_decay=config.weight_decay, fused=self.device.type == "cuda")
         if config.log_std_final is not None:  # the noise follows its schedule: no gradient moves it
             self.agent.head.log_std.requires_grad_(False)
         self.steps = 0

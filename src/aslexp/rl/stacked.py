@@ -14,7 +14,8 @@ tolerance (tests/imitation/test_stacked_ppo.py).
 
 The algorithm is :class:`~aslexp.rl.ppo.PPOTrainer`'s, setting for setting (rollout, GAE, the clipped
 losses of :func:`~aslexp.rl.ppo.clipped_ppo_losses`, Adam with weight decay, gradient clipping, both
-KL stops, schedules, critic warm-up); not here: coloured noise, worker processes, resuming.
+KL stops, schedules, critic warm-up, resuming (:meth:`StackedPPO.restore`: the whole program, or
+one run alone through PPOTrainer); not here: coloured noise, worker processes.
 """
 
 from __future__ import annotations
@@ -32,10 +33,10 @@ from torch import nn
 from torchrl.objectives.value.functional import vec_generalized_advantage_estimate
 
 from aslexp.errors import ConfigError
-from aslexp.rl.checkpoint import save_checkpoint
+from aslexp.rl.checkpoint import load_checkpoint, save_checkpoint
 from aslexp.rl.evaluate import evaluate_phases
 from aslexp.rl.ppo import (STAT_KEYS, EpisodeStats, MinibatchData, PPOConfig, PPOTrainer, Progress, ProgressCSV,
-                           clipped_ppo_losses, make_agent, minimised_loss, resolve_device,
+                           clipped_ppo_losses, loss_and_optimizer, make_agent, minimised_loss, resolve_device,
                            timed_update)
 from aslexp.rl.vector import worker_seeds
 
@@ -113,6 +114,8 @@ class StackedPPO:
         self.calls = _AgentCalls(copy.deepcopy(self.agents[0]).to("meta"))
         self.log_std_key = next(k for k in self.params if k.endswith("log_std"))
         self.steps = self.iteration = 0
+        self.elapsed = 0.0  # the program's training seconds so far (every run's)
+        self.stopped = "total_steps"  # or max_minutes: what ended the program
         self.learning_rate = config.scheduled(0)[0]  # train() sets it before every update, as PPOTrainer's schedules
         self.histories: list[list[dict[str, Any]]] = [[] for _ in runs]
         self.best_evals = [-float("inf")] * self.num_runs
@@ -325,17 +328,62 @@ class StackedPPO:
         index = torch.from_numpy(rows).to(self.device)
         return {k: v[index] for k, v in stacked.items()}
 
+    def restore(self) -> bool:
+        """Continue from the runs' checkpoints/last.pt, written by this program before it stopped
+        (a killed job, a time limit): every run's weights, Adam state, streams and history, the
+        environments on new episodes (as PPOTrainer's resume). False where no run has one; a set that
+        is not one program's at one step is refused."""
+        paths = [run.out_dir / "checkpoints" / "last.pt" for run in self.runs]
+        present = [p.is_file() for p in paths]
+        if not any(present):
+            return False
+        payloads = [load_checkpoint(p) if here else None for p, here in zip(paths, present)]
+        steps = {int(p["steps"]) for p in payloads if p is not None and "stacked" in p}
+        if not all(present) or len(steps) != 1 or any("stacked" not in p for p in payloads):
+            found = ", ".join(f"{p} ({'steps ' + str(q['steps']) if q else 'none'})" for p, q in zip(paths, payloads))
+            raise ConfigError(f"stacked runs: the run folders hold checkpoints of no one program at one step ({found}); "
+                              "resume them all together, or start over (overwrite=true, or another folder)")
+        with torch.no_grad():
+            for r, payload in enumerate(payloads):
+                agent = self.agents[r]
+                agent.load_state_dict(payload["agent"])
+                for k, p in agent.named_parameters():
+                    self.params[k][r] = p
+                for k, b in agent.named_buffers():
+                    self.buffers[k][r] = b
+                _, optimizer = loss_and_optimizer(agent, self.config, self.device)
+                optimizer.load_state_dict(payload["optimizer"])
+                names = {p.data_ptr(): k for k, p in agent.named_parameters()}
+                for p, state in optimizer.state.items():
+                    m, v = self.moments[names[p.data_ptr()]]
+                    m[r], v[r] = state["exp_avg"], state["exp_avg_sq"]
+                    self.adam_steps[r] = float(state["step"])
+                self.generators[r].set_state(payload["torch_rng"])
+                self.rngs[r].bit_generator.state = payload["numpy_rng"]
+                self.histories[r] = list(payload["history"])
+                self.best_evals[r] = float(payload["best_eval"])
+        first = payloads[0]
+        self.steps, self.iteration, self.elapsed = int(first["steps"]), int(first["iteration"]), float(first["elapsed"])
+        self._obs = None
+        log.info("%d runs resumed together at step %d", self.num_runs, self.steps)
+        return True
+
     # -- the program -------------------------------------------------------------------------------
     def train(self) -> list[list[dict[str, Any]]]:
         """Every run to ``total_steps`` (or ``max_minutes``), each evaluated every ``eval_interval``
         steps on its own environment; returns each run's history (its progress.csv rows)."""
         cfg = self.config
-        progress = Progress(cfg, self.steps, 0.0)
+        progress = Progress(cfg, self.steps, self.elapsed)
         files = [ProgressCSV(run.out_dir / "progress.csv") for run in self.runs]
+        for file, history in zip(files, self.histories):
+            if history:  # resumed: each file holds its checkpoint's rows, no later ones
+                note = file.match_history(history)
+                if note:
+                    log.warning("%s", note)
         next_eval = (self.steps // cfg.eval_interval + 1) * cfg.eval_interval
         log.info("%d runs together: %d x %d environments in one batch, %d steps per update per run, on %s",
                  self.num_runs, self.num_runs, self.num_envs, cfg.batch_size, self.device)
-        if cfg.eval_at_start:
+        if cfg.eval_at_start and not any(self.histories):
             self._evaluate_all({"step": 0, "seconds": 0.0}, files)
         while self.steps < cfg.total_steps:
             self.learning_rate, log_std = cfg.scheduled(self.steps)
@@ -343,7 +391,7 @@ class StackedPPO:
                 self.params[self.log_std_key].fill_(log_std)
             stats, collect_s, update_s = timed_update(self)
             self.iteration += 1
-            elapsed = progress.elapsed()
+            elapsed = self.elapsed = progress.elapsed()
             time_up = cfg.max_minutes is not None and elapsed > 60 * cfg.max_minutes
             common = {"step": self.steps, "seconds": round(elapsed, 2),
                       "env_steps_per_s": round(self.num_runs * cfg.batch_size / collect_s, 1),
@@ -362,6 +410,7 @@ class StackedPPO:
             progress.note = f"  {self.num_runs} runs, {common['steps_per_s']:,.0f} steps/s in all"
             progress.tick(self.steps)
             if time_up:
+                self.stopped = "max_minutes"
                 break
         for r in range(self.num_runs):
             self.save(r)
@@ -383,16 +432,36 @@ class StackedPPO:
             self.save(r)
 
     def save(self, r: int) -> Path:
-        """Run ``r``'s checkpoints/last.pt: its agent as PPOTrainer saves it, its own Adam state."""
-        run = self.runs[r]
-        payload = {"agent": self.agent(r).state_dict(), "steps": self.steps, "iteration": self.iteration,
-                   "best_eval": self.best_evals[r], "history": self.histories[r], "config": asdict(self.config),
-                   "seed": run.seed, "num_envs": self.num_envs, "device": str(self.device),
-                   "stacked": {"runs": self.num_runs, "adam_steps": int(self.adam_steps[r]),
-                               "moments": {k: (m[r].clone(), v[r].clone()) for k, (m, v) in self.moments.items()},
-                               "torch_rng": self.generators[r].get_state(),
-                               "numpy_rng": self.rngs[r].bit_generator.state}}
+        """Run ``r``'s checkpoints/last.pt as :class:`~aslexp.rl.ppo.PPOTrainer` writes one (its agent,
+        its Adam state, its streams): ``resume=`` continues the run alone, re-evaluation reads it."""
+        run, agent = self.runs[r], self.agent(r)
+        payload = {"agent": agent.state_dict(), "optimizer": self._optimizer_state(r, agent), "steps": self.steps,
+                   "iteration": self.iteration, "elapsed": self.elapsed, "best_eval": self.best_evals[r],
+                   "history": self.histories[r], "config": asdict(self.config), "best_validation": -float("inf"),
+                   "selected_step": None, "seed": run.seed, "torch_rng": self.generators[r].get_state(),
+                   "numpy_rng": self.rngs[r].bit_generator.state, "num_envs": self.num_envs,
+                   "device": str(self.device),
+                   "stacked": {"runs": self.num_runs, "seconds": round(self.elapsed, 2), "stopped": self.stopped}}
         return save_checkpoint(run.out_dir / "checkpoints" / "last.pt", payload)
+
+    def _optimizer_state(self, r: int, agent: nn.Module) -> dict[str, Any]:
+        """Run ``r``'s moments and step count as the state_dict of the Adam a PPOTrainer builds."""
+        _, optimizer = loss_and_optimizer(agent, self.config, self.device)
+        names = {p.data_ptr(): k for k, p in agent.named_parameters()}
+        steps = float(self.adam_steps[r])
+        for group in optimizer.param_groups:
+            group["lr"] = self.learning_rate
+            on_device = bool(group.get("fused") or group.get("capturable"))
+            for p in group["params"]:
+                name = names.get(p.data_ptr())
+                if name is None:  # the loss would step a tensor the stack does not hold: never silently
+                    raise RuntimeError(f"stacked runs: the optimiser holds a parameter the agent does not ({tuple(p.shape)})")
+                if name in self.moments and steps > 0:
+                    m, v = self.moments[name]
+                    optimizer.state[p] = {"step": torch.tensor(steps, dtype=torch.float32,
+                                                               device=p.device if on_device else "cpu"),
+                                          "exp_avg": m[r].clone(), "exp_avg_sq": v[r].clone()}
+        return optimizer.state_dict()
 
     def close(self) -> None:
         self.envs.close()
