@@ -84,3 +84,15 @@ def test_a_program_stopped_before_its_end_continues_from_its_runs_checkpoints(tm
     (folders[1] / "checkpoints" / "last.pt").unlink()
     with pytest.raises(ConfigError, match="no one program at one step"):
         train_together(jobs(768), folders)
+
+
+def test_the_gpu_sized_variant_differs_from_the_thesis_ppo_where_its_file_says_only():
+    from aslexp.rl.ppo import PPOConfig
+
+    thesis = compose("imitate", ["experiment=letters_thesis"])["ppo"]
+    gpu = compose("imitate", ["experiment=letters_thesis", "ppo=hand_thesis_gpu"])["ppo"]
+    assert {k for k in thesis if thesis[k] != gpu[k]} == {
+        "name", "num_envs", "steps_per_rollout", "minibatch_size", "epochs", "learning_rate", "eval_interval",
+        "rollout_device"}
+    config = PPOConfig.parse(gpu)
+    assert config.steps_per_env == 16 and config.batch_size // config.minibatch_size == 8
