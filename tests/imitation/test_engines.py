@@ -90,6 +90,35 @@ def test_the_reward_of_a_batch_is_the_reward_of_each_state(data_root):
     env.close()
 
 
+@pytest.mark.parametrize("cls, motion, kwargs", [
+    (ImitationEnv, "motions/hand/A.txt", HAND),
+    (UpperBodyImitationEnv, "motions/upper_body/00433.txt", dict(UPPER, body={"base": "free"})),
+], ids=["hand", "upper-free"])
+def test_the_probes_read_what_a_probe_step_senses_bit_for_bit(data_root, cls, motion, kwargs):
+    """body.read's forward stages in one mujoco.batch call give exactly the sensors a probe mj_step
+    evaluates (before it integrates) from the same states, for a whole batch and for fewer rows."""
+    import mujoco
+
+    env = BatchedImitationEnv(6, data_root / motion, engine="mujoco", env_class=cls, **kwargs)
+    env.reset(seed=0)
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        env.step(rng.uniform(-1, 1, (6, env.single_action_space.shape[0])).astype(np.float32))
+    body, states = env.body, env.states.copy()
+    for model, tips_only in ((body.probe, False), (body.tip_probe, True)):
+        for rows in (slice(None), slice(0, 2), slice(3, 4), slice(None)):
+            expected = []
+            for state in states[rows]:
+                data = mujoco.MjData(model)
+                mujoco.mj_setState(model, data, state[:body.physics_size], mujoco.mjtState.mjSTATE_FULLPHYSICS)
+                data.mocap_pos[:] = state[body.slices["mocap_pos"]].reshape(-1, 3)
+                data.mocap_quat[:] = state[body.slices["mocap_quat"]].reshape(-1, 4)
+                mujoco.mj_step(model, data)  # sensors are evaluated before it integrates
+                expected.append(data.sensordata.copy())
+            np.testing.assert_array_equal(body.read(states[rows], tips_only=tips_only), np.stack(expected))
+    env.close()
+
+
 @pytest.mark.parametrize("env_name, kwargs", [
     ("hand_thesis", {"env": {"episode_steps": 100}}),  # random targets at 240 Hz: the speed clamp acts
     ("residual", {"env": {"normalize_actions": True, "early_termination": {"min_reward": 0.9, "patience": 2}}}),

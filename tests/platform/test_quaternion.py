@@ -26,3 +26,15 @@ def test_twist_angle_reads_a_turn_about_the_axis_and_ignores_a_tilt(angle):
     assert quaternion.twist_angle(reference, quaternion.multiply(reference, _about(1, np.pi + 0.5)), 1) == \
         pytest.approx(-np.pi + 0.5, abs=1e-9)
     assert quaternion.twist_angle(reference, -turned, 1) == pytest.approx(angle, abs=1e-9)
+
+
+def test_rotvec_is_scipys_rotation_vector_for_any_angle_and_either_sign():
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(0)
+    q = quaternion.normalize(rng.normal(size=(500, 4)))
+    tiny = np.concatenate([np.ones((4, 1)), 1e-5 * rng.normal(size=(4, 3))], axis=1)  # below scipy's series bound
+    q = np.concatenate([q, -q, quaternion.normalize(tiny), [[1.0, 0, 0, 0], [0.0, 1, 0, 0]]])
+    expected = Rotation.from_quat(q, scalar_first=True).as_rotvec()
+    np.testing.assert_allclose(quaternion.rotvec(q), expected, rtol=1e-13, atol=1e-15)
+    assert quaternion.rotvec(q.reshape(-1, 2, 4)).shape == (len(q) // 2, 2, 3)

@@ -27,8 +27,8 @@ the physics rate, a site at each end effector's tip, and one PD actuator per joi
 Stepping goes through ``mujoco.rollout`` (C, threads, no Python per physics step) from full physics
 states, for one environment (:class:`MujocoCharacter`, the gymnasium env) and for a batch
 (:mod:`aslexp.envs.batched`) alike: one code path, so a batch equals its environments stepped one
-by one (tested). Link states and end-effector tips come from a probe: one step of the same model
-without contacts or actuators, whose sensors MuJoCo evaluates before it integrates.
+by one (tested). Link states and end-effector tips come from a probe: the same model without
+contacts or actuators, its sensors evaluated at many states in one ``mujoco.batch`` call.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from aslexp.config_schema import Choice, Int, Positive, Section, key
-from aslexp.quaternion import relative_rotvec, rotate, z_to
+from aslexp.quaternion import rotate, rotvec, z_to
 from aslexp.sim.body import BodyLayout, BodySpec
 from aslexp.sim.engine import EngineSpec, Simulation, SimulationRequest, register_engine
 from aslexp.sim.urdf import read_joints
@@ -229,8 +229,7 @@ class MujocoBody:
         # Probes read what the observation and reward need, as sensors: the end-effector tips (the
         # reference's probe), then every link's and the root's frame (world position, orientation,
         # linear and angular velocity; the simulated body's probe). A probe is the model without
-        # contacts, constraints or actuators: mj_step evaluates sensors before it integrates, so one
-        # probe step from a state reads that state's sensors (and its integration is thrown away).
+        # contacts, constraints or actuators, whose forward stages (:meth:`_probe`) read a state's sensors.
         mujoco = self.mujoco
         for k in range(len(self.spec.end_effectors)):
             mspec.add_sensor(type=mujoco.mjtSensor.mjSENS_FRAMEPOS, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=f"tip_{k}")
@@ -344,7 +343,7 @@ class MujocoBody:
                     quat = targets[:, offset:offset + 4]
                     norm = np.linalg.norm(quat, axis=1, keepdims=True)
                     quat = np.where(norm < 1e-6, np.array([1.0, 0, 0, 0]), quat / np.maximum(norm, 1e-12))
-                    parts.append(relative_rotvec(np.array([1.0, 0, 0, 0]), quat))
+                    parts.append(rotvec(quat))
                 offset += joint.dof
             ctrl = np.concatenate(parts, axis=1)
         if target_velocities is not None:
@@ -404,8 +403,31 @@ class MujocoBody:
         ``tips_only``) per frame (the root, then PyBullet's links) world position, orientation
         (w x y z), linear velocity of its origin and angular velocity (13 values). See
         :meth:`frames` and :meth:`tips`."""
-        return self._rollout(self.tip_probe if tips_only else self.probe, states,
-                             np.zeros((len(states), self.model.nu)), 1, sensors=True)
+        return self._probe(self.tip_probe if tips_only else self.probe, states,
+                           self.mujoco.mjtStage.mjSTAGE_POS if tips_only else self.mujoco.mjtStage.mjSTAGE_VEL)
+
+    def _probe(self, model, states: np.ndarray, stage) -> np.ndarray:
+        """``model``'s sensors at ``states`` (N, state): its forward stages up to ``stage`` (positions
+        for the tips; velocities too for the frames) in one ``mujoco.batch`` call on the thread pool,
+        no step (a rollout step would also build and factor the inertia and integrate, for nothing).
+        The values are those a probe step's sensors read, bit for bit (tested)."""
+        n = len(states)
+        self._runners()
+        probe = self._probes.get(id(model))
+        if probe is None or probe[0].nsim < n:  # one batch per probe, grown to the most rows read at once
+            from mujoco import batch as mj_batch
+
+            size = max(n, 2 * probe[0].nsim if probe else 1)
+            batch = mj_batch.Batch(model, nsim=size, nthread=self._threads if self._threads > 1 else 1)
+            probe = self._probes[id(model)] = (batch, *(batch.bind(f) for f in
+                                                        ("qpos", "qvel", "mocap_pos", "mocap_quat", "sensordata")))
+        batch, qpos, qvel, mocap_pos, mocap_quat, sensordata = probe
+        slices = self.slices
+        qpos[:n], qvel[:n] = states[:, slices["qpos"]], states[:, slices["qvel"]]
+        mocap_pos[:n] = states[:, slices["mocap_pos"]].reshape(n, -1, 3)
+        mocap_quat[:n] = states[:, slices["mocap_quat"]].reshape(n, -1, 4)
+        batch.forward(ids=None if n == batch.nsim else np.arange(n), stage=int(stage))
+        return sensordata[:n].copy()
 
     def frames(self, sensors: np.ndarray) -> np.ndarray:
         """(N, 1 + num_links, 13) frame rows of :meth:`read`'s values: the root, then the links."""
@@ -421,7 +443,8 @@ class MujocoBody:
         self._rollout(self.model, states, ctrl, nstep)
         return states
 
-    def _rollout(self, model, states: np.ndarray, ctrl: np.ndarray, nstep: int, sensors: bool = False):
+    def _runners(self) -> None:
+        """The thread pools, made at the first step or read (``engine.threads``; 0: every core)."""
         if self._runner is None:
             from mujoco import rollout
 
@@ -431,9 +454,12 @@ class MujocoBody:
             # A pool for batches; one environment steps in this thread (a hand-off costs more than its step).
             self._runner = rollout.Rollout(nthread=self._threads if self._threads > 1 else 0)
             self._single = rollout.Rollout(nthread=0) if self._threads > 1 else self._runner
-            self._datas = {id(m): [self.mujoco.MjData(m) for _ in range(self._threads)]
-                           for m in (self.model, self.probe, self.tip_probe)}
+            self._datas = {id(self.model): [self.mujoco.MjData(self.model) for _ in range(self._threads)]}
             self._buffers: dict[tuple, tuple] = {}
+            self._probes: dict[int, tuple] = {}
+
+    def _rollout(self, model, states: np.ndarray, ctrl: np.ndarray, nstep: int):
+        self._runners()
         n = len(states)
         key = (id(model), n, nstep)
         buffers = self._buffers.get(key)
@@ -448,8 +474,6 @@ class MujocoBody:
         runner, datas = (self._runner, datas) if n > 1 else (self._single, datas[:1])
         runner.rollout(models, datas, initial, control, control_spec=self.control_spec, nstep=nstep,
                        state=out, sensordata=sensordata, skip_checks=True)
-        if sensors:
-            return sensordata[:, 0].copy()
         # Each environment's fastest joint over the substeps, before any clamp (NaN stays NaN): what
         # the environments' divergence guard reads, so the clamp cannot hide a simulation that blew up.
         velocity = np.abs(out[:, :, self.slices["qvel"]])
@@ -528,7 +552,7 @@ class MujocoBody:
             self._runner.close()
             if self._single is not self._runner:
                 self._single.close()
-            self._runner = None
+            self._runner, self._probes = None, {}
 
 
 def _conjugate(q: np.ndarray) -> np.ndarray:
