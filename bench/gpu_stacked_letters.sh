@@ -3,7 +3,7 @@
 # reward, 240 Hz and PPO) for letters x seeds, all trained together by bench/stacked_letters.py (their
 # environments one MuJoCo batch on every core, their policies one stacked network on the GPU), MIN
 # minutes; everything it writes under $OUT: log.txt, the run folders without checkpoints as
-# $OUT/letters_stacked.tgz, summary.json (per letter: untrained, no-learning baselines, last evaluation
+# $OUT/letters_stacked.tgz ($NAME.tgz), summary.json (per letter: untrained, no-learning baselines, last evaluation
 # mean ± std over seeds; steps per run and steps/s of the program).
 # Before: the wheels and data of bench/gpu_letters_thesis.sh in outputs/gpu; carry outputs/gpu.
 # On the CPU (its test): OUT=/tmp/x DEV=cpu MIN=0.05 LETTERS=A SEEDS=0,1 NOPIP=1 bash bench/gpu_stacked_letters.sh
@@ -14,15 +14,16 @@
 set -u
 OUT=${OUT:?set OUT to a folder}
 MIN=${MIN:-7}; LETTERS=${LETTERS:-A,B,C,D,E}; SEEDS=${SEEDS:-0-9}; ENVS=${ENVS:-10}
+EXPERIMENT=${EXPERIMENT:-letters_thesis}; NAME=${NAME:-letters_stacked}   # bench/gpu_stacked_signs.sh sets them
 source bench/gpu_machine.sh
-el "letters $LETTERS x seeds $SEEDS of letters_thesis as one program, learner on $DEV, $MIN min"
-RUNS=$OUT/letters_stacked
+el "motions $LETTERS x seeds $SEEDS of $EXPERIMENT as one program, learner on $DEV, $MIN min"
+RUNS=$OUT/$NAME
 # the program stops itself after MIN minutes of training; the kill leaves 4 minutes for set-up and the last evaluations
-timeout -s INT $(( ${MIN%.*} * 60 + 240 )) $PY bench/stacked_letters.py --letters "$LETTERS" --seeds "$SEEDS" \
+timeout -s INT $(( ${MIN%.*} * 60 + 240 )) $PY bench/stacked_letters.py --experiment "$EXPERIMENT" --motions "$LETTERS" --seeds "$SEEDS" \
   --minutes "$MIN" --device "$DEV" --out "$RUNS" \
   --set ppo.num_envs=$ENVS engine.threads=$(getconf _NPROCESSORS_ONLN) ppo.progress_interval=30 ${EXTRA:-}
 STATUS=$?
-(cd "$OUT" && tar czf letters_stacked.tgz --exclude=checkpoints letters_stacked)
+(cd "$OUT" && tar czf "$NAME.tgz" --exclude=checkpoints "$NAME")
 cp "$RUNS/summary.json" "$OUT/summary.json" 2>/dev/null
 el "end (exit $STATUS)"
 exit $STATUS

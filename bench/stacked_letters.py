@@ -39,7 +39,8 @@ def _seeds(text: str) -> list[int]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--experiment", default="letters_thesis")
-    parser.add_argument("--letters", default="A,B,C,D,E")
+    parser.add_argument("--letters", "--motions", dest="letters", default="A,B,C,D,E",
+                        help="the motions (letters, or signs such as 00433,52861)")
     parser.add_argument("--seeds", default="0,1,2", help="0,1,2 or 0-9")
     parser.add_argument("--steps", type=int, help="ppo.total_steps per run (default: the experiment's)")
     parser.add_argument("--minutes", type=float, help="ppo.max_minutes: the program stops after this long")
@@ -62,7 +63,7 @@ def main() -> None:
                  "ppo.eval_at_start=true", *([f"ppo.total_steps={args.steps}"] if args.steps else []),
                  *([f"ppo.max_minutes={args.minutes}"] if args.minutes else []), *args.set]
     root = resolve_data_root(None)
-    jobs = [(x, s, compose("imitate", [*overrides, f"motion={x}", f"seed={s}"])) for x in letters for s in seeds]
+    jobs = [(x, s, compose("imitate", [*overrides, f"motion='{x}'", f"seed={s}"])) for x in letters for s in seeds]
     import yaml
 
     for x, s, cfg in jobs:  # the run's config, as a job writes it: policy=RUN and re-evaluation rebuild from it

@@ -117,3 +117,23 @@ def test_the_stacked_letters_gpu_script_runs_on_the_cpu(tmp_path, data_root):
         names = archive.getnames()
     assert "letters_stacked/A_s1/progress.csv" in names and not any("checkpoints" in n for n in names)
     assert "letters_stacked/A_s1/.hydra/config.yaml" in names  # policy=RUN rebuilds the run from it
+
+
+def test_the_stacked_signs_gpu_script_runs_on_the_cpu(tmp_path, data_root):
+    """bench/gpu_stacked_signs.sh (Table 6.7's Run 1 as one program) on the CPU path, as its header's
+    command: one sign, two seeds, one small update; the summary and the archive come back."""
+    import json
+    import os
+    import tarfile
+
+    env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "OUT": str(tmp_path), "DEV": "cpu", "MIN": "0.05",
+           "SIGNS": "00433", "SEEDS": "0,1", "NOPIP": "1", "PY": sys.executable, "ENVS": "2",
+           "EXTRA": "ppo.hidden_sizes=[32,32] ppo.eval_steps=30 ppo.steps_per_rollout=512"}
+    proc = subprocess.run(["bash", "bench/gpu_stacked_signs.sh"], cwd=PROJECT_ROOT, env=env, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, (tmp_path / "log.txt").read_text()[-3000:]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["experiment"] == "signs_thesis_run1" and summary["runs"] == 2
+    assert set(summary["letters"]) == {"00433"} and "lookahead" in summary["letters"]["00433"]["baselines"]
+    with tarfile.open(tmp_path / "signs_run1.tgz") as archive:
+        assert "signs_run1/00433_s0/progress.csv" in archive.getnames()
