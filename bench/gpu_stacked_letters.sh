@@ -9,8 +9,8 @@
 # On the CPU (its test): OUT=/tmp/x DEV=cpu MIN=0.05 LETTERS=A SEEDS=0,1 NOPIP=1 bash bench/gpu_stacked_letters.sh
 # The whole figure (5 letters x 10 seeds, 50 runs) in one call of at most 10 minutes:
 #   OUT=... MIN=7 bash bench/gpu_stacked_letters.sh
-# aslexp's GPU-sized variant beside it (conf/ppo/hand_thesis_gpu.yaml: 2,048 environments a run):
-#   OUT=... MIN=7 ENVS=2048 EXTRA=ppo=hand_thesis_gpu bash bench/gpu_stacked_letters.sh
+# aslexp's GPU-sized variant beside it (conf/ppo/hand_gpu.yaml: 2,048 environments a run):
+#   OUT=... MIN=7 ENVS=2048 EXTRA=ppo=hand_gpu bash bench/gpu_stacked_letters.sh
 set -u
 OUT=${OUT:?set OUT to a folder}
 MIN=${MIN:-7}; LETTERS=${LETTERS:-A,B,C,D,E}; SEEDS=${SEEDS:-0-9}; ENVS=${ENVS:-10}

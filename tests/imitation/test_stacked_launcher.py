@@ -90,7 +90,7 @@ def test_the_gpu_sized_variant_differs_from_the_thesis_ppo_where_its_file_says_o
     from aslexp.rl.ppo import PPOConfig
 
     thesis = compose("imitate", ["experiment=letters_thesis"])["ppo"]
-    gpu = compose("imitate", ["experiment=letters_thesis", "ppo=hand_thesis_gpu"])["ppo"]
+    gpu = compose("imitate", ["experiment=letters_thesis", "ppo=hand_gpu"])["ppo"]
     assert {k for k in thesis if thesis[k] != gpu[k]} == {
         "name", "num_envs", "steps_per_rollout", "minibatch_size", "epochs", "learning_rate", "eval_interval",
         "rollout_device"}

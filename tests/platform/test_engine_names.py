@@ -16,6 +16,8 @@ NAMES = re.compile(r"pybullet|mujoco", re.IGNORECASE)
 ALLOWED = {
     # the distributions whose versions a run records: the engines' package names there
     ("runs/record.py", '"pybullet", "gymnasium", "torchrl", "tensordict",'),
+    # a command a user types: the launcher's example names the engine option it is run with
+    ("jobs/stacked.py", "aslexp imitate -m motion=A,B seed=0,1 engine=mujoco ppo=fast hydra/launcher=stacked"),
 }
 
 

@@ -6,7 +6,7 @@ program on one device (:class:`aslexp.rl.stacked.StackedPPO`), then each job fin
     aslexp imitate -m motion=A,B seed=0,1 engine=mujoco ppo=fast hydra/launcher=stacked
 
 The launcher (``hydra_plugins.aslexp_stacked_launcher``, ``conf/hydra/launcher/stacked.yaml``) composes
-every job of the sweep and gives them to :func:`train_together`: their environments one MuJoCo batch
+every job of the sweep and gives them to :func:`train_together`: their environments one batch of the engine
 (each run's rows on its own motion), their agents one stacked network, each run with its own seed,
 evaluations, progress.csv and checkpoints/last.pt (a PPOTrainer checkpoint: ``resume=`` continues one
 run alone). Then each job runs as ``aslexp imitate`` with ``resume=`` its own folder: nothing is left
