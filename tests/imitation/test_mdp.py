@@ -142,6 +142,8 @@ FREE_RESIDUAL = dict(controller="upper_body_thesis_code", reward="upper_body_tab
                          "residual_base_smoothing": 0.6,
                          "residual_base_smoothing_groups": ["chest", "neck", "shoulder", "elbow"],
                          "heading_shaping": 10.0, "offset_shaping": 100.0}))
+ARMS = {"policy_groups": ["chest", "neck", "shoulder", "elbow"], "observe_joints": True, "observe_future": [1, 2],
+        "observe_links": ["root", "chest", "neck", "*_hip", "*_knee", "*_ankle", "*_shoulder", "*_elbow"]}
 # (env class, motion, groups, shape_reward, noise: None random actions over the box, else the
 # reference action plus that fraction of the box drawn at random: the upper body keeps its feet and its
 # simulation stays sane)
@@ -157,6 +159,9 @@ CASES = {
     "upper-free-residual-tracking-error": (UpperBodyImitationEnv, "00433", {**FREE_RESIDUAL, "env": deep_merge(
         FREE_RESIDUAL["env"], {"observe_future_as": "error", "observe_phase": False, "observe_joints": True})},
         True, 0.3),
+    # experiment=signs_unseen_arms's policy: it corrects and sees the arms, chest and neck alone
+    "upper-free-residual-arms": (UpperBodyImitationEnv, "00433", {**FREE_RESIDUAL, "env": deep_merge(
+        FREE_RESIDUAL["env"], ARMS)}, True, 0.3),
 }
 
 
@@ -199,3 +204,45 @@ def test_a_batch_of_one_is_the_single_environment_step_for_step(data_root, case)
         batch.close()
     assert len(set(rewards)) > 1 and (not shape or 0 < means["drift"] < 1)
     single.close()
+
+
+def test_a_policy_of_some_joint_groups_acts_on_and_sees_those_alone(data_root):
+    """env.policy_groups: the action is the chosen groups' corrections (the other joints follow the
+    base: a zero action is the whole body's zero correction, step for step), the observation holds those
+    joints' reference frames and state alone, and a policy on the others is refused in absolute mode."""
+    from aslexp.errors import ConfigError
+
+    kwargs = {**FREE_RESIDUAL, "env": deep_merge(FREE_RESIDUAL["env"], ARMS)}
+    whole_env = deep_merge(FREE_RESIDUAL["env"], {k: v for k, v in ARMS.items() if k != "policy_groups"})
+    arms = UpperBodyImitationEnv("00433", engine="mujoco", data_root=data_root, **kwargs)
+    whole = UpperBodyImitationEnv("00433", engine="mujoco", data_root=data_root, **{**FREE_RESIDUAL, "env": whole_env})
+    groups = [j.group for j in arms.layout.joints]
+    values, speeds = arms.policy_seen
+    chosen = [j for j in arms.layout.joints if j.group in ARMS["policy_groups"]]
+    assert len(values) == sum(j.dof for j in chosen) == arms.action_space.shape[0] < whole.action_space.shape[0]
+    assert len(speeds) == sum(1 if j.dof == 1 else 3 for j in chosen)
+    assert "fingers" in groups and "wrist" in groups  # left to the controller
+    # 2 frames ahead + positions + velocities: the hands' values gone from each
+    hidden = (whole.layout.action_size - len(values)) * 3 + (whole.velocity_size - len(speeds))
+    assert whole.observation_space.shape[0] - arms.observation_space.shape[0] == hidden
+    a_obs, _ = arms.reset(seed=5)
+    w_obs, _ = whole.reset(seed=5)
+    for _ in range(12):
+        a_obs, a_reward, *_ = arms.step(np.zeros(arms.action_space.shape, np.float32))
+        w_obs, w_reward, *_ = whole.step(np.zeros(whole.action_space.shape, np.float32))
+        assert a_reward == w_reward
+    rng = np.random.default_rng(0)
+    action = rng.uniform(-1, 1, arms.action_space.shape)
+    full = arms.physical_action(action)
+    others = np.setdiff1d(np.arange(arms.layout.action_size), values)
+    assert np.all(full[others] == 0) and np.allclose(full[values], 0.2 * action)
+    np.testing.assert_allclose(arms.normalize_action(arms.policy_part(full)), action)
+    batch = BatchedImitationEnv(2, "00433", engine="mujoco", data_root=data_root, env_class=UpperBodyImitationEnv,
+                                **kwargs)
+    assert batch.single_action_space.shape == arms.action_space.shape
+    assert batch.reset(seed=1)[0].shape == (2, arms.observation_space.shape[0])
+    for env in (arms, whole, batch):
+        env.close()
+    with pytest.raises(ConfigError, match="policy_groups.*needs action_mode residual"):
+        UpperBodyImitationEnv("00433", engine="mujoco", data_root=data_root,
+                              env={"policy_groups": ["shoulder"], "action_mode": "absolute"})

@@ -284,7 +284,7 @@ class BatchedImitationEnv(VectorEnv):
                 q, qd = self.body.joints(self.states[rows])
             joints = (q, qd)
         return mdp.observe(self.spec_env, self._rows(rows), self.time[rows], links, frames[:, 0, 0:3],
-                           frames[:, 0, 3:7], joints)
+                           frames[:, 0, 3:7], joints, self.template.policy_seen)
 
     # -- what PPO reads ---------------------------------------------------------------------------------
     # Mean reward and per-term rewards over every environment's steps since the last call.

@@ -142,11 +142,10 @@ class ImitationEnv(gym.Env):
         self.score_fns = {name: setup.reward_function(spec) for name, spec in setup.score_rewards.items()}
 
         self._action_spaces()
-        size = self.layout.action_size
         alpha = self.spec_env.residual_base_smoothing
         self.base_smoothing = (mdp.BaseSmoothing(alpha, self.joint_value_indices(
             self.spec_env.residual_base_smoothing_groups, "env residual_base_smoothing_groups"),
-            self.physical_action_space.low[:size], self.physical_action_space.high[:size]) if alpha > 0 else None)
+            *self._correction_box()) if alpha > 0 else None)
         self.termination = mdp.Termination.of(self.spec_env)
         self._target_rules: dict[bool, mdp.TargetRule] = {}  # by plain (thesis_pd) or not
         self.observed_links = self._select_links(self.spec_env.observe_links)
@@ -182,10 +181,13 @@ class ImitationEnv(gym.Env):
             if self.spec_env.action_range == "motion":
                 low, high = self._motion_range(self.spec_env.action_range_margin)
             self.action_space = gym.spaces.Box(low.astype(np.float32), high.astype(np.float32), dtype=np.float32)
-        else:
-            r = float(self.spec_env.residual_range)
-            self.action_space = gym.spaces.Box(-r, r, shape=(self.layout.action_size,), dtype=np.float32)
         self.velocity_size = sum(1 if j.dof == 1 else 3 for j in self.layout.joints)
+        # env.policy_groups: the joint values (and velocities) the policy corrects and sees; None: all
+        self.policy_seen = self._policy_columns(self.spec_env.policy_groups)
+        if self.spec_env.action_mode == "residual":
+            r = float(self.spec_env.residual_range)
+            size = self.layout.action_size if self.policy_seen is None else len(self.policy_seen[0])
+            self.action_space = gym.spaces.Box(-r, r, shape=(size,), dtype=np.float32)
         rv = float(self.spec_env.residual_velocity_range)
         if rv > 0:  # [position part, velocity-target corrections added to the motors' velocity targets]
             self.action_space = gym.spaces.Box(
@@ -205,16 +207,49 @@ class ImitationEnv(gym.Env):
                                  f"joints {empty} of body {self.body_spec.name} have lower == upper")
             self.action_space = gym.spaces.Box(-1.0, 1.0, shape=self.physical_action_space.shape, dtype=np.float32)
 
+    def _policy_columns(self, groups: tuple[str, ...] | None) -> tuple[np.ndarray, np.ndarray] | None:
+        """(joint-value indices, joint-velocity indices) of the joints of ``groups``; None for None."""
+        if groups is None:
+            return None
+        values, speeds, value, speed = [], [], 0, 0
+        for joint in self.layout.joints:
+            width, turn = (1, 1) if joint.dof == 1 else (4, 3)
+            if joint.group in groups:
+                values += range(value, value + width)
+                speeds += range(speed, speed + turn)
+            value, speed = value + width, speed + turn
+        if not values:
+            raise ValueError(f"env policy_groups: no joint in groups {list(groups)}; the body's groups "
+                             f"are {sorted({j.group for j in self.layout.joints})}")
+        return np.asarray(values), np.asarray(speeds)
+
+    def _correction_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """The box of position corrections per joint value (residual): the action box's, 0 on the joints
+        the policy does not correct (``policy_groups``)."""
+        size = len(self.physical_action_space.low) - (self.velocity_size if self.spec_env.residual_velocity_range > 0 else 0)
+        low, high = self.physical_action_space.low[:size], self.physical_action_space.high[:size]
+        if self.policy_seen is None:
+            return low, high
+        full_low, full_high = np.zeros(self.layout.action_size), np.zeros(self.layout.action_size)
+        full_low[self.policy_seen[0]], full_high[self.policy_seen[0]] = low, high
+        return full_low, full_high
+
+    def policy_part(self, action: np.ndarray) -> np.ndarray:
+        """The values of a controller's action for every joint that the policy acts on (``policy_groups``)."""
+        return action if self.policy_seen is None else np.asarray(action)[..., self.policy_seen[0]]
+
     def _observation_size(self) -> int:
         """The observation's length: phase, 13 values per observed link, the reference's next frames
         (and their velocities), the root height, the body's joints, the reference root."""
+        values, speeds = ((self.layout.action_size, self.velocity_size) if self.policy_seen is None
+                          else tuple(len(c) for c in self.policy_seen))
         size = (int(self.spec_env.observe_phase) + 13 * len(self.observed_links)
-                + len(self.spec_env.observe_future) * self.layout.action_size)
+                + len(self.spec_env.observe_future) * values)
         size += self.spec_env.observation == "deepmimic"  # the root height
         if self.spec_env.observe_future_velocities:
-            size += len(self.spec_env.observe_future) * self.velocity_size
+            size += len(self.spec_env.observe_future) * speeds
         if self.spec_env.observe_joints:
-            size += self.layout.action_size + self.velocity_size
+            size += values + speeds
         size += 7 * self.spec_env.observe_reference_root
         return size
 
@@ -280,19 +315,25 @@ class ImitationEnv(gym.Env):
             target = target - self.residual_base()
         if self.spec_env.residual_velocity_range > 0:
             target = np.concatenate([target, np.zeros(self.velocity_size)])
-        return self.normalize_action(target).astype(np.float32)
+        return self.normalize_action(self.policy_part(target)).astype(np.float32)
 
     def physical_action(self, action: np.ndarray) -> np.ndarray:
-        """The controller's action (rad, quaternion components, rad/s) for a policy action: the
-        same values, or with ``normalize_actions`` the affine map of [-1, 1] onto the box
-        (-1 -> low, +1 -> high, exactly; values outside [-1, 1] are not clipped here: the
-        targets are clipped to the joint limits as for physical actions)."""
-        if not self.spec_env.normalize_actions:
+        """The controller's action (rad, quaternion components, rad/s) for a policy action (one, or
+        rows): the same values, or with ``normalize_actions`` the affine map of [-1, 1] onto the box
+        (-1 -> low, +1 -> high, exactly; values outside [-1, 1] are not clipped here: the targets are
+        clipped to the joint limits as for physical actions); with ``policy_groups`` a zero
+        correction on every other joint."""
+        if self.spec_env.normalize_actions:
+            action = self._action_center + self._action_half_range * action
+        if self.policy_seen is None:
             return action
-        return self._action_center + self._action_half_range * action
+        full = np.zeros(np.shape(action)[:-1] + (self.layout.action_size,))
+        full[..., self.policy_seen[0]] = action
+        return full
 
     def normalize_action(self, action: np.ndarray) -> np.ndarray:
-        """The inverse of :meth:`physical_action` (the policy action giving a physical one)."""
+        """The inverse of :meth:`physical_action` on the values the policy acts on (the policy action
+        giving a physical one; :meth:`policy_part` picks them from every joint's)."""
         if not self.spec_env.normalize_actions:
             return action
         return (np.asarray(action, dtype=np.float64) - self._action_center) / self._action_half_range
@@ -367,7 +408,7 @@ class ImitationEnv(gym.Env):
             links = links[self.observed_links]
         joints = [a[None] for a in self.sim.joint_state()] if self.spec_env.reads_joints else None
         return observe(self.spec_env, self.reference, np.asarray([self.time]), links[None], root_pos[None],
-                       root_rot[None], joints)[0]
+                       root_rot[None], joints, self.policy_seen)[0]
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         """Start an episode at ``options["time"]`` (seconds), ``options["phase"]``, a random phase

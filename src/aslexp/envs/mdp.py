@@ -256,10 +256,14 @@ def heading_rotation(root_rot: np.ndarray) -> np.ndarray:
 
 
 def observe(spec: EnvSpec, reference, times: np.ndarray, links: np.ndarray, root_pos: np.ndarray,
-            root_rot: np.ndarray, joints: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+            root_rot: np.ndarray, joints: tuple[np.ndarray, np.ndarray] | None = None,
+            seen: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """The observations (N, size) of N bodies (:mod:`aslexp.envs.imitation`'s docstring): ``times`` (N,)
     on ``reference``, the observed links' world states (N, L, 13), the roots' positions (N, 3) and
-    rotations (N, 4), with ``spec.reads_joints`` the joint positions and velocities (N, ...)."""
+    rotations (N, 4), with ``spec.reads_joints`` the joint positions and velocities (N, ...).
+    ``seen`` (``env.policy_groups``): the joint values and velocities of the reference frames ahead
+    and the joint state that are observed (indices); None: all."""
+    values, speeds = seen if seen is not None else (slice(None), slice(None))
     n = len(times)
     deepmimic = spec.observation == "deepmimic"
     frame = heading_rotation(root_rot) if deepmimic else root_rot  # the frame links are seen in
@@ -282,12 +286,12 @@ def observe(spec: EnvSpec, reference, times: np.ndarray, links: np.ndarray, root
     control_dt = 1.0 / spec.control_hz
     for k in spec.observe_future:
         ahead = reference.joints_many(times + k * control_dt)
-        parts.append(ahead - joints[0] if spec.observe_future_as == "error" else ahead)
+        parts.append((ahead - joints[0] if spec.observe_future_as == "error" else ahead)[:, values])
     if spec.observe_future_velocities:
         for k in spec.observe_future:
-            parts.append(reference.joint_velocities_many(times + k * control_dt))
+            parts.append(reference.joint_velocities_many(times + k * control_dt)[:, speeds])
     if spec.observe_joints:
-        parts.extend(joints)
+        parts += [joints[0][:, values], joints[1][:, speeds]]
     if spec.observe_reference_root:
         ref_pos, ref_rot, _, _ = reference.root_many(times)
         ref_local = quaternion.multiply(quaternion.conjugate(frame), ref_rot)

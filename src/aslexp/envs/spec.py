@@ -77,6 +77,10 @@ class EnvSpec(Section):
     # strongest no-learning one on the standing upper body: gentler targets, less slip.
     residual_base_smoothing: float = field(default=0.0, metadata=key(Float(0, 1, high_open=True)))
     residual_base_smoothing_groups: tuple[str, ...] | None = None
+    # Residual only: the joint groups (conf/body joint_groups) the policy corrects and observes (the
+    # reference frames ahead and the joint state of observe_future / observe_joints); the other joints
+    # follow the residual base, the controller alone, and are not seen. None: every joint.
+    policy_groups: tuple[str, ...] | None = None
     # The policy's action is [-1, 1] per value, mapped affinely onto the box above (absolute: each
     # joint's range, e.g. [-1, 1] -> [0, 2] rad; residual: +-residual_range, +-residual_velocity_range).
     normalize_actions: bool = False
@@ -107,6 +111,10 @@ class EnvSpec(Section):
         if alpha > 0 and self.action_mode != "residual":
             raise ConfigError(f"residual_base_smoothing={alpha}: needs action_mode residual (it filters the base "
                               f"a correction is added to), got {self.action_mode!r}")
+        if self.policy_groups is not None and (self.action_mode != "residual" or self.residual_velocity_range > 0):
+            raise ConfigError(f"policy_groups={list(self.policy_groups)}: needs action_mode residual without "
+                              f"residual_velocity_range (the other joints follow the residual base), got "
+                              f"{self.action_mode!r}, residual_velocity_range {self.residual_velocity_range:g}")
         if self.action_range == "motion" and (self.action_mode != "absolute" or self.action_range_margin < 0):
             raise ConfigError(f"action_range=motion: needs action_mode absolute and action_range_margin >= 0, "
                               f"got {self.action_mode!r}, {self.action_range_margin}")

@@ -223,7 +223,7 @@ def smoothed_reference_policy(alpha: float, groups: tuple[str, ...] | None = Non
         if env.spec_env.residual_velocity_range > 0:  # no velocity-target correction
             action = np.concatenate([action, np.zeros(env.velocity_size)])
         # Within the action box, as a policy's would be (a residual's +-residual_range).
-        action = np.clip(action, env.physical_action_space.low, env.physical_action_space.high)
+        action = np.clip(env.policy_part(action), env.physical_action_space.low, env.physical_action_space.high)
         return env.normalize_action(action).astype(np.float32)
 
     return policy
