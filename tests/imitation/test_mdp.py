@@ -241,6 +241,12 @@ def test_a_policy_of_some_joint_groups_acts_on_and_sees_those_alone(data_root):
                                 **kwargs)
     assert batch.single_action_space.shape == arms.action_space.shape
     assert batch.reset(seed=1)[0].shape == (2, arms.observation_space.shape[0])
+    # the no-learning baselines drive every joint themselves: the same bar with or without policy_groups
+    from aslexp.envs.baselines import Baseline, no_learning_baselines
+
+    row = [Baseline.parse({"label": "thesis PD", "controller": "upper_body_thesis_code", "lookahead": [0, 1]})]
+    assert ([b["reward"] for b in no_learning_baselines(arms.setup, row, seconds=1.0)]
+            == [b["reward"] for b in no_learning_baselines(whole.setup, row, seconds=1.0)])
     for env in (arms, whole, batch):
         env.close()
     with pytest.raises(ConfigError, match="policy_groups.*needs action_mode residual"):

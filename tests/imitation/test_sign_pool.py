@@ -354,3 +354,41 @@ def test_validation_episodes_in_one_batch_score_as_single_evaluations(sign_slice
     np.testing.assert_allclose(rewards, single, atol=1e-6)
     assert ended == 2 and not blew_up.any() and len(set(np.round(rewards, 4))) == 6
     batch.close()
+
+
+def test_an_arms_policy_on_its_held_out_fold_is_a_row_of_the_leave_glosses_out_table(sign_slice, data_root, tmp_path):
+    """experiment=signs_unseen_arms, tiny: the policy corrects and sees the arms, chest and neck alone;
+    `aslexp signing policy=RUN` performs its held-out fold's clips, and the results page's
+    leave-glosses-out entry (report: signing_folds) makes its row and figure from that run."""
+    import yaml
+
+    folder = [f"train_motions.folder={sign_slice}", "train_motions.folds=2", "train_motions.seed=2",
+              "train_motions.validation_motions=0"]
+    clip = sign_slice / "motions" / "upper_body" / "01457.txt"
+    metrics = _imitate(tmp_path, data_root, "arms", f"motion.file={clip}", "motion.name=01457", *folder,
+                       experiment="signs_unseen_arms")
+    assert metrics["train_motions"]["signs"]["held_out_gloss"] == "again"
+    performed = _signing(tmp_path / "results", data_root, "folds", f"signing.motions={sign_slice}",
+                         f"policy={tmp_path / 'arms'}")
+    records = [r for r in performed["records"] if "policy" in r["rewards"]]
+    assert records and {r["gloss"] for r in records} <= set(metrics["train_motions"]["signs"]["test_glosses"])
+    entry = {"id": "folds", "title": "leave glosses out", "beside": "aslexp headline", "thesis": {"source": "none"},
+             "overlay": "signs_standing_residual_quiet", "job": "signing", "command": "aslexp signing",
+             "engine": "mujoco", "reward": "upper_body_table6_4_run3", "report": "signing_folds",
+             "runs": [{"folders": ["results/folds"], "machine": "a test"}],
+             "earlier": {"link": "docs/imitation_upper_body.md#x", "section": "x"},
+             "figures": [{"path": "docs/img/folds.png", "caption": "the clips' differences"}]}
+    (tmp_path / "catalogue.yaml").write_text(yaml.safe_dump({"entries": [entry]}))
+    env = {**os.environ, "ASLEXP_DATA_ROOT": str(data_root), "MPLBACKEND": "Agg"}
+    proc = job_process.run([sys.executable, "-m", "aslexp.cli", "report", "--results", "--catalogue", "catalogue.yaml",
+                            "--outputs", str(tmp_path), "--snapshots", "snapshots", "--page", "page.md"],
+                           cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    page = (tmp_path / "page.md").read_text()
+    gap = np.mean([r["rewards"]["policy"] - r["rewards"]["controller"] for r in records])
+    row = next(line for line in page.splitlines() if line.startswith("| 01457 (again), fold"))
+    assert f"{gap:+.4f}" in row and f"| {len(records)} (" in row
+    from PIL import Image
+
+    with Image.open(tmp_path / "docs" / "img" / "folds.png") as image:
+        assert image.size[0] > image.size[1]

@@ -58,8 +58,9 @@ def no_learning_baselines(setup: ImitationSetup, rows: list[Baseline], seconds: 
     simulated = 0
     for row in rows:
         options = not ControllerSpec.parse(resolve_group("controller", row.controller)).is_thesis_pd
+        # (policy_groups: which joints a policy corrects; a baseline drives every joint itself)
         env_overrides = deep_merge(row.env, {"reference_state_init": False, "residual_velocity_range": 0.0,
-                                             "early_termination": {"min_reward": None},
+                                             "policy_groups": None, "early_termination": {"min_reward": None},
                                              **({"action_mode": "residual"} if options else {})})
         instance = ImitationEnv.from_setup(setup.merged(body=row.body, controller=row.controller, env=env_overrides))
         try:

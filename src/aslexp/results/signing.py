@@ -1,17 +1,22 @@
-"""The signer-against-the-person entry of the results page (``report: signing``): an ``aslexp signing``
+"""The signer-against-the-person entries of the results page. ``report: signing``: an ``aslexp signing``
 run's own table (per stage the keypoint error to the person and the reward; per reading each
 property's agreement with ASL-LEX and the lexicon rank of the true gloss, with intervals over
-glosses) and the lines saying which bars each stage meets."""
+glosses) and the lines saying which bars each stage meets. ``report: signing_folds``: the
+leave-glosses-out table, one row per held-out fold (a signing run of a pool policy on its fold's clips)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from aslexp.results.kinds import ReportKind, register_report
 from aslexp.results.render import render_entry, with_table
 from aslexp.results.snapshots import number
-from aslexp.runs.completed import find_job_runs, latest
+from aslexp.runs.completed import find_job_runs, latest, read_json
+from aslexp.signing.table import gloss_bootstrap, rewards
 
 REPORT = "signing"
 JOB = "signing"
@@ -70,3 +75,98 @@ def render(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list[str]:
 
 
 register_report(ReportKind(REPORT, results_summary, render, job_defaults=True))
+
+
+# -- report: signing_folds -- the leave-glosses-out table: one row per held-out fold --------------------
+FOLDS_REPORT = "signing_folds"
+
+
+def _policy_fold(run_dir: Path, outputs: Path) -> dict[str, Any]:
+    """The policy a signing run performed (``policy=``) and the fold its pool held out, from the
+    policy run's metrics.json (``train_motions.signs``); what is missing stays out."""
+    import yaml
+
+    try:
+        policy = str((yaml.safe_load((run_dir / ".hydra" / "config.yaml").read_text()) or {}).get("policy") or "")
+    except (OSError, yaml.YAMLError):
+        policy = ""
+    found = {"policy": policy}
+    for candidate in (Path(policy), outputs.parent / policy):
+        metrics = read_json(candidate / "metrics.json") if policy and (candidate / "metrics.json").is_file() else None
+        if isinstance(metrics, dict):
+            signs = (metrics.get("train_motions") or {}).get("signs") or {}
+            found.update({k: signs.get(k) for k in ("fold", "folds", "held_out", "held_out_gloss")})
+            break
+    return found
+
+
+def folds_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any]:
+    """Per completed ``aslexp signing`` run under ``folders`` (the latest per policy), the held-out
+    fold's clips: the policy's and the controller's mean reward over one pass and their paired
+    difference (95% bootstrap over glosses, clips where the policy is better / worse), and the median
+    body keypoint error to the person of each; the entry's first figure drawn from the same clips
+    (:func:`aslexp.viz.signing.plot_fold_differences`)."""
+    runs, skipped = find_job_runs(folders, JOB)
+    outputs = Path(folders[0]).parents[1] if folders else Path("outputs")
+    chosen: dict[str, tuple[Path, dict[str, Any], dict[str, Any]]] = {}
+    for run_dir, metrics in sorted(runs, key=lambda r: ((read_json(r[0] / "run.json") or {}).get("finished") or "")):
+        fold = _policy_fold(run_dir, outputs)
+        if fold["policy"] in chosen:
+            skipped["earlier runs of the same policy"] = skipped.get("earlier runs of the same policy", 0) + 1
+        chosen[fold["policy"]] = (run_dir, metrics, fold)
+    rows, lines, drawn = [], [], []
+    header = ["held out (fold)", "clips (glosses)", "reward: controller", "reward: policy",
+              "policy - controller [95% CI] (better/worse clips)", "keypoint error: controller", "policy"]
+    lines += ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for run_dir, metrics, fold in sorted(chosen.values(), key=lambda c: (c[2].get("fold") is None, c[2].get("fold") or 0)):
+        records = [json.loads(line) for line in (run_dir / "clips.jsonl").read_text().splitlines() if line.strip()]
+        records = [r for r in records if "policy" in (r.get("rewards") or {}) and "controller" in (r.get("rewards") or {})]
+        glosses = [r["gloss"] for r in records]
+        policy, controller = rewards(records, "policy"), rewards(records, "controller")
+        gap = gloss_bootstrap(policy - controller, glosses, "mean", 2000, 0.95, 0)
+        short = f"{fold['held_out']} ({fold['held_out_gloss']})" if fold.get("held_out") else run_dir.name
+        drawn.append({"label": f"{short}'s fold: {len(records)} clips", "differences": policy - controller, **gap})
+        table = metrics["table"]
+        reward, error = table["reward"], table["keypoint_error"]
+        label = (f"{fold['held_out']} ({fold['held_out_gloss']}), fold {fold['fold']} of {fold['folds']}"
+                 if fold.get("held_out") else fold["policy"] or run_dir.name)
+        lines.append("| " + " | ".join([
+            label, f"{table['clips']} ({table['glosses']})",
+            _interval(reward["controller"]), _interval(reward["policy"]),
+            f"{gap['value']:+.4f} [{gap['low']:+.4f}, {gap['high']:+.4f}] "
+            f"({int(np.sum(policy > controller))}/{int(np.sum(policy < controller))})",
+            _interval(error["controller"]["body"]), _interval(error["policy"]["body"])]) + " |")
+        rows.append({"key": str(fold.get("fold", label)), "label": label, "thesis": None, "baselines": [],
+                     "steps": None, "learned": {"what": "mean reward minus the controller's, per clip",
+                                                "mean": number(gap["value"]), "spread": None,
+                                                "spread_kind": "95% bootstrap interval over glosses",
+                                                "n": gap["n"], "unit": "clips",
+                                                "metrics": {k: number(gap[k]) for k in ("low", "high")}}})
+    if entry.get("figures") and drawn:  # the entry's first figure, drawn from the same clips
+        from aslexp.viz.signing import plot_fold_differences
+
+        plot_fold_differences(drawn, entry["figures"][0]["path"])
+    return {"rows": rows, "run_dirs": [c[0] for c in chosen.values()], "skipped": skipped, "row_name": "fold",
+            "quantity": "a pool policy on its held-out fold's clips, beside its controller",
+            "facts": {"table_lines": lines}}
+
+
+def _interval(cell: dict[str, Any]) -> str:
+    return f"{cell['value']:.3f} [{cell['low']:.3f}, {cell['high']:.3f}]"
+
+
+def folds_legend(snapshot: dict[str, Any]) -> list[str]:
+    return ["Numbers: per held-out fold, its plausible clips each performed once from the start by the pool "
+            "policy that never saw their glosses and by its controller alone: the mean reward [95% bootstrap "
+            "interval over glosses], the paired difference per clip, and the median body keypoint error to the "
+            "person (DTW mean joint error, shoulder widths).", ""]
+
+
+def folds_render(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list[str]:
+    if snapshot is None:
+        return render_entry(entry, snapshot)
+    return with_table(entry, snapshot, list((snapshot.get("facts") or {}).get("table_lines") or []),
+                      folds_legend(snapshot))
+
+
+register_report(ReportKind(FOLDS_REPORT, folds_summary, folds_render, job_defaults=True))

@@ -24,7 +24,7 @@ RANK_RATIO = 1.10  # ... and the lexicon rank when its median is within 10% of t
 PHYSICS_RATIO = 1.2  # the controller's keypoint error at most this times the reference's
 
 
-def _bootstrap(values: np.ndarray, glosses: Sequence[str], how: str, resamples: int, confidence: float,
+def gloss_bootstrap(values: np.ndarray, glosses: Sequence[str], how: str, resamples: int, confidence: float,
                seed: int) -> dict[str, float]:  # fmt: skip
     """A statistic of per-clip ``values`` (NaN: no value) with a percentile bootstrap over glosses."""
     values = np.asarray(values, dtype=np.float64)
@@ -94,14 +94,14 @@ def build_table(records: Sequence[Mapping[str, Any]], properties: Sequence[str],
                              "keypoint_error": {}, "reward": {}, "read_back": {}}
     for stage in stages:
         table["keypoint_error"][stage] = {
-            part: _bootstrap(keypoint_errors(scored, stage, part), glosses, "median", resamples, confidence, seed)
+            part: gloss_bootstrap(keypoint_errors(scored, stage, part), glosses, "median", resamples, confidence, seed)
             for part in ("body", "left_hand", "right_hand", "hands", "handshape")}
         if stage != "reference":
-            table["reward"][stage] = _bootstrap(rewards(scored, stage), glosses, "mean", resamples, confidence, seed)
+            table["reward"][stage] = gloss_bootstrap(rewards(scored, stage), glosses, "mean", resamples, confidence, seed)
     hands = [r for r in scored if (r.get("hand") or {}).get("stages")]
     if hands:  # the hand body's fingers on the reference arm (aslexp.jobs.signing.score_hand_clip)
         names = [str(r["gloss"]) for r in hands]
-        table["hand_body"] = {stage: {metric: _bootstrap(hand_values(hands, stage, metric), names, "median",
+        table["hand_body"] = {stage: {metric: gloss_bootstrap(hand_values(hands, stage, metric), names, "median",
                                                          resamples, confidence, seed)
                                       for metric in ("handshape", "dtw_mje")}
                               for stage in HAND_STAGES}

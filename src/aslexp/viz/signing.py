@@ -102,3 +102,28 @@ def _handshape_panel(ax, handshapes: Mapping[str, Mapping[str, float]]) -> None:
     ax.set_title("The signing hand's shape, per clip")
     ax.legend(fontsize=7)
     ax.grid(axis="y", alpha=0.3)
+
+
+def plot_fold_differences(folds: Sequence[Mapping[str, Any]], path: str | Path) -> Path:
+    """Save the leave-glosses-out figure: per held-out fold (``label``; ``differences``: per clip the
+    policy's reward minus its controller's; ``value``, ``low``, ``high``: their mean and interval) a
+    row of the clips' differences, the mean with its interval, and the line of no difference."""
+    fig, ax = plt.subplots(figsize=(7.5, 0.7 + 0.75 * len(folds)))
+    rng = np.random.default_rng(0)  # the vertical jitter of the dots only
+    for row, fold in enumerate(folds):
+        values = np.asarray(fold["differences"], dtype=float)
+        ax.scatter(values, row + rng.uniform(-0.18, 0.18, len(values)), s=10, alpha=0.5, color=_colour("policy"),
+                   label="a clip" if row == 0 else None)
+        ax.errorbar(fold["value"], row, xerr=[[fold["value"] - fold["low"]], [fold["high"] - fold["value"]]], fmt="D",
+                    color="black", capsize=4, label="mean, 95% interval over glosses" if row == 0 else None)
+    ax.axvline(0.0, color=_colour("controller"), linestyle="--", label="the controller alone")
+    ax.set_yticks(range(len(folds)), [f["label"] for f in folds])
+    ax.invert_yaxis()
+    ax.set_xlabel("reward per clip: the pool policy minus its controller (one pass from the start)")
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize=8, frameon=False)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
