@@ -66,15 +66,18 @@ def legend(snapshot: dict[str, Any]) -> list[str]:
     return [text, "", *(["The bars a readable signer meets:", "", *verdicts, ""] if verdicts else [])]
 
 
-def render(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list[str]:
-    """``render_entry``'s lines with the run's own table in place of the generic one."""
-    if snapshot is None:
-        return render_entry(entry, snapshot)
-    return with_table(entry, snapshot, list((snapshot.get("facts") or {}).get("table_lines") or []),
-                             legend(snapshot))
+def renderer(legend_of):
+    """A kind's render: ``render_entry``'s lines with the snapshot's own table (``facts.table_lines``)
+    and ``legend_of(snapshot)`` in place of the generic ones."""
+    def render(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list[str]:
+        if snapshot is None:
+            return render_entry(entry, snapshot)
+        return with_table(entry, snapshot, list((snapshot.get("facts") or {}).get("table_lines") or []),
+                          legend_of(snapshot))
+    return render
 
 
-register_report(ReportKind(REPORT, results_summary, render, job_defaults=True))
+register_report(ReportKind(REPORT, results_summary, renderer(legend), job_defaults=True))
 
 
 # -- report: signing_folds -- the leave-glosses-out table: one row per held-out fold --------------------
@@ -162,11 +165,4 @@ def folds_legend(snapshot: dict[str, Any]) -> list[str]:
             "person (DTW mean joint error, shoulder widths).", ""]
 
 
-def folds_render(entry: dict[str, Any], snapshot: dict[str, Any] | None) -> list[str]:
-    if snapshot is None:
-        return render_entry(entry, snapshot)
-    return with_table(entry, snapshot, list((snapshot.get("facts") or {}).get("table_lines") or []),
-                      folds_legend(snapshot))
-
-
-register_report(ReportKind(FOLDS_REPORT, folds_summary, folds_render, job_defaults=True))
+register_report(ReportKind(FOLDS_REPORT, folds_summary, renderer(folds_legend), job_defaults=True))
