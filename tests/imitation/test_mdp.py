@@ -247,6 +247,9 @@ def test_a_policy_of_some_joint_groups_acts_on_and_sees_those_alone(data_root):
     row = [Baseline.parse({"label": "thesis PD", "controller": "upper_body_thesis_code", "lookahead": [0, 1]})]
     assert ([b["reward"] for b in no_learning_baselines(arms.setup, row, seconds=1.0)]
             == [b["reward"] for b in no_learning_baselines(whole.setup, row, seconds=1.0)])
+    from aslexp.rl.evaluate import baselines
+
+    assert baselines(arms, 30) == baselines(whole, 30)
     for env in (arms, whole, batch):
         env.close()
     with pytest.raises(ConfigError, match="policy_groups.*needs action_mode residual"):

@@ -234,6 +234,19 @@ class ImitationEnv(gym.Env):
         full_low[self.policy_seen[0]], full_high[self.policy_seen[0]] = low, high
         return full_low, full_high
 
+    @contextmanager
+    def whole_body(self):
+        """This env, or with ``policy_groups`` one of the same setup whose actions reach every joint:
+        a no-learning baseline drives every joint itself, whichever joints a policy corrects."""
+        if self.policy_seen is None:
+            yield self
+            return
+        env = type(self).from_setup(self.setup.merged(env={"policy_groups": None}))
+        try:
+            yield env
+        finally:
+            env.close()
+
     def policy_part(self, action: np.ndarray) -> np.ndarray:
         """The values of a controller's action for every joint that the policy acts on (``policy_groups``)."""
         return action if self.policy_seen is None else np.asarray(action)[..., self.policy_seen[0]]

@@ -265,15 +265,18 @@ def baselines(env: EvaluatedEnv, steps: int | None = None, phases: tuple[float, 
     ``reference_velocity_pd`` is the env's own controller with no policy correction: a stronger
     no-learning baseline, reported beside the others, not instead of them.
     """
-    thesis_pd = getattr(env, "thesis_pd", contextlib.nullcontext)
-    with thesis_pd():
-        out = {
-            "reference": evaluate_phases(env, reference_policy(0), steps, phases).mean_reward,
-            "lookahead": evaluate_phases(env, reference_policy(1), steps, phases).mean_reward,
-        }
-    controller = getattr(env, "controller_spec", None)
-    if controller is not None and not controller.is_thesis_pd:
-        lookahead = env.spec_env.reference_lookahead  # a zero correction in residual mode
-        out["reference_velocity_pd"] = evaluate_phases(env, reference_policy(lookahead), steps, phases).mean_reward
+    whole_body = getattr(env, "whole_body", None)  # env.policy_groups: the baselines drive every joint
+    with whole_body() if whole_body is not None else contextlib.nullcontext(env) as env:
+        thesis_pd = getattr(env, "thesis_pd", contextlib.nullcontext)
+        with thesis_pd():
+            out = {
+                "reference": evaluate_phases(env, reference_policy(0), steps, phases).mean_reward,
+                "lookahead": evaluate_phases(env, reference_policy(1), steps, phases).mean_reward,
+            }
+        controller = getattr(env, "controller_spec", None)
+        if controller is not None and not controller.is_thesis_pd:
+            lookahead = env.spec_env.reference_lookahead  # a zero correction in residual mode
+            out["reference_velocity_pd"] = evaluate_phases(env, reference_policy(lookahead), steps,
+                                                           phases).mean_reward
     return out
 
