@@ -19,7 +19,9 @@ from aslexp.paths import CONF_DIR
 
 PROJECT_ROOT = Path(__file__).resolve().parents[2]
 PRERELEASE = ("hydra-core>=1.4.0.dev0,<1.5", "omegaconf>=2.4.1rc1,<2.5")
-JOBS = sorted(p.stem for p in Path(CONF_DIR).glob("*.yaml"))
+# conf/results.yaml is the results catalogue, read as plain YAML (aslexp.results.catalogue), not a job's
+# config: its commands keep the Hydra interpolations (${hydra:job.num}) of the jobs they launch.
+JOBS = sorted(p.stem for p in Path(CONF_DIR).glob("*.yaml") if p.stem != "results")
 
 COMPOSE_ALL = r"""
 import json, sys, warnings
