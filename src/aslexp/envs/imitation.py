@@ -211,22 +211,14 @@ class ImitationEnv(gym.Env):
         """(joint-value indices, joint-velocity indices) of the joints of ``groups``; None for None."""
         if groups is None:
             return None
-        values, speeds, value, speed = [], [], 0, 0
-        for joint in self.layout.joints:
-            width, turn = (1, 1) if joint.dof == 1 else (4, 3)
-            if joint.group in groups:
-                values += range(value, value + width)
-                speeds += range(speed, speed + turn)
-            value, speed = value + width, speed + turn
-        if not values:
-            raise ValueError(f"env policy_groups: no joint in groups {list(groups)}; the body's groups "
-                             f"are {sorted({j.group for j in self.layout.joints})}")
-        return np.asarray(values), np.asarray(speeds)
+        values = self.joint_value_indices(groups, "env policy_groups")
+        chosen = {j.name for j in self.layout.joints if j.group in groups}
+        return values, np.asarray([i for i, name in enumerate(self.layout.velocity_names) if name in chosen])
 
     def _correction_box(self) -> tuple[np.ndarray, np.ndarray]:
         """The box of position corrections per joint value (residual): the action box's, 0 on the joints
         the policy does not correct (``policy_groups``)."""
-        size = len(self.physical_action_space.low) - (self.velocity_size if self.spec_env.residual_velocity_range > 0 else 0)
+        size = self.layout.action_size if self.policy_seen is None else len(self.policy_seen[0])
         low, high = self.physical_action_space.low[:size], self.physical_action_space.high[:size]
         if self.policy_seen is None:
             return low, high

@@ -16,6 +16,7 @@ from aslexp.results.kinds import ReportKind, register_report
 from aslexp.results.render import render_entry, with_table
 from aslexp.results.snapshots import number
 from aslexp.runs.completed import find_job_runs, latest, read_json
+from aslexp.runs.listing import read_config
 from aslexp.signing.table import gloss_bootstrap, rewards
 
 REPORT = "signing"
@@ -84,22 +85,16 @@ register_report(ReportKind(REPORT, results_summary, renderer(legend), job_defaul
 FOLDS_REPORT = "signing_folds"
 
 
-def _policy_fold(run_dir: Path, outputs: Path) -> dict[str, Any]:
-    """The policy a signing run performed (``policy=``) and the fold its pool held out, from the
-    policy run's metrics.json (``train_motions.signs``); what is missing stays out."""
-    import yaml
-
-    try:
-        policy = str((yaml.safe_load((run_dir / ".hydra" / "config.yaml").read_text()) or {}).get("policy") or "")
-    except (OSError, yaml.YAMLError):
-        policy = ""
+def _policy_fold(run_dir: Path) -> dict[str, Any]:
+    """The policy a signing run performed (``policy=``, as the run was given it) and the fold its
+    pool held out, from the policy run's metrics.json (``train_motions.signs``); what is missing
+    stays out (the row is then named by the policy)."""
+    policy = str(read_config(run_dir).get("policy") or "")
     found = {"policy": policy}
-    for candidate in (Path(policy), outputs.parent / policy):
-        metrics = read_json(candidate / "metrics.json") if policy and (candidate / "metrics.json").is_file() else None
-        if isinstance(metrics, dict):
-            signs = (metrics.get("train_motions") or {}).get("signs") or {}
-            found.update({k: signs.get(k) for k in ("fold", "folds", "held_out", "held_out_gloss")})
-            break
+    metrics = read_json(Path(policy) / "metrics.json") if policy and (Path(policy) / "metrics.json").is_file() else None
+    if isinstance(metrics, dict):
+        signs = (metrics.get("train_motions") or {}).get("signs") or {}
+        found.update({k: signs.get(k) for k in ("fold", "folds", "held_out", "held_out_gloss")})
     return found
 
 
@@ -110,10 +105,9 @@ def folds_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any]:
     body keypoint error to the person of each; the entry's first figure drawn from the same clips
     (:func:`aslexp.viz.signing.plot_fold_differences`)."""
     runs, skipped = find_job_runs(folders, JOB)
-    outputs = Path(folders[0]).parents[1] if folders else Path("outputs")
     chosen: dict[str, tuple[Path, dict[str, Any], dict[str, Any]]] = {}
     for run_dir, metrics in sorted(runs, key=lambda r: ((read_json(r[0] / "run.json") or {}).get("finished") or "")):
-        fold = _policy_fold(run_dir, outputs)
+        fold = _policy_fold(run_dir)
         if fold["policy"] in chosen:
             skipped["earlier runs of the same policy"] = skipped.get("earlier runs of the same policy", 0) + 1
         chosen[fold["policy"]] = (run_dir, metrics, fold)
