@@ -2,12 +2,14 @@
 (the bodies' frames for the observation, the references' tips for the reward) and the rest (numpy:
 PD targets, observation, reward, ends), with the ratio of the whole step to the physics alone.
 
-    python bench/env_step_split.py [--body hand|upper] [--n 1024] [--threads 1] [--seconds 2]
+    python bench/env_step_split.py [--body hand|upper] [--n 1024] [--threads 1] [--seconds 2] [--stages]
 
 One MuJoCo thread by default, so the split is of one core's time (more threads share out the
 MuJoCo parts only; numpy stays on one). Every environment is driven by the reference one step
 ahead (a training step without the policy; the actions' own cost is measured apart and left out), at
-240 Hz (one physics step per action).
+240 Hz (one physics step per action). ``--stages`` adds what each of MuJoCo's forward functions costs
+on one state of the frames probe's model (one ``MjData``, best of 5): what a probe pays for beyond the
+kinematics it needs.
 """
 
 from __future__ import annotations
@@ -16,10 +18,10 @@ import argparse
 import os
 import statistics
 import time
+import timeit
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
 
 from aslexp.data.root import resolve_data_root  # noqa: E402
 from aslexp.envs.batched import BatchedImitationEnv  # noqa: E402
@@ -51,6 +53,7 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=1024)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seconds", type=float, default=2.0)
+    parser.add_argument("--stages", action="store_true", help="also each forward function's cost on one state")
     args = parser.parse_args()
     kwargs = dict(BODIES[args.body])
     motion = resolve_data_root(None) / kwargs.pop("motion")
@@ -81,7 +84,29 @@ def main() -> None:
     physics = parts["physics (one mj_step, rollout)"]
     print(f"  physics / whole step: {physics / parts['whole environment step']:.2f}; "
           f"with the rest free: {physics / (parts['whole environment step'] - rest):.2f}")
+    if args.stages:
+        _stages(body, states[0])
     env.close()
+
+
+STAGES = ("mj_kinematics", "mj_comPos", "mj_crb", "mj_factorM", "mj_comVel", "mj_sensorPos", "mj_sensorVel",
+          "mj_fwdPosition", "mj_fwdVelocity")
+
+
+def _stages(body, state) -> None:
+    """Microseconds per call of MuJoCo's forward functions on one state of the frames probe's model: a
+    probe at the velocity stage runs mj_fwdPosition (kinematics, com, inertia and its factor, ...),
+    mj_fwdVelocity and both sensor passes, where the frames need the kinematics and the velocities."""
+    import mujoco
+
+    model = body.probe
+    data = mujoco.MjData(model)
+    mujoco.mj_setState(model, data, state[:body.physics_size], mujoco.mjtState.mjSTATE_FULLPHYSICS)
+    print("  one state of the frames probe's model, us per call (best of 5 x 2,000):")
+    for name in STAGES:
+        call = getattr(mujoco, name)
+        best = min(timeit.repeat(lambda: call(model, data), number=2000, repeat=5)) / 2000 * 1e6
+        print(f"    {name:16s} {best:6.2f}")
 
 
 if __name__ == "__main__":

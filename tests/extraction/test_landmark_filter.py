@@ -51,7 +51,8 @@ def test_bad_retargeting_settings_are_refused_in_one_line(tmp_path, capsys):
                          ({"filter": {"kind": "kalman"}}, "retargeting.filter.kind='kalman'"),
                          ({"filter": {"kind": "savgol", "window": -0.1}}, "retargeting.filter.window=-0.1"),
                          ({"filter": {"kind": "savgol", "window": 0.2, "order": 9}}, "retargeting.filter.order=9"),
-                         ({"filter": {"size": 3}}, "unknown keys ['size']")]:
+                         ({"filter": {"size": 3}}, "unknown keys ['size']"),
+                         ({"pose_hand_points": "yes"}, "retargeting.pose_hand_points='yes': expected true or false")]:
         with pytest.raises(ValueError, match=said.replace("[", r"\[").replace("(", r"\(")):
             retargeting_options({**base, **change})
     folder = tmp_path / "none"

@@ -111,6 +111,44 @@ def test_the_lift_recovers_a_thesis_sign_from_its_image(data_root, tmp_path, cap
     assert report["upper_body"]["plausibility"]["plausible"]
 
 
+def test_pose_hand_points_turn_the_wrists_of_a_thesis_sign(data_root, tmp_path, capsys):
+    """00433 laid out as a Pose array with Pose's own hand points (the model hand's index and pinky
+    knuckles and thumb joint, which no finger angle moves): by default the wrists stay at rest; with
+    --pose-hand-points they come back from the knuckles, and the report counts the frames they came from."""
+    motion = load_motion(data_root / "motions" / "upper_body" / "00433.txt", expected_columns=R.UPPER_FILE_VALUES)
+    body, hands = R.upper_body_keypoints(motion.frames, data_root)
+    points = dict(body)
+    for side in ("left", "right"):
+        points.update({f"{side}_index": hands[side][:, 5], f"{side}_pinky": hands[side][:, 17],
+                       f"{side}_thumb": hands[side][:, 2]})
+    array = np.zeros((motion.num_frames, H.NUM_POSE, 4))
+    for name, xyz in points.items():
+        mp = xyz @ R.MP_TO_HUMANOID
+        array[:, H.POSE_NAMES.index(name)] = np.stack(
+            [0.5 + mp[:, 0] * 150 / 1280, 0.3 + mp[:, 1] * 150 / 720, 5.0 * mp[:, 2] * 150 / 1280,
+             np.ones(len(mp))], axis=-1)  # fmt: skip
+    array[:10, H.POSE_NAMES.index("right_index"), 3] = 0.2  # a guess for 10 frames: not a hand direction
+    (tmp_path / "in").mkdir()
+    np.save(tmp_path / "in" / "00433.npy", array.reshape(len(array), -1))
+    thesis = R.upper_body_joints(motion.frames)
+    for flags, out in (([], tmp_path / "plain"), (["--pose-hand-points"], tmp_path / "wrists")):
+        rc, printed, err = _run([tmp_path / "in" / "00433.npy", "--motions", "--out", out, "--sigma", "0", *flags],
+                                capsys)  # fmt: skip
+        assert rc == 0, printed + err
+        report = json.loads((out / "motions" / "reports" / "00433.json").read_text())
+        back = R.upper_body_joints(load_motion(report["upper_body"]["path"], expected_columns=R.UPPER_FILE_VALUES).frames)
+        if not flags:
+            assert report["pose_hand_points"] is False and "right_wrist_from" not in report["upper_body"]
+            assert np.all(back["right_wrist"] == 0) and np.all(back["left_wrist"] == 0)
+            continue
+        assert report["pose_hand_points"] is True
+        assert report["upper_body"]["right_wrist_from"] == {"hand_landmarks": 0, "pose_hand_points": 69}
+        assert report["upper_body"]["left_wrist_from"] == {"hand_landmarks": 0, "pose_hand_points": 79}
+        for wrist in ("right_wrist", "left_wrist"):  # 00433's wrists move 0.1-1.06 rad; back to 2e-6 rad here
+            assert np.abs(back[wrist][10:] - thesis[wrist][10:]).max() < 1e-3, wrist
+        assert all(np.all(back[f"{side}_{j}"] == 0) for side in ("r", "l") for j in R.HAND_JOINTS)
+
+
 def test_the_motion_plays_in_the_imitation_environment(two_clips, data_root, tmp_path, capsys):
     from aslexp.envs.imitation import ImitationEnv
 

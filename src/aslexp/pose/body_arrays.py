@@ -48,6 +48,7 @@ POSE_ARRAY_VALUES = H.NUM_POSE * 4  # 33 landmarks x (x, y, z, visibility)
 SHOULDER_WIDTH_M = 0.36
 # MediaPipe's own drawing utilities leave out landmarks below 0.5 visibility: guessed, not seen.
 VISIBILITY_MIN = 0.5
+HAND_POINTS = ("pinky", "index", "thumb")  # Pose's knuckles of each hand
 ARMS = ("left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist")
 SEGMENTS = (("left_shoulder", "left_elbow"), ("left_elbow", "left_wrist"),
             ("right_shoulder", "right_elbow"), ("right_elbow", "right_wrist"))  # fmt: skip
@@ -164,6 +165,11 @@ def landmarks_from_pose_array(path: str | os.PathLike, array: np.ndarray, fps: f
         raise DataError(f"{path}: MediaPipe Pose array {tuple(array.shape)}: {err}") from None
     world = np.full((len(body), H.NUM_NODES, 3), np.nan, np.float32)
     world[:, : H.NUM_POSE] = body
+    # Pose's own hand points (what retargeting.pose_hand_points turns the wrist with) only where seen
+    hand_points = [H.POSE_NAMES.index(f"{side}_{name}") for side in ("left", "right") for name in HAND_POINTS]
+    with np.errstate(invalid="ignore"):
+        world[:, hand_points] = np.where((visibility[:, hand_points] >= VISIBILITY_MIN)[..., None],
+                                         world[:, hand_points], np.nan)
     kind = "a MediaPipe Pose array (T, 132) holds no hand landmarks"
     missing = {"left_hand": f"not in the file: {kind}", "right_hand": f"not in the file: {kind}"}
     seen_share = {}
@@ -178,6 +184,7 @@ def landmarks_from_pose_array(path: str | os.PathLike, array: np.ndarray, fps: f
         # per arm, the share of frames with its shoulder, elbow and wrist seen (visibility >= VISIBILITY_MIN)
         "arm_seen_share": seen_share,
         "fingers": "not observed: held at rest (0 rad, the model's open hand)",
+        "hand_points": f"Pose's pinky, index and thumb knuckles below visibility {VISIBILITY_MIN}: left out",
     }}  # fmt: skip
     return Landmarks(world, float(fps), path.stem, missing, skip={"hand": kind}, record=record)
 

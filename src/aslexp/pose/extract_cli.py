@@ -91,6 +91,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--torso", choices=("vertical", "hips"), default=None,
                    help="chest pitch: upright (default; waist-framed videos) or from the hips")
     p.add_argument("--sigma", type=float, default=None, help="temporal smoothing of angles (frames)")
+    p.add_argument("--pose-hand-points", action="store_true", default=None,
+                   help="where a hand's landmarks are missing (a MediaPipe Pose array), turn the upper body's "
+                        "wrist from Pose's wrist, index and pinky points (retargeting.pose_hand_points)")
     p.add_argument("--filter", choices=("none", "savgol", "gaussian"), default=None,
                    help="landmarks smoothed in time before inverse kinematics: Savitzky-Golay or Gaussian")
     p.add_argument("--filter-window", type=float, default=None, metavar="SECONDS",
@@ -317,7 +320,7 @@ def retargeting_options(args) -> dict:
     from aslexp.pose.landmark_filter import retargeting_options as parse  # the one reader of the section
 
     section = group("retargeting", job="retarget")
-    for key in ("hand", "torso", "sigma"):
+    for key in ("hand", "torso", "sigma", "pose_hand_points"):
         if getattr(args, key) is not None:
             section[key] = getattr(args, key)
     for key, flag in (("kind", "filter"), ("window", "filter_window"), ("order", "filter_order")):

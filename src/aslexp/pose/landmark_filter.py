@@ -93,9 +93,12 @@ def retargeting_options(section: dict) -> dict:
     """The ``retargeting`` section (conf/retargeting/) -> the keyword arguments of
     :func:`aslexp.pose.retarget.retarget_landmarks`; ValueError naming the key on a bad value."""
     section = dict(section)
-    unknown = set(section) - {"hand", "torso", "sigma", "filter"}
+    unknown = set(section) - {"hand", "torso", "sigma", "filter", "pose_hand_points"}
     if unknown:
-        raise ValueError(f"retargeting: unknown keys {sorted(unknown)}; expected hand, torso, sigma, filter")
+        raise ValueError(f"retargeting: unknown keys {sorted(unknown)}; expected hand, torso, sigma, filter, "
+                         "pose_hand_points")
+    if not isinstance(section.get("pose_hand_points", False), bool):
+        raise ValueError(f"retargeting.pose_hand_points={section.get('pose_hand_points')!r}: expected true or false")
     if section.get("hand") not in ("dominant", "right", "left"):
         raise ValueError(f"retargeting.hand={section.get('hand')!r}: expected dominant, right or left")
     if section.get("torso") not in ("vertical", "hips"):
@@ -110,7 +113,8 @@ def retargeting_options(section: dict) -> dict:
         landmark_filter = LandmarkFilter.parse(section.get("filter"))
     except TypeError as error:
         raise ValueError(f"retargeting.filter: {error}") from None
-    return {"hand": section["hand"], "torso": section["torso"], "sigma": sigma, "landmark_filter": landmark_filter}
+    return {"hand": section["hand"], "torso": section["torso"], "sigma": sigma, "landmark_filter": landmark_filter,
+            "pose_hand_points": bool(section.get("pose_hand_points", False))}
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:

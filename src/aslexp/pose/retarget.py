@@ -27,7 +27,10 @@ per arm the elbow angle from the upper-arm and forearm directions, the shoulder 
 puts the upper arm along the observed one and the elbow's bending plane through the forearm (for
 a nearly straight arm the plane comes from the palm), the wrist angle from the forearm to the
 hand direction about the elbow's flexion axis; both hands' fingers as above. The model has no
-forearm twist, so the palm's roll about the forearm is not reproduced.
+forearm twist, so the palm's roll about the forearm is not reproduced. Where a hand's own landmarks
+are missing (a MediaPipe Pose array has none), ``pose_hand_points`` takes the hand's direction and
+palm from Pose's wrist, index and pinky knuckles instead (:func:`pose_hands`): the wrist turns, the
+fingers stay at rest.
 
 Gaps (frames without a hand or a body) are filled by linear interpolation over time, then the
 angles are smoothed with a Gaussian (``sigma`` frames) and clipped to the URDF limits.
@@ -719,6 +722,26 @@ def humanoid_inputs_from_world(world: np.ndarray) -> tuple[dict[str, np.ndarray]
     return body, hands
 
 
+def pose_hands(world: np.ndarray) -> dict[str, np.ndarray]:
+    """(T, 75, 3) holistic world landmarks (MediaPipe axes) -> {side: (T, 21, 3)} coarse hands in the
+    humanoid frame from Pose's own hand points, what the arm's solve reads of a hand: the wrist (0),
+    the index (5) and pinky (17) knuckles (Pose's "index" and "pinky" are the first knuckles), the
+    middle (9) and ring (13) knuckles a third and two thirds of the way between them; the rest NaN.
+    A frame without a point is NaN (a Pose array's points below visibility 0.5 are)."""
+    pts = np.asarray(world, dtype=float) @ MP_TO_HUMANOID.T
+    out = {}
+    for side in ("left", "right"):
+        wrist, index, pinky = (pts[:, H.POSE_NAMES.index(f"{side}_{name}")] for name in ("wrist", "index", "pinky"))
+        hand = np.full((len(pts), 21, 3), np.nan)
+        hand[:, 0], hand[:, 5], hand[:, 17] = wrist, index, pinky
+        hand[:, 9], hand[:, 13] = index + (pinky - index) / 3, index + 2 * (pinky - index) / 3
+        out[side] = hand
+    return out
+
+
+ARM_HAND_POINTS = (0, 5, 9, 17)  # what the arm's solve reads of a hand: palm_frame's points
+
+
 def _solve_arm(side, s, e, w, hand, chest_rot, prev_bend, wrist_offset=0.0):
     """Shoulder quaternion, elbow and wrist angles for one frame in world coordinates.
 
@@ -768,9 +791,13 @@ def retarget_upper_body(
     sigma: float = 1.0,
     data_root=None,
     torso: str = "vertical",
+    arm_hands: dict[str, np.ndarray] | None = None,
 ) -> RetargetResult:
     """Body points {name: (T, 3)} and hand landmarks {side: (T, 21, 3)} in the humanoid frame
     (NaN where missing) -> the 76-column upper-body motion.
+
+    ``arm_hands`` ({side: (T, 21, 3)}, e.g. :func:`pose_hands`): where a hand's landmarks are
+    missing, what turns the wrist and a straight arm's bending plane (its points 0, 5, 9 and 17).
 
     ``torso``: how the chest is turned. 'vertical' (default): from the shoulder line only,
     upright otherwise; sign videos are framed at the waist and MediaPipe's hips there are
@@ -813,7 +840,7 @@ def retarget_upper_body(
     report["depth_to_width"], warnings = depth_warning(body)  # implausible proportions, said on the terminal
     for side in ("right", "left"):
         side_joints, side_report, side_warnings = _retarget_arm(side, body, hands, body_ok, hand_ok, chest_rot,
-                                                                model, sigma)
+                                                                model, sigma, (arm_hands or {}).get(side))
         joints.update(side_joints)
         report["past_limits"].update(side_report.pop("past_limits"))
         report.update(side_report)
@@ -829,17 +856,21 @@ def retarget_upper_body(
 
 
 def _retarget_arm(side: str, body: dict[str, np.ndarray], hands: dict[str, np.ndarray], body_ok: np.ndarray,
-                  hand_ok: dict[str, np.ndarray], chest_rot: np.ndarray, model, sigma: float):
+                  hand_ok: dict[str, np.ndarray], chest_rot: np.ndarray, model, sigma: float,
+                  arm_hand: np.ndarray | None = None):
     """One arm of :func:`retarget_upper_body`: the shoulder, elbow and wrist solved frame by frame in
-    the chest's frame, the fingers from the hand's landmarks, gaps filled and smoothed, inside the
-    joint limits. Returns its joints, its report entries (``past_limits`` among them) and warnings."""
+    the chest's frame (the hand's landmarks, else ``arm_hand``'s points, turn the wrist), the fingers
+    from the hand's landmarks, gaps filled and smoothed, inside the joint limits. Returns its joints,
+    its report entries (``past_limits`` among them) and warnings."""
     T = len(body_ok)
+    arm_ok = (np.all(np.isfinite(arm_hand[:, ARM_HAND_POINTS]), axis=(-1, -2)) & ~hand_ok[side]
+              if arm_hand is not None else np.zeros(T, dtype=bool))
     q = np.full((T, 4), np.nan)
     elbow = np.full(T, np.nan)
     wrist = np.full(T, np.nan)
     prev = None
     for t in np.flatnonzero(body_ok):
-        hand = hands[side][t] if hand_ok[side][t] else None
+        hand = hands[side][t] if hand_ok[side][t] else (arm_hand[t] if arm_ok[t] else None)
         q[t], elbow[t], wrist[t], prev = _solve_arm(
             side, body[f"{side}_shoulder"][t], body[f"{side}_elbow"][t], body[f"{side}_wrist"][t],
             hand, chest_rot[t], prev, model.wrist_offset)  # fmt: skip
@@ -856,6 +887,9 @@ def _retarget_arm(side: str, body: dict[str, np.ndarray], hands: dict[str, np.nd
     report = {f"{side}_hand": hand_report,
               f"{side}_elbow_outside_limits": round(_clip_report(elbow, *elbow_lim), 3),
               f"{side}_wrist_outside_limits": round(_clip_report(wrist, *wrist_lim), 3)}
+    if arm_hand is not None:  # the frames whose wrist came from the hand's landmarks, and from the arm's points
+        report[f"{side}_wrist_from"] = {"hand_landmarks": int((hand_ok[side] & body_ok).sum()),
+                                        "pose_hand_points": int((arm_ok & body_ok).sum())}
     arm_lower, arm_upper = model.kinematics.limits([f"{side}_elbow", f"{side}_wrist"])
     report["past_limits"], arm_warnings = limit_warnings(np.stack([elbow, wrist], axis=1), arm_lower, arm_upper,
                                                          [f"{side}_elbow", f"{side}_wrist"])  # fmt: skip
@@ -890,6 +924,7 @@ def retarget_video(
     data_root=None,
     torso: str = "vertical",
     landmark_filter=None,
+    pose_hand_points: bool = False,
 ) -> dict:
     """Write ``<out>/hand/<id>.txt`` (23 columns) and ``<out>/upper_body/<id>.txt`` (76 columns)
     from a video's world landmarks: an extraction folder and a video id, or a ``.pose`` file with
@@ -901,7 +936,8 @@ def retarget_video(
 
     kdir = Path(keypoint_dir)
     out = Path(out_dir) if out_dir else (kdir.parent if kdir.suffix == ".pose" else kdir) / "motions"
-    return retarget_landmarks(load_world(kdir, video_id), out, hand, sigma, data_root, torso, landmark_filter)
+    return retarget_landmarks(load_world(kdir, video_id), out, hand, sigma, data_root, torso, landmark_filter,
+                              pose_hand_points)
 
 
 def finger_columns(side: str) -> list[int]:
@@ -915,7 +951,8 @@ def finger_columns(side: str) -> list[int]:
 
 
 def retarget_landmarks(landmarks, out_dir: str | os.PathLike, hand: str = "dominant", sigma: float = 1.0,
-                       data_root=None, torso: str = "vertical", landmark_filter=None) -> dict:  # fmt: skip
+                       data_root=None, torso: str = "vertical", landmark_filter=None,
+                       pose_hand_points: bool = False) -> dict:  # fmt: skip
     """:func:`retarget_video` on :class:`~aslexp.pose.landmarks.Landmarks` from any source (an
     extraction folder, a ``.pose``, a keypoint array). Each part's entry has a ``status``: ok (with
     its ``path`` and report, whose ``warnings`` name implausible joints and proportions), failed
@@ -923,7 +960,9 @@ def retarget_landmarks(landmarks, out_dir: str | os.PathLike, hand: str = "domin
 
     ``landmark_filter`` (:class:`~aslexp.pose.landmark_filter.LandmarkFilter`; None: none) smooths
     the landmarks in time first; each hand's report says how still its held handshapes stay
-    (``handshape_flicker``, over the frames where the unfiltered source hand holds its shape)."""
+    (``handshape_flicker``, over the frames where the unfiltered source hand holds its shape).
+    ``pose_hand_points``: where a hand's landmarks are missing, Pose's wrist, index and pinky
+    knuckles turn the upper body's wrist (:func:`pose_hands`; the report's ``<side>_wrist_from``)."""
     from aslexp.pose.landmark_filter import LandmarkFilter, held_handshape_flicker, still_frames
 
     out = Path(out_dir)
@@ -937,7 +976,7 @@ def retarget_landmarks(landmarks, out_dir: str | os.PathLike, hand: str = "domin
 
     result: dict = {"video_id": video_id, "fps": fps, "frames": len(world),
                     "landmark_filter": {"kind": landmark_filter.kind, "window_s": landmark_filter.window,
-                                        "order": landmark_filter.order}, "sigma": sigma}
+                                        "order": landmark_filter.order}, "sigma": sigma, "pose_hand_points": bool(pose_hand_points)}
     if missing:
         result["unavailable"] = dict(missing)  # parts the input does not have, and why
     if landmarks.warnings:
@@ -973,7 +1012,8 @@ def retarget_landmarks(landmarks, out_dir: str | os.PathLike, hand: str = "domin
             raise ValueError(f"{missing['body']} (the upper body needs both shoulders, elbows and wrists)")
         else:
             body, hands = humanoid_inputs_from_world(world)
-            motion = retarget_upper_body(body, hands, fps, sigma, data_root, torso)
+            motion = retarget_upper_body(body, hands, fps, sigma, data_root, torso,
+                                         pose_hands(world) if pose_hand_points else None)
             for side in ("right", "left"):
                 if motion.report[f"{side}_hand"].get("frames_observed"):
                     motion.report[f"{side}_hand"]["handshape_flicker"] = flicker(
