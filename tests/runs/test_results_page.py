@@ -408,6 +408,41 @@ def test_a_snapshot_is_made_from_real_runs_then_kept_when_they_are_gone(imitate_
 
 
 @ON_THE_SWEEPS_WORKER
+def test_rows_of_earlier_runs_stay_beside_the_rows_run_here_where_the_entry_keeps_them(imitate_outputs, tmp_path):
+    """options.keep_earlier_rows: a row whose runs are not here (run in another checkout: letter C) stays,
+    saying where and when it ran, while letter B is made anew from the runs here; through a second
+    rebuild too. Without the option the rebuilt snapshot has the runs' rows alone."""
+    command = "aslexp imitate -m experiment=letters_thesis seed=0,1 ppo.total_steps=128"
+    keeping = _entry("keeps", "thesis", ["letters"], command, options={"keep_earlier_rows": True})
+    plain = _entry("plain", "thesis", ["letters"], command)
+    catalogue = _catalogue(tmp_path / "results.yaml", [keeping, plain])
+    snapshots, page = tmp_path / "snapshots", tmp_path / "results.md"
+    render.write_results(catalogue, imitate_outputs, snapshots, page)
+    for name in ("keeps", "plain"):  # as if an earlier checkout had also run letter C, elsewhere
+        path = snapshots / f"{name}.json"
+        earlier = json.loads(path.read_text(encoding="utf-8"))
+        row_c = {**earlier["rows"][0], "key": "C", "label": "C"}
+        row_c["learned"] = {**row_c["learned"], "values": [0.5, 0.7], "mean": 0.6, "spread": 0.1}
+        path.write_text(json.dumps({**earlier, "rows": [earlier["rows"][0], row_c], "folders": ["results/old"],
+                                    "started": "2026-01-02T03:04:00+00:00", "finished": "2026-01-02T05:06:00+00:00",
+                                    "git": ["abc1234"], "machine_label": "another machine"}), encoding="utf-8")
+    for rebuild in range(2):
+        done = render.write_results(catalogue, imitate_outputs, snapshots, page)["entries"]
+        assert done == {"keeps": "from runs (letters); rows C kept from earlier runs", "plain": "from runs (letters)"}
+        kept = json.loads((snapshots / "keeps.json").read_text(encoding="utf-8"))
+        assert [r["key"] for r in kept["rows"]] == ["B", "C"] and kept["rows"][1]["learned"]["mean"] == 0.6
+        assert kept["folders"] == ["letters"] and kept["git"] != ["abc1234"]  # the runs here
+        assert kept["earlier_rows"] == [{"keys": ["C"], "folders": ["results/old"], "started": "2026-01-02T03:04:00+00:00",
+                                         "finished": "2026-01-02T05:06:00+00:00", "git": ["abc1234"],
+                                         "machine_label": "another machine", "hosts": kept["earlier_rows"][0]["hosts"]}]
+        assert [r["key"] for r in json.loads((snapshots / "plain.json").read_text(encoding="utf-8"))["rows"]] == ["B"]
+        section = " ".join(page.read_text(encoding="utf-8").split('<a id="keeps"></a>')[1].split("<a id=")[0].split())
+        assert ("**Rows from earlier runs** (C): 2026-01-02 03:04-05:06 UTC; git abc1234; outputs/results/old in the "
+                "checkout that ran them (another machine), not here: kept from the snapshot") in section
+        assert "| C | - |" in section and "0.600 ± 0.100 (n=2)" in section
+
+
+@ON_THE_SWEEPS_WORKER
 def test_a_later_alternative_is_read_only_when_the_first_holds_no_runs(imitate_outputs, tmp_path):
     entry = _entry("x", "scratch", ["results/x"], "aslexp imitate -m experiment=letters_thesis")
     entry["runs"].append({"folders": ["let*"], "machine": "elsewhere"})

@@ -164,6 +164,12 @@ def run_fact_lines(entry: dict[str, Any], snapshot: dict[str, Any]) -> list[str]
               f"- **Machine**: {_machine(snapshot)}",
               f"- **Run folders**: {', '.join('outputs/' + f for f in snapshot['folders'])} "
               f"(snapshot [docs/results/{entry['id']}.json](results/{entry['id']}.json))"]
+    labels = {row["key"]: row["label"] for row in snapshot["rows"]}
+    for group in snapshot.get("earlier_rows") or []:  # options.keep_earlier_rows: rows whose runs are elsewhere
+        lines.append(f"- **Rows from earlier runs** ({', '.join(labels.get(k, k) for k in group['keys'])}): "
+                     f"{_when(group)}; git {', '.join(group.get('git') or ['-'])}; "
+                     f"{', '.join('outputs/' + f for f in group.get('folders') or [])} in the checkout that ran them "
+                     f"({group.get('machine_label') or 'machine not recorded'}), not here: kept from the snapshot")
     if differs or uncovered:
         lines.append(f"- **The runs differ from the command**: {'; '.join(differs + uncovered)}")
     if snapshot.get("differences"):  # computed when the snapshot was made (aslexp.results.differences)

@@ -112,8 +112,10 @@ def update(catalogue: list[dict[str, Any]], outputs: Path, snapshots: Path) -> d
         snapshot = build_snapshot(entry, outputs, snapshots)
         path = snapshot_path(snapshots, entry["id"])
         if snapshot is not None:
+            snapshot, earlier = with_earlier_rows(entry, snapshot, read_snapshot(path))
             write_snapshot(path, snapshot)
-            done[entry["id"]] = f"from runs ({', '.join(snapshot['folders'])})"
+            done[entry["id"]] = f"from runs ({', '.join(snapshot['folders'])})" + (
+                f"; rows {', '.join(earlier)} kept from earlier runs" if earlier else "")
         elif path.is_file():
             done[entry["id"]] = "kept"
             kept = read_snapshot(path)
@@ -130,6 +132,29 @@ def update(catalogue: list[dict[str, Any]], outputs: Path, snapshots: Path) -> d
         else:
             done[entry["id"]] = "not run"
     return {e["id"]: done[e["id"]] for e in catalogue}
+
+
+def with_earlier_rows(entry: dict[str, Any], snapshot: dict[str, Any],
+                      kept: dict[str, Any] | None) -> tuple[dict[str, Any], list[str]]:
+    """``snapshot`` (from the runs here) with the rows of ``kept`` (the entry's snapshot before it) that
+    it has no row for, where the entry says ``options.keep_earlier_rows``: rows whose runs ran in
+    another checkout or on another machine stay on the page, while the rows run here are made anew.
+    Each group of kept rows says where it came from (``earlier_rows``: keys, folders, when, commits,
+    machine), carried on through later rebuilds. Returns the snapshot and the keys kept."""
+    if not (entry.get("options") or {}).get("keep_earlier_rows") or not kept:
+        return snapshot, []
+    here = {row["key"] for row in snapshot["rows"]}
+    rows = [row for row in kept["rows"] if row["key"] not in here]
+    if not rows:
+        return snapshot, []
+    groups = [{**group, "keys": [k for k in group["keys"] if k not in here]} for group in kept.get("earlier_rows", [])]
+    grouped = {k for group in groups for k in group["keys"]}
+    own = [row["key"] for row in rows if row["key"] not in grouped]  # the kept snapshot's own runs' rows
+    if own:
+        groups.append({"keys": own, **{key: kept.get(key) for key in
+                                       ("folders", "started", "finished", "git", "machine_label", "hosts")}})
+    return ({**snapshot, "rows": snapshot["rows"] + rows, "earlier_rows": [g for g in groups if g["keys"]]},
+            [row["key"] for row in rows])
 
 
 def _newer_ceilings(entry: dict[str, Any], kept: dict[str, Any], snapshots: Path) -> list[dict[str, Any]] | None:
