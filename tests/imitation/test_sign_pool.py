@@ -359,7 +359,8 @@ def test_validation_episodes_in_one_batch_score_as_single_evaluations(sign_slice
 def test_an_arms_policy_on_its_held_out_fold_is_a_row_of_the_leave_glosses_out_table(sign_slice, data_root, tmp_path):
     """experiment=signs_unseen_arms, tiny: the policy corrects and sees the arms, chest and neck alone;
     `aslexp signing policy=RUN` performs its held-out fold's clips, and the results page's
-    leave-glosses-out entry (report: signing_folds) makes its row and figure from that run."""
+    leave-glosses-out entry (report: signing_folds) makes its row and figure from that run; a second
+    seed's policy on the same fold is a row of its own, each naming its seed."""
     import yaml
 
     folder = [f"train_motions.folder={sign_slice}", "train_motions.folds=2", "train_motions.seed=2",
@@ -372,10 +373,14 @@ def test_an_arms_policy_on_its_held_out_fold_is_a_row_of_the_leave_glosses_out_t
                          f"policy={tmp_path / 'arms'}")
     records = [r for r in performed["records"] if "policy" in r["rewards"]]
     assert records and {r["gloss"] for r in records} <= set(metrics["train_motions"]["signs"]["test_glosses"])
+    _imitate(tmp_path, data_root, "arms_seed1", f"motion.file={clip}", "motion.name=01457", *folder, "seed=1",
+             experiment="signs_unseen_arms")
+    other = _signing(tmp_path / "results", data_root, "folds_seed1", f"signing.motions={sign_slice}",
+                     f"policy={tmp_path / 'arms_seed1'}")
     entry = {"id": "folds", "title": "leave glosses out", "beside": "aslexp headline", "thesis": {"source": "none"},
              "overlay": "signs_standing_residual_quiet", "job": "signing", "command": "aslexp signing",
              "engine": "mujoco", "reward": "upper_body_table6_4_run3", "report": "signing_folds",
-             "runs": [{"folders": ["results/folds"], "machine": "a test"}],
+             "runs": [{"folders": ["results/folds*"], "machine": "a test"}],
              "earlier": {"link": "docs/imitation_upper_body.md#x", "section": "x"},
              "figures": [{"path": "docs/img/folds.png", "caption": "the clips' differences"}]}
     (tmp_path / "catalogue.yaml").write_text(yaml.safe_dump({"entries": [entry]}))
@@ -385,9 +390,14 @@ def test_an_arms_policy_on_its_held_out_fold_is_a_row_of_the_leave_glosses_out_t
                            cwd=tmp_path, capture_output=True, text=True, timeout=300, env=env)
     assert proc.returncode == 0, proc.stderr[-3000:]
     page = (tmp_path / "page.md").read_text()
-    gap = np.mean([r["rewards"]["policy"] - r["rewards"]["controller"] for r in records])
-    row = next(line for line in page.splitlines() if line.startswith("| 01457 (again), fold"))
-    assert f"{gap:+.4f}" in row and f"| {len(records)} (" in row
+    for seed, performed_by in ((0, records), (1, [r for r in other["records"] if "policy" in r["rewards"]])):
+        gap = np.mean([r["rewards"]["policy"] - r["rewards"]["controller"] for r in performed_by])
+        row = next(line for line in page.splitlines() if line.startswith("| 01457 (again), fold")
+                   and line.split("|")[1].strip().endswith(f"seed {seed}"))
+        assert f"{gap:+.4f}" in row and f"| {len(performed_by)} (" in row
+    snapshot = json.loads((tmp_path / "snapshots" / "folds.json").read_text())
+    fold = str(metrics["train_motions"]["signs"]["fold"])
+    assert [r["key"] for r in snapshot["rows"]] == [f"{fold}/seed 0", f"{fold}/seed 1"]
     from PIL import Image
 
     with Image.open(tmp_path / "docs" / "img" / "folds.png") as image:
