@@ -8,7 +8,7 @@ from pathlib import Path
 
 from aslexp.reports.report import summarize_letters
 from aslexp.reports.upper_body_report import summarize_signs
-from aslexp.viz.imitation import seeds_on_common_steps
+from aslexp.viz.imitation import plot_seed_curves, seeds_on_common_steps
 
 
 def _run(folder: Path, motion: str, seed: int, evals: list[tuple[int, float, float]], strong: float | None = None):
@@ -49,6 +49,21 @@ def test_a_run_with_one_evaluation_is_drawn(tmp_path):
     image = mpimg.imread(tmp_path / "letters_curves.png")[:, :, :3]
     blue = np.all(np.abs(image - np.array([0.12, 0.47, 0.71])) < 0.08, axis=-1)  # C0, the curve's colour
     assert blue.sum() > 20  # the one evaluation is a visible point, not an empty axes
+
+
+def test_each_seeds_curve_and_kept_policy_are_drawn_in_its_own_colour(tmp_path):
+    """plot_seed_curves: a validated run's last row (its kept policy re-evaluated, same step as the one
+    before) is a star in the seed's colour at the kept step, not a point of the curve."""
+    import matplotlib.image as mpimg
+    import numpy as np
+
+    kept = [{"step": s, "eval_reward": r} for s, r in ((0, 0.5), (100, 0.9), (200, 0.4))]
+    kept.append({"step": 200, "eval_reward": 0.9, "selected_step": 100})
+    plain = [{"step": s, "eval_reward": r} for s, r in ((0, 0.45), (100, 0.6), (200, 0.7))]
+    path = plot_seed_curves({"seed 0": kept, "seed 1": plain}, {"controller": 0.5}, tmp_path / "seeds.png", "t")
+    image = mpimg.imread(path)[:, :, :3]
+    for colour in ([0.12, 0.47, 0.71], [1.0, 0.5, 0.05]):  # C0 and C1: both seeds drawn
+        assert np.all(np.abs(image - np.array(colour)) < 0.08, axis=-1).sum() > 50
 
 
 def test_seeds_are_averaged_at_the_steps_they_share_not_by_evaluation_index():

@@ -128,9 +128,9 @@ def folds_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any]:
         glosses = [r["gloss"] for r in records]
         policy, controller = rewards(records, "policy"), rewards(records, "controller")
         gap = gloss_bootstrap(policy - controller, glosses, "mean", 2000, 0.95, 0)
-        short = f"{fold['held_out']} ({fold['held_out_gloss']})" if fold.get("held_out") else run_dir.name
+        short = f"{fold['held_out']} ({fold['held_out_gloss']})'s fold" if fold.get("held_out") else run_dir.name
         short += f", seed {fold['seed']}" if seeded else ""
-        drawn.append({"label": f"{short}'s fold: {len(records)} clips", "differences": policy - controller, **gap})
+        drawn.append({"label": f"{short}: {len(records)} clips", "differences": policy - controller, **gap})
         table = metrics["table"]
         reward, error = table["reward"], table["keypoint_error"]
         label = (f"{fold['held_out']} ({fold['held_out_gloss']}), fold {fold['fold']} of {fold['folds']}"

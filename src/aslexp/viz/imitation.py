@@ -1,6 +1,7 @@
 """The imitation wing's plots: tracking (reference against simulation per joint), the reward curve of
 one run, the evaluation curves of a sweep over seeds (one axis, or one panel per motion with its
-named levels) and the levels of many baselines side by side (matplotlib, Agg)."""
+named levels; or each seed's own curve and kept policy) and the levels of many baselines side by side
+(matplotlib, Agg)."""
 
 from __future__ import annotations
 
@@ -49,11 +50,7 @@ def plot_reward_curve(history: list[dict[str, Any]], baselines: dict[str, float]
     """Evaluation (and training) reward against environment steps, with the baselines as lines; a
     validated run's validation reward too, and the policy it kept (its last row re-evaluates it)."""
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    evaluated = [h for h in history if "eval_reward" in h]
-    kept = None
-    if len(evaluated) > 1 and evaluated[-1].get("selected_step") is not None \
-            and evaluated[-1]["step"] == evaluated[-2]["step"]:  # the run ended on its selected policy
-        kept, evaluated = evaluated[-1], evaluated[:-1]
+    evaluated, kept = _evaluations(history)
     ev = [(h["step"], h["eval_reward"]) for h in evaluated]
     tr = [(h["step"], h["train_reward"]) for h in history if "train_reward" in h]
     va = [(h["step"], h["validation_reward"]) for h in evaluated if "validation_reward" in h]
@@ -79,6 +76,42 @@ def plot_reward_curve(history: list[dict[str, Any]], baselines: dict[str, float]
         ax.legend(fontsize=7)
     fig.tight_layout()
     with naming_errors(path):  # a full disk names the file
+        fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return Path(path)
+
+
+def _evaluations(history: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], dict[str, Any] | None]:
+    """A run's evaluation rows and, for a validated run that ended on its selected policy (its last row
+    re-evaluates it), that row apart."""
+    evaluated = [h for h in history if "eval_reward" in h]
+    if len(evaluated) > 1 and evaluated[-1].get("selected_step") is not None \
+            and evaluated[-1]["step"] == evaluated[-2]["step"]:
+        return evaluated[:-1], evaluated[-1]
+    return evaluated, None
+
+
+def plot_seed_curves(runs: dict[str, list[dict[str, Any]]], lines: dict[str, float], path: str | Path,
+                     title: str) -> Path:
+    """Each run's evaluation curve (``runs``: label -> its progress rows) and the policy it kept, on one
+    axis, beside named levels (baselines, the ceiling): where seeds part, which a mean hides."""
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for i, (label, history) in enumerate(runs.items()):
+        evaluated, kept = _evaluations(history)
+        color = f"C{i % 10}"
+        ax.plot([h["step"] for h in evaluated], [h["eval_reward"] for h in evaluated], color=color, marker="o",
+                ms=2, lw=1.2, label=f"{label}: evaluations")
+        if kept is not None:
+            ax.plot([kept["selected_step"]], [kept["eval_reward"]], "*", color=color, ms=12, mec="black",
+                    label=f"{label}: kept, step {kept['selected_step']:,.0f} ({kept['eval_reward']:.3f})")
+    for (name, value), style in zip(lines.items(), ("--", ":", "-.", (0, (1, 3)))):
+        ax.axhline(value, color="black", ls=style, lw=1, label=f"{name} ({value:.3f})")
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("mean reward per step")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.15), ncol=2)
+    fig.tight_layout()
+    with naming_errors(path):
         fig.savefig(path, dpi=90)
     plt.close(fig)
     return Path(path)

@@ -119,11 +119,11 @@ def plot_fold_differences(folds: Sequence[Mapping[str, Any]], path: str | Path) 
     ax.axvline(0.0, color=_colour("controller"), linestyle="--", label="the controller alone")
     ax.set_yticks(range(len(folds)), [f["label"] for f in folds])
     ax.invert_yaxis()
-    ax.set_xlabel("reward per clip: the pool policy minus its controller (one pass from the start)")
+    ax.set_xlabel("per clip: the pool policy's reward minus its controller's (one pass)")
     ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=3, fontsize=8, frameon=False)
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")  # long fold labels: nothing cut off
     plt.close(fig)
     return path
