@@ -123,25 +123,26 @@ def folds_summary(entry: dict[str, Any], folders: list[Path]) -> dict[str, Any]:
     for run_dir, metrics, fold in sorted(chosen.values(), key=lambda c: (c[2].get("fold") is None, c[2].get("fold") or 0,
                                                                           c[2].get("seed") or 0)):
         seeded = fold.get("held_out") and len(seeds_of[fold.get("fold")]) > 1 and fold.get("seed") is not None
+        seed = f", seed {fold['seed']}" if seeded else ""
         records = [json.loads(line) for line in (run_dir / "clips.jsonl").read_text().splitlines() if line.strip()]
         records = [r for r in records if "policy" in (r.get("rewards") or {}) and "controller" in (r.get("rewards") or {})]
         glosses = [r["gloss"] for r in records]
         policy, controller = rewards(records, "policy"), rewards(records, "controller")
         gap = gloss_bootstrap(policy - controller, glosses, "mean", 2000, 0.95, 0)
         short = f"{fold['held_out']} ({fold['held_out_gloss']})'s fold" if fold.get("held_out") else run_dir.name
-        short += f", seed {fold['seed']}" if seeded else ""
+        short += seed
         drawn.append({"label": f"{short}: {len(records)} clips", "differences": policy - controller, **gap})
         table = metrics["table"]
         reward, error = table["reward"], table["keypoint_error"]
         label = (f"{fold['held_out']} ({fold['held_out_gloss']}), fold {fold['fold']} of {fold['folds']}"
-                 + (f", seed {fold['seed']}" if seeded else "") if fold.get("held_out") else fold["policy"] or run_dir.name)
+                 + seed if fold.get("held_out") else fold["policy"] or run_dir.name)
         lines.append("| " + " | ".join([
             label, f"{table['clips']} ({table['glosses']})",
             _interval(reward["controller"]), _interval(reward["policy"]),
             f"{gap['value']:+.4f} [{gap['low']:+.4f}, {gap['high']:+.4f}] "
             f"({int(np.sum(policy > controller))}/{int(np.sum(policy < controller))})",
             _interval(error["controller"]["body"]), _interval(error["policy"]["body"])]) + " |")
-        rows.append({"key": str(fold.get("fold", label)) + (f"/seed {fold['seed']}" if seeded else ""), "label": label, "thesis": None, "baselines": [],
+        rows.append({"key": str(fold.get("fold", label)) + seed.replace(", ", "/"), "label": label, "thesis": None, "baselines": [],
                      "steps": None, "learned": {"what": "mean reward minus the controller's, per clip",
                                                 "mean": number(gap["value"]), "spread": None,
                                                 "spread_kind": "95% bootstrap interval over glosses",
