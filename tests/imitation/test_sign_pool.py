@@ -402,3 +402,59 @@ def test_an_arms_policy_on_its_held_out_fold_is_a_row_of_the_leave_glosses_out_t
 
     with Image.open(tmp_path / "docs" / "img" / "folds.png") as image:
         assert image.size[0] > image.size[1]
+
+
+@pytest.fixture(scope="module")
+def wrists_slice(data_root, tmp_path_factory) -> Path:
+    """The slice extracted as experiment=signs_unseen_wrists's header says: Pose's hand points kept."""
+    from aslexp.pose.extract_cli import extract_main
+
+    arrays = data_root / "keypoints" / "wlasl-mediapipe-pose"
+    if not arrays.is_dir():
+        pytest.skip(f"the shared WLASL pose arrays are not under {data_root}")
+    out = tmp_path_factory.mktemp("signs_wrists")
+    with contextlib.redirect_stdout(io.StringIO()):
+        code = extract_main([*(str(arrays / f"{v}.npy") for v in SLICE), "--motions", "--pose-hand-points",
+                             "--out", str(out), "--wlasl", str(data_root / "wlasl" / "WLASL_v0.3.json"), "--quiet"])
+    assert code == 0
+    return out
+
+
+def test_the_wrists_policy_corrects_and_sees_the_wrists_its_pool_moves(sign_slice, wrists_slice, data_root):
+    """experiment=signs_unseen_wrists: its pool's clips move their wrists (the arms-only pool's stand at
+    0), and the policy corrects and sees the wrists beside the arms, chest and neck, the fingers not."""
+    from aslexp.envs.imitation import ImitationEnv
+    from aslexp.jobs._imitation import training_pool
+
+    def built(experiment: str, folder: Path):
+        cfg = compose("imitate", [f"experiment={experiment}", "motion='00433'", f"train_motions.folder={folder}",
+                                  "train_motions.folds=2", "train_motions.seed=2", "train_motions.validation_motions=0",
+                                  f"data_root={data_root}"])
+        setup = ImitationSetup.from_config(cfg, data_root)
+        return setup, training_pool(cfg, setup), ImitationEnv.from_setup(setup)
+
+    wrists, wrists_pool, wrists_env = built("signs_unseen_wrists", wrists_slice)
+    arms, arms_pool, arms_env = built("signs_unseen_arms", sign_slice)
+    joints = wrists_env.layout.joints
+    starts = np.cumsum([0] + [j.dof for j in joints])  # each joint's first column of the joint vector
+    columns = {g: [c for j, s in zip(joints, starts) if j.group == g for c in range(s, s + j.dof)]
+               for g in ("wrist", "fingers")}
+    assert len(columns["wrist"]) == 2 and columns["fingers"]
+
+    def wrist_spread(setup, pool, folder: Path) -> float:  # the extracted clips: the thesis' signs move theirs
+        clips = [m for m in pool.motions if str(folder) in str(m.source)]
+        batch = BatchedImitationEnv.from_setup(1, setup, motions=clips)
+        frames = [r.joints_many(np.linspace(0.0, d, 50)) for r, d in zip(batch.pool.references, batch.pool.durations)]
+        batch.close()
+        assert len(clips) >= 4
+        return max(float(np.std(f[:, columns["wrist"]], axis=0).max()) for f in frames)
+
+    assert wrist_spread(arms, arms_pool, sign_slice) == 0.0 and wrist_spread(wrists, wrists_pool, wrists_slice) > 0.05
+    seen, _ = wrists_env.policy_seen
+    assert set(columns["wrist"]) <= set(seen) and not set(columns["fingers"]) & set(seen)
+    assert wrists_env.action_space.shape[0] == arms_env.action_space.shape[0] + 2
+    action = np.zeros(wrists_env.action_space.shape, np.float32)
+    action[list(seen).index(columns["wrist"][0])] = 1.0
+    assert np.flatnonzero(wrists_env.physical_action(action)).tolist() == [columns["wrist"][0]]
+    for env in (wrists_env, arms_env):
+        env.close()
