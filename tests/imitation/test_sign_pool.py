@@ -295,6 +295,28 @@ def test_validation_glosses_neither_train_nor_test(sign_slice, data_root):
                                                  data_root).summary()
 
 
+def test_the_thesis_signs_can_validate_and_then_neither_train_nor_test(sign_slice, data_root):
+    """validation_from=thesis_signs (experiment=signs_unseen_arms_thesis_validated): the thesis' signs
+    outside the test glosses validate, by name; their glosses leave the pool, the next fold's train."""
+    overlay = compose("imitate", ["experiment=signs_unseen_arms_thesis_validated"])["train_motions"]
+    assert (overlay["validation_from"], overlay["validation_motions"]) == ("thesis_signs", 3)
+    # seed 3 deals above and yes into one fold, snow and father into the other
+    spec = _spec(sign_slice, validation_from="thesis_signs", validation_motions=3, seed=3)
+    glosses = {**SLICE, **THESIS}
+    for held_out in THESIS:
+        fold = sign_fold(spec, data_root, str(data_root / "motions" / "upper_body" / f"{held_out}.txt"))
+        chosen = [c.name for c in fold.validation]
+        assert chosen == sorted(n for n in THESIS if n != held_out and glosses[n] not in fold.test_glosses)
+        assert len(chosen) == 2 and fold.summary()["validation_motions"] == chosen
+        trained = {glosses[c.name] for c in fold.train}
+        assert not set(fold.validation_glosses) & trained and glosses[held_out] in fold.test_glosses
+        assert trained | set(fold.validation_glosses) | set(fold.test_glosses) == set(glosses.values())
+    for unable in (dataclasses.replace(spec, include_thesis_signs=False, fold=0),  # no thesis sign at all
+                   dataclasses.replace(spec, seed=0, fold=1)):  # seed 0: all four in fold 1, tested
+        with pytest.raises(ConfigError, match="validation_from=thesis_signs: no thesis sign outside"):
+            sign_fold(unable, data_root)
+
+
 def test_the_validated_variant_ends_on_the_policy_its_validation_chose(sign_slice, data_root, tmp_path):
     """experiment=signs_unseen_validated, tiny: the untrained policy and every evaluation validated on
     the next fold's motions; the best-validated checkpoint is the run's last row, its headline and the

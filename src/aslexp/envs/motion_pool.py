@@ -9,8 +9,9 @@ trains on it, nor on motions made to its measure, so the run's headline is a zer
 ``folder``: real signs too, every plausible motion of an ``aslexp extract --motions`` folder whose gloss
 is outside the fold's test glosses (K ``folds`` by gloss, :mod:`aslexp.envs.sign_folds`), the thesis'
 signs with them (``include_thesis_signs``). ``validation_motions``: that many motions of the next fold's
-glosses (out of the pool too) score the policy during training, to choose the checkpoint the run keeps
-(``MotionPool.validation``; the trainer's ``validate``).
+glosses (``validation_from: thesis_signs``: of the thesis' other signs; out of the pool too) score the
+policy during training, to choose the checkpoint the run keeps (``MotionPool.validation``; the
+trainer's ``validate``).
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aslexp.config_schema import Int, Section, key
+from aslexp.config_schema import Choice, Int, Section, key
 from aslexp.envs.assembly import ImitationSetup, resolve_motion_path
 from aslexp.envs.sign_folds import fold_pool, read_sign_folder, with_thesis_signs
 from aslexp.errors import ConfigError
@@ -63,6 +64,8 @@ class TrainMotionsSpec(Section):
     seed: int = field(default=0, metadata=key(Int(0)))
     include_thesis_signs: bool = False
     validation_motions: int = field(default=0, metadata=key(Int(0)))  # 0: no validation (the folder's only)
+    # whose motions validate: the next fold's glosses, or the thesis' signs outside the test glosses
+    validation_from: str = field(default="next_fold", metadata=key(Choice("next_fold", "thesis_signs")))
     thesis_signs: dict[str, str] = field(default_factory=dict)  # conf/motion name -> its WLASL gloss
 
 
@@ -136,7 +139,8 @@ def sign_fold(spec: TrainMotionsSpec, data_root: Path, evaluated: str | None = N
     if spec.include_thesis_signs:
         clips = with_thesis_signs(clips, thesis)
     own = None if evaluated is None else resolve_motion_path(evaluated, data_root)
-    return fold_pool(clips, spec.folds, spec.fold, spec.seed, str(spec.folder), own, spec.validation_motions)
+    return fold_pool(clips, spec.folds, spec.fold, spec.seed, str(spec.folder), own, spec.validation_motions,
+                     spec.validation_from)
 
 
 def thesis_sign_file(name: str, data_root: Path) -> Path:

@@ -7,8 +7,9 @@ in ``pose_array.gloss``, ``upper_body.plausibility``). The thesis' signs (``conf
 video ids too) may join them with their glosses. The glosses are sorted, shuffled by the seed and dealt
 round-robin into K folds (:func:`gloss_folds`): fold k's test set is its glosses, its training pool every
 plausible motion of any other gloss, so no sign of a test gloss is ever trained on. With validation
-motions asked for, fold k+1's glosses are taken out of the pool too and some of their motions score the
-policy during training (a checkpoint is chosen on glosses that neither train nor test). The run's own motion
+motions asked for, fold k+1's glosses (or those of the thesis' other signs) are taken out of the pool too
+and some of their motions score the policy during training (a checkpoint is chosen on glosses that
+neither train nor test). The run's own motion
 picks its fold (``fold: null``) and its gloss is always a test gloss. Motions their report marks
 implausible (a tracking jump, arms out of view) are left out and counted.
 """
@@ -116,11 +117,13 @@ class SignFold:
 
 
 def fold_pool(clips: list[SignClip], folds: int, fold: int | None, seed: int, folder: str,
-              evaluated: Path | None = None, validation_motions: int = 0) -> SignFold:
+              evaluated: Path | None = None, validation_motions: int = 0,
+              validation_from: str = "next_fold") -> SignFold:
     """Fold ``fold`` of ``clips`` (None: the fold of ``evaluated``'s gloss). ``evaluated``: the run's
     motion file; a clip of that name or file, and every clip of its gloss, is never in the pool.
-    ``validation_motions``: that many plausible clips of fold ``fold + 1``'s glosses (one gloss after
-    another, drawn by ``seed``) validate; every clip of those glosses leaves the pool."""
+    ``validation_motions``: that many plausible clips validate, of fold ``fold + 1``'s glosses (one gloss
+    after another, drawn by ``seed``) or, ``validation_from="thesis_signs"``, the thesis' signs outside
+    the test glosses (by name); every clip of those glosses leaves the pool."""
     assignment = gloss_folds([c.gloss for c in clips], folds, seed)
     own = None
     if evaluated is not None:
@@ -136,13 +139,21 @@ def fold_pool(clips: list[SignClip], folds: int, fold: int | None, seed: int, fo
     if not 0 <= fold < folds:
         raise ConfigError(f"train_motions.fold={fold}: expected 0 to {folds - 1} (train_motions.folds={folds})")
     test = sorted({g for g, k in assignment.items() if k == fold} | ({own.gloss} if own else set()))
-    held = sorted({g for g, k in assignment.items() if k == (fold + 1) % folds} - set(test)) \
-        if validation_motions else []
-    validation = validation_clips([c for c in clips if c.gloss in held and c.plausible and c is not own],
-                                  validation_motions, seed)
-    if validation_motions and not validation:
-        raise ConfigError(f"train_motions.validation_motions={validation_motions}: fold {(fold + 1) % folds}'s "
-                          f"glosses {held} have no plausible motion to validate on")
+    if validation_from == "thesis_signs":
+        validation = sorted((c for c in clips if c.thesis and c is not own and c.gloss not in test),
+                            key=lambda c: c.name)[:validation_motions]
+        held = sorted({str(c.gloss) for c in validation})
+        if validation_motions and not validation:
+            raise ConfigError(f"train_motions.validation_from=thesis_signs: no thesis sign outside the test glosses "
+                              f"{test} to validate on; expected include_thesis_signs: true and a thesis sign in another fold")
+    else:
+        held = sorted({g for g, k in assignment.items() if k == (fold + 1) % folds} - set(test)) \
+            if validation_motions else []
+        validation = validation_clips([c for c in clips if c.gloss in held and c.plausible and c is not own],
+                                      validation_motions, seed)
+        if validation_motions and not validation:
+            raise ConfigError(f"train_motions.validation_motions={validation_motions}: fold {(fold + 1) % folds}'s "
+                              f"glosses {held} have no plausible motion to validate on")
     kept = [c for c in clips if c.gloss not in test and c.gloss not in held and c is not own]
     if not any(c.plausible for c in kept):
         raise ConfigError(f"train_motions: fold {fold} of {folds} leaves no plausible motion to train on")
