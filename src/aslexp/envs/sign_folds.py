@@ -9,9 +9,9 @@ round-robin into K folds (:func:`gloss_folds`): fold k's test set is its glosses
 plausible motion of any other gloss, so no sign of a test gloss is ever trained on. With validation
 motions asked for, fold k+1's glosses (or those of the thesis' other signs) are taken out of the pool too
 and some of their motions score the policy during training (a checkpoint is chosen on glosses that
-neither train nor test). The run's own motion
-picks its fold (``fold: null``) and its gloss is always a test gloss. Motions their report marks
-implausible (a tracking jump, arms out of view) are left out and counted.
+neither train nor test). The run's own motion picks its fold (``fold: null``) and its gloss is always
+a test gloss. Motions their report marks implausible (a tracking jump, arms out of view) are left out
+and counted.
 """
 
 from __future__ import annotations
